@@ -1,0 +1,1 @@
+"""Export: a deployable, verified ONNX file for embedded targets."""

@@ -1,0 +1,81 @@
+"""The checkpoint file format shared by training (writer) and export (reader).
+
+A checkpoint is a plain dict of tensors and primitives, so it always loads with
+`torch.load(..., weights_only=True)` (no pickled code runs from a file someone sent you).
+Keys:
+  format          "segmin-checkpoint-v1"
+  model           SegmentationNet state dict
+  model_info      {"architecture", "backbone_weights" (what the backbone started from),
+                   "input_size": [h, w], "threshold", "family", "train_data"}
+  epoch, metrics  training progress and the last validation metrics
+  training_state  optional: optimizer/scheduler/RNG states for exact resume (train/ owns it)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from models.lraspp import ARCHITECTURE, SegmentationNet, build_model
+from segmin.atomic import atomic_path
+
+FORMAT = "segmin-checkpoint-v1"
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> None:
+    """Write a checkpoint dict atomically (adds the format tag)."""
+    payload = {"format": FORMAT, **payload}
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load and check a checkpoint dict; errors name the file and what is wrong."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # truncated zip, foreign pickle, random bytes: all unreadable
+        raise ValueError(f"{path}: not a readable segmin checkpoint ({exc})") from exc
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a segmin checkpoint (missing format tag {FORMAT!r})")
+    for key in ("model", "model_info"):
+        if key not in payload:
+            raise ValueError(f"{path}: checkpoint has no {key!r} entry")
+    if payload["model_info"].get("architecture") != ARCHITECTURE:
+        raise ValueError(f"{path}: architecture {payload['model_info'].get('architecture')!r} is not {ARCHITECTURE!r}")
+    return payload
+
+
+def load_model(path: str | Path) -> tuple[SegmentationNet, dict[str, Any]]:
+    """Rebuild the network from a checkpoint (eval mode, CPU) and return it with its model_info."""
+    payload = read_checkpoint(path)
+    model = build_model("none")
+    try:
+        model.load_state_dict(payload["model"])
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: weights do not fit the model ({exc})") from exc
+    model.eval()
+    return model, dict(payload["model_info"])
+
+
+def model_info(
+    *,
+    backbone_weights: str,
+    input_size: tuple[int, int],
+    family: str,
+    train_data: str,
+    threshold: float = 0.5,
+) -> dict[str, Any]:
+    """The `model_info` entry a checkpoint carries into export metadata."""
+    return {
+        "architecture": ARCHITECTURE,
+        "backbone_weights": backbone_weights,
+        "input_size": [int(input_size[0]), int(input_size[1])],
+        "threshold": float(threshold),
+        "family": family,
+        "train_data": train_data,
+    }

@@ -1,0 +1,112 @@
+"""The segmentation network: torchvision's LR-ASPP MobileNetV3-Large with one logit channel.
+
+The paper (and AgriSeg) use this model for real-time crop segmentation. We keep torchvision's
+implementation and weights API, and only add two things: a forward that returns the logit
+tensor (not torchvision's dict, which ONNX export and losses do not want), and an offline-safe
+resolution of the ImageNet backbone weights that never falls back silently to random weights.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+from torch import nn
+from torchvision.models import MobileNet_V3_Large_Weights
+from torchvision.models.segmentation import lraspp_mobilenet_v3_large
+
+ARCHITECTURE = "lraspp_mobilenet_v3_large"
+IMAGENET_WEIGHTS = MobileNet_V3_Large_Weights.IMAGENET1K_V1
+
+
+class WeightsUnavailableError(RuntimeError):
+    """ImageNet weights are neither cached nor downloadable; the message says what to do."""
+
+
+class SegmentationNet(nn.Module):
+    """LR-ASPP MobileNetV3-Large whose forward returns vegetation logits, N x 1 x H x W."""
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.net(images)["out"]
+
+
+def imagenet_weights_path() -> Path:
+    """Where torchvision looks for the cached ImageNet backbone file ($TORCH_HOME/hub/checkpoints)."""
+    filename = IMAGENET_WEIGHTS.url.rsplit("/", 1)[-1]
+    return Path(torch.hub.get_dir()) / "checkpoints" / filename
+
+
+def imagenet_weights_cached() -> bool:
+    """True when the ImageNet backbone file is present, so no network is needed to use it."""
+    return imagenet_weights_path().is_file()
+
+
+def build_model(backbone_weights: str | os.PathLike = "imagenet", *, allow_download: bool = False) -> SegmentationNet:
+    """Build the network with one output logit channel.
+
+    `backbone_weights`:
+      - "imagenet": torchvision's ImageNet MobileNetV3-Large backbone (the paper's setting), read
+        from $TORCH_HOME/hub/checkpoints/; downloaded only when `allow_download` is true.
+      - "none": random initialisation (offline demos, tests).
+      - a path to a state dict (of the backbone or of a whole SegmentationNet).
+    """
+    spec = str(backbone_weights)
+    if spec == "none":
+        return SegmentationNet(lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1))
+    if spec == "imagenet":
+        return SegmentationNet(_with_imagenet_backbone(allow_download))
+    path = Path(spec)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"backbone_weights={spec!r}: no such file (expected 'imagenet', 'none' or a state-dict path)"
+        )
+    model = SegmentationNet(lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1))
+    _load_partial_state_dict(model, path)
+    return model
+
+
+def _with_imagenet_backbone(allow_download: bool) -> nn.Module:
+    cached = imagenet_weights_path()
+    digest = IMAGENET_WEIGHTS.url.rsplit("-", 1)[-1].split(".")[0]
+    if not cached.is_file() and not allow_download:
+        raise WeightsUnavailableError(
+            f"ImageNet backbone weights are not cached. Place torchvision's file at {cached} "
+            f"(sha256 starts with {digest}; from {IMAGENET_WEIGHTS.url}), "
+            "set TORCH_HOME to a folder holding hub/checkpoints/ with it, allow the download, "
+            "or use backbone_weights=none to train from scratch."
+        )
+    try:
+        return lraspp_mobilenet_v3_large(weights=None, weights_backbone=IMAGENET_WEIGHTS, num_classes=1)
+    except (OSError, RuntimeError) as exc:  # URLError is an OSError; corrupt files raise RuntimeError
+        raise WeightsUnavailableError(
+            f"could not load ImageNet backbone weights ({exc}). Place the file at {cached} "
+            f"(sha256 starts with {digest}) or use backbone_weights=none."
+        ) from exc
+
+
+def _load_partial_state_dict(model: SegmentationNet, path: Path) -> None:
+    """Load a whole-model or backbone-only state dict; refuse files that match nothing."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for corrupt or foreign files
+        raise ValueError(f"{path}: not a readable PyTorch state dict ({exc})") from exc
+    if isinstance(state, dict) and "model" in state and isinstance(state["model"], dict):
+        state = state["model"]
+    if not isinstance(state, dict):
+        raise ValueError(f"{path}: expected a state dict, got {type(state).__name__}")
+    own = model.state_dict()
+    candidates = {}
+    for key, value in state.items():
+        backbone_key = key.removeprefix("features.")  # torchvision MobileNetV3 classifier files
+        for name in (key, f"net.{key}", f"net.backbone.{backbone_key}"):
+            if name in own and own[name].shape == value.shape:
+                candidates[name] = value
+                break
+    if not candidates:
+        raise ValueError(f"{path}: no tensor matches the LR-ASPP MobileNetV3 model")
+    model.load_state_dict(candidates, strict=False)

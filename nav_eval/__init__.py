@@ -1,0 +1,1 @@
+"""Navigation: SegMin / SegMinD / SegZeros navigators and the closed-loop evaluator."""

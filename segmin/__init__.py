@@ -1,0 +1,3 @@
+"""segmin: shared utilities (config, atomic files) and the `segmin` command line."""
+
+__version__ = "0.1.0"

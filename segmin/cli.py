@@ -1,0 +1,53 @@
+"""The `segmin` command: one entry point, subcommands contributed by each package.
+
+Each package keeps its command-line code in its own `cli.py` exposing
+`register(commands, bench)`: `commands` is the top-level subparser group, `bench` the group
+under `segmin bench`. A registered parser sets `func` (called with the parsed args, returns an
+exit code). Heavy imports (torch, pybullet, onnxruntime) happen inside those functions, so
+`segmin --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from segmin import __version__
+from segmin.config import ConfigError
+
+# Packages that contribute commands, in the order of the data flow.
+COMMAND_MODULES: tuple[str, ...] = (
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full parser tree (used by `main` and by tests that check every `--help`)."""
+    parser = argparse.ArgumentParser(
+        prog="segmin",
+        description="Train, export and validate crop-segmentation navigation (SegMin / SegMinD).",
+    )
+    parser.add_argument("--version", action="version", version=f"segmin {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    bench_parser = commands.add_parser("bench", help="benchmarks that print speed figures")
+    bench = bench_parser.add_subparsers(dest="bench_target", metavar="TARGET", required=True)
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(commands, bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse arguments and run the chosen subcommand; user errors print one line, exit 2."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        print(f"segmin: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("segmin: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
