@@ -1,0 +1,131 @@
+"""The closed-loop evaluation config (`configs/nav/default.yaml`), validated by segmin.config.
+
+Every number of the simulation a user may change lives here: rates, robot limits, run length,
+start noise, depth thresholds per field. The navigator's own constants (v_max, omega_gain, ...)
+are the paper's and live in `NavigatorConfig`; the `navigator` section may override them, and
+its keys are checked against `NavigatorConfig` at load time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from nav_eval.robot import RobotConfig
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "nav" / "default.yaml"
+
+METHODS = ("segmin", "segmind", "segzeros")
+
+
+@dataclasses.dataclass
+class Rates:
+    """Simulated-time rates in Hz (the paper: camera 30, inference 20, commands 5).
+
+    The physics tick must be a whole multiple of every other rate, so all events fall on ticks.
+    """
+
+    physics_hz: int = 60
+    camera_hz: int = 30
+    segment_hz: int = 20
+    command_hz: int = 5
+
+    def __post_init__(self) -> None:
+        for name in ("physics_hz", "camera_hz", "segment_hz", "command_hz"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"rates.{name} must be > 0")
+        for name in ("camera_hz", "segment_hz", "command_hz"):
+            if self.physics_hz % getattr(self, name):
+                raise ValueError(f"rates.physics_hz ({self.physics_hz}) must be a multiple of rates.{name}")
+
+
+@dataclasses.dataclass
+class Perception:
+    """How masks reach the navigator."""
+
+    fuse_frames: int = 3            # OR of the last N segmentation masks (paper: 3)
+    width: int | None = None        # camera resolution override (None: the CameraModel default, 224)
+    height: int | None = None
+    depth_noise: bool = True        # the D435i-like depth-noise model of data.synth.camera
+
+    def __post_init__(self) -> None:
+        if self.fuse_frames < 1:
+            raise ValueError("perception.fuse_frames must be >= 1")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if v is not None and v < 8:
+                raise ValueError(f"perception.{name} must be >= 8, got {v}")
+
+
+@dataclasses.dataclass
+class RunSettings:
+    """Start, goal and the failure rules of one run."""
+
+    length_m: float = 20.0              # distance to cover along the row (success)
+    start_s: float = 0.0                # where on the centreline a run starts (0 = row entrance)
+    time_limit_s: float = 120.0         # failure "timeout" past this
+    start_lateral_max: float = 0.15     # uniform start offset in [-max, max], m
+    start_heading_max_deg: float = 5.0  # uniform heading error in [-max, max], deg
+    stall_time_s: float = 20.0          # failure "stalled" when progress over this window ...
+    stall_distance_m: float = 0.25      # ... is below this distance
+    gap: int | None = None              # which row gap (None: the middle one)
+    back_margin_m: float = 1.0          # failure "left_row" when this far behind the start
+
+    def __post_init__(self) -> None:
+        if self.length_m <= 0 or self.time_limit_s <= 0:
+            raise ValueError("run.length_m and run.time_limit_s must be > 0")
+        if self.start_lateral_max < 0 or self.start_heading_max_deg < 0:
+            raise ValueError("run.start_lateral_max and run.start_heading_max_deg must be >= 0")
+        if self.stall_time_s <= 0 or self.stall_distance_m < 0:
+            raise ValueError("run.stall_time_s must be > 0 and run.stall_distance_m >= 0")
+
+
+@dataclasses.dataclass
+class NavEvalConfig:
+    """The whole evaluation config."""
+
+    rates: Rates = dataclasses.field(default_factory=Rates)
+    robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
+    perception: Perception = dataclasses.field(default_factory=Perception)
+    run: RunSettings = dataclasses.field(default_factory=RunSettings)
+    # Paper section 2: 5 m vineyards, 8 m pear and pergola, 10 m tall trees.
+    depth_thresholds: dict[str, float] = dataclasses.field(default_factory=lambda: {
+        "straight_vineyard": 5.0, "curved_vineyard": 5.0, "pergola_vineyard": 8.0,
+        "pear_field": 8.0, "high_trees": 10.0})
+    # For user fields not named above: by WorldSpec.family.
+    family_depth_thresholds: dict[str, float] = dataclasses.field(
+        default_factory=lambda: {"vineyards": 5.0, "trees": 8.0})
+    navigator: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for table in (self.depth_thresholds, self.family_depth_thresholds):
+            for k, v in table.items():
+                if not isinstance(v, (int, float)) or v <= 0:
+                    raise ValueError(f"depth threshold for {k!r} must be > 0, got {v!r}")
+        forbidden = {"method", "depth_threshold", "fuse_frames"} & set(self.navigator)
+        if forbidden:
+            raise ValueError(f"navigator: {sorted(forbidden)} are set by the evaluation, not the config")
+        try:
+            from nav_eval.navigator import NavigatorConfig
+        except ImportError:  # navigator not installed yet: checked when a run builds it
+            return
+        allowed = {f.name for f in dataclasses.fields(NavigatorConfig)}
+        unknown = sorted(set(self.navigator) - allowed)
+        if unknown:
+            raise ValueError(f"navigator: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+    def depth_threshold(self, name: str, family: str) -> float:
+        """The depth cut for a field: by name, else by crop family."""
+        if name in self.depth_thresholds:
+            return float(self.depth_thresholds[name])
+        if family in self.family_depth_thresholds:
+            return float(self.family_depth_thresholds[family])
+        raise ValueError(f"no depth threshold for field {name!r} (family {family!r}); add it to depth_thresholds")
+
+
+def load_nav_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> NavEvalConfig:
+    """Load the evaluation config (the shipped default when `path` is None) with key=value overrides."""
+    from segmin.config import load_config
+
+    return load_config(NavEvalConfig, path if path is not None else DEFAULT_CONFIG, overrides)

@@ -1,0 +1,261 @@
+"""The closed loop in simulated time: robot + camera in a synth world, segmenter, navigator.
+
+Two layers, Gymnasium-style:
+- `RowEnv` is the world side. `reset(seed)` places the robot at the row entrance with a seeded
+  lateral offset and heading error; `step((v, omega))` holds that command for one command
+  period (1 / command_hz), integrating the robot at physics_hz and checking the end conditions
+  at every tick. Both return an `Observation`: the camera frames the perception pipeline
+  consumes before the next command.
+- `run_episode(env, segmenter, navigator)` is the robot's software: it segments those frames,
+  ORs the last `fuse_frames` masks, and asks the navigator for the next command.
+
+Timing (deterministic, all on integer physics ticks): camera frames exist at camera_hz, the
+segmenter runs at segment_hz on the latest camera frame, the navigator runs at command_hz on
+the OR of the last `fuse_frames` masks (and the depth of the newest frame). Only the camera
+frames that feed a used mask are rendered: with the paper's rates (30/20/5 Hz, N = 3) that is
+15 of 30 frames per second. The robot pose of a frame is the pose at that camera tick.
+
+End conditions (first one wins): "success" (covered run.length_m along the centreline),
+"collision" (footprint touches a trunk or post), "left_row" (|lateral| beyond the gap's free
+half-width, or run.back_margin_m behind the start), "stalled" (less than stall_distance_m of
+progress over stall_time_s), "timeout" (time_limit_s).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from nav_eval.eval_config import NavEvalConfig
+from nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
+from nav_eval.oracle import segment_frame
+from nav_eval.robot import Robot, footprint_distances
+
+REASONS = ("success", "collision", "left_row", "stalled", "timeout", "error")
+
+
+@dataclasses.dataclass
+class Observation:
+    """Frames for the perception pipeline, oldest first (empty once the run has ended)."""
+
+    t: float
+    frames: list[Any]
+    ticks: list[int] = dataclasses.field(default_factory=list)   # camera tick of each frame
+
+
+def point_on_polyline(polyline: np.ndarray, s: float) -> tuple[float, float, float]:
+    """(x, y, tangent angle) at arc length s along the polyline (extrapolated past the ends)."""
+    line = np.asarray(polyline, dtype=float)
+    seg = np.diff(line, axis=0)
+    lens = np.hypot(seg[:, 0], seg[:, 1])
+    keep = lens > 1e-12
+    a, seg, lens = line[:-1][keep], seg[keep], lens[keep]
+    cum = np.concatenate([[0.0], np.cumsum(lens)])
+    k = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(lens) - 1))
+    u = (s - cum[k]) / lens[k]
+    p = a[k] + u * seg[k]
+    return float(p[0]), float(p[1]), float(math.atan2(seg[k, 1], seg[k, 0]))
+
+
+class RowEnv:
+    """One row gap of a world, a robot in it, and the rendering schedule."""
+
+    def __init__(self, world: Any, renderer: Any, config: NavEvalConfig, *, gap: int | None = None) -> None:
+        self.world = world
+        self.renderer = renderer
+        self.config = config
+        n_gaps = len(world.centrelines)
+        if n_gaps == 0:
+            raise ValueError(f"world {getattr(world.spec, 'name', '?')!r} has no row gap (centrelines is empty)")
+        g = config.run.gap if gap is None else gap
+        self.gap = n_gaps // 2 if g is None else int(g)
+        if not 0 <= self.gap < n_gaps:
+            raise ValueError(f"run.gap={self.gap} but the world has {n_gaps} gap(s)")
+        self.centreline = np.asarray(world.centrelines[self.gap], dtype=float)
+        self.half_width = float(world.gap_half_widths[self.gap])
+        self.row_length = polyline_length(self.centreline)
+        plants = np.asarray(world.plant_circles, dtype=float).reshape(-1, 3)
+        obstacles = np.asarray(getattr(world, "obstacle_circles", np.zeros((0, 3))), dtype=float).reshape(-1, 3)
+        self.plants, self.obstacles = plants, obstacles
+        self._solid = np.concatenate([plants, obstacles], axis=0)
+        self.robot = Robot(config.robot, world.terrain_height, world.terrain_normal)
+        r = config.rates
+        self.dt = 1.0 / r.physics_hz
+        self._cam_every = r.physics_hz // r.camera_hz
+        self._seg_every = r.physics_hz // r.segment_hz
+        self._cmd_every = r.physics_hz // r.command_hz
+        self.goal_s = 0.0
+        self.start_s = 0.0
+        self.reason: str | None = None
+        self.clearance_time: float | None = None
+        self.start_pose = (0.0, 0.0, 0.0)
+        self._rows: list[tuple[float, ...]] = []
+        self._tick = 0
+        self._frames: dict[int, Any] = {}
+
+    # ---- Gymnasium-like API -------------------------------------------------------------
+    def reset(self, seed: int) -> tuple[Observation, dict[str, Any]]:
+        """Start a run: seeded start noise and depth-noise stream; returns the first frames."""
+        run = self.config.run
+        seeds = np.random.SeedSequence(int(seed)).spawn(2)
+        start_rng = np.random.default_rng(seeds[0])
+        self._noise_rng = np.random.default_rng(seeds[1])
+        self.start_s = float(run.start_s)
+        self.goal_s = min(self.start_s + run.length_m, self.row_length - 0.05)
+        if self.goal_s <= self.start_s:
+            raise ValueError(f"row gap {self.gap} is {self.row_length:.2f} m long; start_s={self.start_s} leaves nothing to drive")
+        x0, y0, tangent = point_on_polyline(self.centreline, self.start_s)
+        offset = float(start_rng.uniform(-run.start_lateral_max, run.start_lateral_max))
+        heading = math.radians(float(start_rng.uniform(-run.start_heading_max_deg, run.start_heading_max_deg)))
+        x = x0 - math.sin(tangent) * offset
+        y = y0 + math.cos(tangent) * offset
+        yaw = tangent + heading
+        self.start_pose = (x, y, yaw)
+        self.robot.reset(x, y, yaw)
+        self.reason, self.clearance_time = None, None
+        self._rows, self._tick, self._frames = [], 0, {}
+        self._progress: list[tuple[float, float]] = []
+        self._record()
+        self._check_end()
+        return self._observation(), self._info()
+
+    def step(self, action: tuple[float, float]) -> tuple[Observation, bool, dict[str, Any]]:
+        """Hold (v, omega) for one command period; returns (observation, ended, info)."""
+        if self.reason is not None:
+            raise RuntimeError("step() after the run ended; call reset()")
+        self.robot.command(float(action[0]), float(action[1]))
+        for _ in range(self._cmd_every):
+            self.robot.step(self.dt)
+            self._tick += 1
+            self._record()
+            if self._check_end():
+                break
+        return self._observation(), self.reason is not None, self._info()
+
+    # ---- state ------------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return self._tick * self.dt
+
+    @property
+    def trajectory(self) -> Trajectory:
+        return Trajectory.from_rows(self._rows)
+
+    def _record(self) -> None:
+        s = self.robot.state
+        gaps = footprint_distances(s.x, s.y, s.yaw, self.plants, self.config.robot.length, self.config.robot.width)
+        plant_gap = float(gaps.min()) if gaps.size else math.inf
+        self._rows.append((self.t, s.x, s.y, s.yaw, s.v, s.omega, plant_gap))
+
+    def _check_end(self) -> bool:
+        s = self.robot.state
+        run = self.config.run
+        cfg = self.config.robot
+        along, lateral, _ = project_onto_polyline(np.array([[s.x, s.y]]), self.centreline)
+        self._s, self._lateral = float(along[0]), float(lateral[0])
+        solid = footprint_distances(s.x, s.y, s.yaw, self._solid, cfg.length, cfg.width)
+        if solid.size and solid.min() < 0.0:
+            self.reason = "collision"
+        elif self._s >= self.goal_s:
+            self.reason, self.clearance_time = "success", self.t
+        elif abs(self._lateral) > self.half_width or self._s < self.start_s - run.back_margin_m:
+            self.reason = "left_row"
+        elif self.t >= run.time_limit_s:
+            self.reason = "timeout"
+        else:
+            self._progress.append((self.t, self._s))
+            cut = self.t - run.stall_time_s
+            while len(self._progress) > 1 and self._progress[1][0] <= cut:
+                self._progress.pop(0)
+            if self._progress[0][0] <= cut and self._s - self._progress[0][1] < run.stall_distance_m:
+                self.reason = "stalled"
+        return self.reason is not None
+
+    def _info(self) -> dict[str, Any]:
+        return {"t": self.t, "s": self._s - self.start_s, "lateral": self._lateral, "reason": self.reason}
+
+    # ---- camera -----------------------------------------------------------------------------
+    def _observation(self) -> Observation:
+        """Frames at the segmentation ticks in the fusion window of the command at this tick."""
+        if self.reason is not None:
+            return Observation(self.t, [], [])
+        fuse = self.config.perception.fuse_frames
+        last_seg = self._tick // self._seg_every
+        seg_ticks = [j * self._seg_every for j in range(max(0, last_seg - fuse + 1), last_seg + 1)]
+        cam_ticks: list[int] = []
+        for tick in seg_ticks:
+            cam = (tick // self._cam_every) * self._cam_every
+            if cam not in cam_ticks:
+                cam_ticks.append(cam)
+        frames = [self._frame(tick) for tick in cam_ticks]
+        self._frames = {k: v for k, v in self._frames.items() if k in cam_ticks}
+        return Observation(self.t, frames, cam_ticks)
+
+    def _frame(self, tick: int) -> Any:
+        if tick not in self._frames:
+            _, x, y, yaw = self._rows[tick][:4]
+            self._frames[tick] = self.renderer.render(
+                x, y, yaw, rng=self._noise_rng, noisy_depth=self.config.perception.depth_noise)
+        return self._frames[tick]
+
+
+@dataclasses.dataclass
+class Episode:
+    """One finished run: the trajectory and how it ended (metrics come from nav_eval.metrics)."""
+
+    trajectory: Trajectory
+    reason: str
+    success: bool
+    clearance_time: float | None
+    collisions: int
+    start_pose: tuple[float, float, float]
+    goal_m: float
+    commands: list[tuple[float, float, float, float | None]]   # t, v, omega, target column
+    video: list[np.ndarray]
+
+
+def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video: bool = False) -> Episode:
+    """Drive one run to its end. The navigator must not fuse again (its fuse_frames = 1)."""
+    navigator.reset()
+    obs, info = env.reset(seed)
+    masks: dict[int, np.ndarray] = {}
+    commands: list[tuple[float, float, float, float | None]] = []
+    frames_out: list[np.ndarray] = []
+    ended = info["reason"] is not None
+    while not ended:
+        fused = None
+        for key, frame in zip(obs.ticks, obs.frames):
+            if key not in masks:
+                masks[key] = segment_frame(segmenter, frame)
+            fused = masks[key] if fused is None else (fused | masks[key])
+        masks = {k: v for k, v in masks.items() if k in obs.ticks}
+        newest = obs.frames[-1]
+        cmd = navigator.step(fused, newest.depth)
+        column = getattr(cmd, "target_column", None)
+        commands.append((obs.t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
+        if video:
+            frames_out.append(overlay(newest.rgb, fused, column))
+        obs, ended, info = env.step((cmd.v, cmd.omega))
+    reason = env.reason or "error"
+    return Episode(
+        trajectory=env.trajectory, reason=reason, success=reason == "success",
+        clearance_time=env.clearance_time, collisions=int(reason == "collision"),
+        start_pose=env.start_pose, goal_m=env.goal_s - env.start_s, commands=commands, video=frames_out)
+
+
+def overlay(rgb: np.ndarray, mask: np.ndarray | None, column: float | None) -> np.ndarray:
+    """Camera view with the mask tinted green and the chosen column drawn in red."""
+    img = np.asarray(rgb, dtype=np.uint8).copy()
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        img[m] = (0.55 * img[m] + 0.45 * np.array([0, 255, 0])).astype(np.uint8)
+    if column is not None and np.isfinite(column):
+        c = int(round(float(column)))
+        c = min(max(c, 0), img.shape[1] - 1)
+        img[:, max(c - 1, 0):c + 1] = (255, 0, 0)
+    else:
+        img[:4, :] = (255, 0, 0)   # no valid command: red bar at the top
+    return img
