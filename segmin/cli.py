@@ -18,6 +18,7 @@ from segmin.config import ConfigError
 
 # Packages that contribute commands, in the order of the data flow.
 COMMAND_MODULES: tuple[str, ...] = (
+    "nav_eval.navigator_cli",
 )
 
 

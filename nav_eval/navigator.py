@@ -1,0 +1,339 @@
+"""SegMin, SegMinD and SegZeros: from a vegetation mask and a depth frame to (v, omega).
+
+This follows the paper's equations (Navone et al., section 2), not the reference code's quirks:
+
+1. fuse the last N masks with a logical OR;
+2. keep a mask pixel only where its depth is valid and <= d_th (0, NaN, inf and negative depth
+   are "no reading", never "near vegetation");
+3. SegMin sums the kept pixels per column; SegMinD weights each kept pixel by 1 - depth/d_th
+   (near vegetation weighs more) and sums in floating point;
+4. a moving average of `smooth_window` columns whose window shrinks at the image borders (no
+   zero padding, which would make the border look free);
+5. the target column x_h is the global minimum, the mean of all minimum columns on ties;
+6. d = x_h - c, v = v_max (1 - d^2 / (w/2)^2), omega = -omega_gain d, clipped, then smoothed with
+   an EMA y_t = (1 - lambda) y_{t-1} + lambda u_t.
+
+c is the image centre in 0-based column coordinates, (w - 1) / 2: a symmetric scene then gives
+d = 0 exactly (the paper's w/2 is the same centre in pixel-edge coordinates).
+
+SegZeros (Aghi et al. 2021, the baseline) takes the centre of the widest run of vegetation-free
+columns in the raw column sums and has a parabolic law in both terms. Without such a run it has
+no target and the navigator commands a stop. The stateful `Navigator` adds that method's
+temporal rules: at start-up it ignores runs reaching into the outer image borders, then it
+tracks the run nearest its previous target.
+
+Everything here is numpy, vectorised, with no I/O and no globals: arrays in, a command out,
+state only in the `Navigator` instance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+METHODS: tuple[str, ...] = ("segmin", "segmind", "segzeros")
+# SegZeros: a free corridor must be wider than 3 columns (Aghi et al. 2021).
+ZEROS_MIN_WIDTH = 4
+
+
+@dataclass(frozen=True)
+class NavigatorConfig:
+    """Every parameter of the navigator; defaults are the paper's (section 3.1).
+
+    `depth_threshold` has no default on purpose: the paper uses 5 m in vineyards, 8 m in pear
+    rows and pergolas and 10 m under tall trees, and a silent default would be wrong for most.
+    """
+
+    method: str
+    depth_threshold: float
+    fuse_frames: int = 3
+    smooth_window: int = 11
+    v_max: float = 0.5
+    omega_max: float = 1.0
+    omega_gain: float = 0.01
+    ema_lambda: float = 0.5
+    zeros_min_width: int = ZEROS_MIN_WIDTH
+    zeros_startup_border: float = 0.2
+    zeros_track_tolerance: float = 0.02
+
+    def __post_init__(self) -> None:
+        _check_method(self.method)
+        _check_threshold(self.depth_threshold)
+        _check_window(self.smooth_window)
+        if isinstance(self.fuse_frames, bool) or not isinstance(self.fuse_frames, int) or self.fuse_frames < 1:
+            raise ValueError(f"fuse_frames must be an integer >= 1, got {self.fuse_frames!r}")
+        for name in ("v_max", "omega_max"):
+            _check_positive(name, getattr(self, name))
+        if not (math.isfinite(self.omega_gain) and self.omega_gain >= 0):
+            raise ValueError(f"omega_gain must be a finite number >= 0, got {self.omega_gain!r}")
+        if not (0.0 < self.ema_lambda <= 1.0):
+            raise ValueError(f"ema_lambda must be in (0, 1], got {self.ema_lambda!r}")
+        if isinstance(self.zeros_min_width, bool) or not isinstance(self.zeros_min_width, int) or self.zeros_min_width < 1:
+            raise ValueError(f"zeros_min_width must be an integer >= 1, got {self.zeros_min_width!r}")
+        if not (0.0 <= self.zeros_startup_border < 0.5):
+            raise ValueError(f"zeros_startup_border must be in [0, 0.5), got {self.zeros_startup_border!r}")
+        if not (math.isfinite(self.zeros_track_tolerance) and self.zeros_track_tolerance >= 0):
+            raise ValueError(f"zeros_track_tolerance must be a finite number >= 0, got {self.zeros_track_tolerance!r}")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One navigator output: smoothed velocities plus what they were computed from."""
+
+    v: float
+    omega: float
+    target_column: float | None
+    histogram: np.ndarray
+    valid: bool
+
+
+# ---------------------------------------------------------------------------------------------
+# Frame-level functions (stateless)
+# ---------------------------------------------------------------------------------------------
+
+
+def target_column(
+    mask: np.ndarray,
+    depth: np.ndarray,
+    *,
+    method: str,
+    depth_threshold: float,
+    smooth_window: int = 11,
+) -> float | None:
+    """The column x_h (0-based, fractional on ties) that `method` steers to, or None.
+
+    `mask` is one (already fused) vegetation mask; `depth` the matching depth frame. None means
+    no valid target, which only SegZeros returns (no run of free columns).
+    """
+    _check_method(method)
+    _check_threshold(depth_threshold)
+    _check_window(smooth_window)
+    mask_b, depth_m = _validated_frame(mask, depth)
+    histogram = column_histogram(mask_b, depth_m, method=method, depth_threshold=depth_threshold)
+    if method == "segzeros":
+        runs = free_runs(histogram, min_width=ZEROS_MIN_WIDTH)
+        return widest_run_centre(runs, histogram.shape[0])
+    return histogram_minimum(moving_average(histogram, smooth_window))
+
+
+def to_metres(depth: np.ndarray) -> np.ndarray:
+    """Depth in metres as float32: uint16 is RealSense millimetres (0 = no reading)."""
+    if depth.dtype == np.uint16:
+        return depth.astype(np.float32) * np.float32(0.001)
+    if np.issubdtype(depth.dtype, np.floating):
+        return depth.astype(np.float32, copy=False)
+    raise ValueError(f"depth must be float metres or uint16 millimetres, got dtype {depth.dtype}")
+
+
+def column_histogram(mask: np.ndarray, depth_m: np.ndarray, *, method: str, depth_threshold: float) -> np.ndarray:
+    """Per-column amount of near vegetation (float64, length w) before smoothing.
+
+    A pixel counts when it is vegetation and its depth is valid and within the threshold.
+    NaN compares false, and `depth > 0` drops 0 and negative readings, so invalid depth never
+    counts. SegMinD weights each kept pixel by 1 - depth / d_th.
+    """
+    near = mask & (depth_m > 0) & (depth_m <= depth_threshold)
+    counts = near.sum(axis=0, dtype=np.float64)
+    if method == "segmind":
+        # sum(1 - z/d_th) over kept pixels = count - sum(z)/d_th. `where`, not a product with the
+        # mask: NaN or inf depth times False is NaN and would poison the whole column.
+        kept_depth = np.where(near, depth_m, np.float32(0.0))
+        return counts - kept_depth.sum(axis=0, dtype=np.float64) / depth_threshold
+    return counts
+
+
+def moving_average(histogram: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average of odd `window` that keeps the length.
+
+    At the borders the window shrinks to the columns that exist, so the mean is over real
+    columns only: zero padding would pull the border columns towards zero and make the image
+    edge look like free space, which the minimum search would then pick.
+    """
+    w = histogram.shape[0]
+    half = min(window // 2, w - 1) if w > 1 else 0
+    cumulative = np.concatenate(([0.0], np.cumsum(histogram, dtype=np.float64)))
+    columns = np.arange(w)
+    lo = np.maximum(columns - half, 0)
+    hi = np.minimum(columns + half + 1, w)
+    return (cumulative[hi] - cumulative[lo]) / (hi - lo)
+
+
+def histogram_minimum(histogram: np.ndarray) -> float:
+    """Column of the global minimum; the mean of all columns that share it.
+
+    Values within a rounding tolerance of the minimum count as equal, so ties produced by
+    floating-point sums are still ties (and a mirrored frame gives the mirrored target).
+    """
+    low = histogram.min()
+    tolerance = 1e-9 * (1.0 + float(np.abs(histogram).sum()))
+    ties = np.flatnonzero(histogram <= low + tolerance)
+    return float(ties.mean())
+
+
+def free_runs(histogram: np.ndarray, *, min_width: int) -> np.ndarray:
+    """Runs of consecutive vegetation-free columns as an (R, 2) array of [start, stop) indices."""
+    free = np.concatenate(([False], histogram == 0, [False]))
+    edges = np.flatnonzero(free[1:] != free[:-1])
+    runs = edges.reshape(-1, 2)
+    return runs[(runs[:, 1] - runs[:, 0]) >= min_width]
+
+
+def widest_run_centre(runs: np.ndarray, width: int) -> float | None:
+    """Centre column of the widest run, or None without runs.
+
+    Equally wide runs are told apart by their distance to the image centre (the robot keeps
+    the corridor it is facing); only a perfectly symmetric pair is left, and then the left one.
+    """
+    if len(runs) == 0:
+        return None
+    widths = runs[:, 1] - runs[:, 0]
+    centres = (runs[:, 0] + runs[:, 1] - 1) / 2.0
+    widest = widths == widths.max()
+    offset = np.where(widest, np.abs(centres - (width - 1) / 2.0), np.inf)
+    return float(centres[np.argmin(offset)])
+
+
+def control_law(x_h: float, width: int, config: NavigatorConfig) -> tuple[float, float]:
+    """Unsmoothed (v, omega) for a target column, clipped to the limits.
+
+    SegMin/SegMinD: v = v_max (1 - d^2/(w/2)^2), omega = -omega_gain d. SegZeros keeps its own
+    parabolic law: K = d^2/(w/2)^2, omega = -sign(d) omega_max K, v = v_max (1 - K).
+    """
+    d = x_h - (width - 1) / 2.0
+    k = (d * d) / ((width / 2.0) ** 2)
+    if config.method == "segzeros":
+        v = config.v_max * (1.0 - k)
+        omega = -math.copysign(config.omega_max * k, d) if d != 0 else 0.0
+    else:
+        v = config.v_max * (1.0 - k)
+        omega = -config.omega_gain * d
+    v = min(max(v, 0.0), config.v_max)
+    omega = min(max(omega, -config.omega_max), config.omega_max)
+    return v, omega
+
+
+# ---------------------------------------------------------------------------------------------
+# The stateful navigator
+# ---------------------------------------------------------------------------------------------
+
+
+class Navigator:
+    """Mask fusion over the last N frames, target search, control law and EMA smoothing."""
+
+    def __init__(self, config: NavigatorConfig) -> None:
+        self.config = config
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget past masks, the SegZeros track and the EMA (the robot is at rest)."""
+        self._masks: np.ndarray | None = None
+        self._count = 0
+        self._v = 0.0
+        self._omega = 0.0
+        self._zeros_target: float | None = None
+
+    def step(self, mask: np.ndarray, depth: np.ndarray) -> Command:
+        """Take one mask + depth frame and return the smoothed command."""
+        config = self.config
+        mask_b, depth_m = _validated_frame(mask, depth)
+        fused = self._fuse(mask_b)
+        histogram = column_histogram(fused, depth_m, method=config.method, depth_threshold=config.depth_threshold)
+        width = histogram.shape[0]
+        if config.method == "segzeros":
+            target = self._track_free_run(histogram)
+        else:
+            histogram = moving_average(histogram, config.smooth_window)
+            target = histogram_minimum(histogram)
+        if target is None:
+            self._v = 0.0
+            self._omega = 0.0
+            return Command(v=0.0, omega=0.0, target_column=None, histogram=histogram, valid=False)
+        v, omega = control_law(target, width, config)
+        lam = config.ema_lambda
+        self._v = (1.0 - lam) * self._v + lam * v
+        self._omega = (1.0 - lam) * self._omega + lam * omega
+        return Command(v=self._v, omega=self._omega, target_column=target, histogram=histogram, valid=True)
+
+    def _fuse(self, mask: np.ndarray) -> np.ndarray:
+        """Logical OR of the last `fuse_frames` masks (a ring buffer, no reallocation)."""
+        n = self.config.fuse_frames
+        if n == 1:
+            return mask
+        if self._masks is None or self._masks.shape[1:] != mask.shape:
+            self._masks = np.zeros((n, *mask.shape), dtype=bool)
+            self._count = 0
+        self._masks[self._count % n] = mask
+        self._count += 1
+        return self._masks.any(axis=0) if self._count >= n else self._masks[: self._count].any(axis=0)
+
+    def _track_free_run(self, histogram: np.ndarray) -> float | None:
+        """SegZeros target with Aghi et al.'s start-up border rule and run tracking."""
+        config = self.config
+        width = histogram.shape[0]
+        runs = free_runs(histogram, min_width=config.zeros_min_width)
+        if self._zeros_target is None:
+            border = config.zeros_startup_border * width
+            inside = (runs[:, 0] >= border) & (runs[:, 1] <= width - border)
+            target = widest_run_centre(runs[inside], width)
+        else:
+            target = self._nearest_run_centre(runs, self._zeros_target, config.zeros_track_tolerance * width)
+        self._zeros_target = target
+        return target
+
+    @staticmethod
+    def _nearest_run_centre(runs: np.ndarray, previous: float, tolerance: float) -> float | None:
+        """Centre of the run nearest `previous`, if that run comes within `tolerance` columns."""
+        if len(runs) == 0:
+            return None
+        gap = np.maximum(runs[:, 0] - previous, 0) + np.maximum(previous - (runs[:, 1] - 1), 0)
+        best = int(np.argmin(gap))
+        if gap[best] > tolerance:
+            return None
+        start, stop = runs[best]
+        return (start + stop - 1) / 2.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation
+# ---------------------------------------------------------------------------------------------
+
+
+def _validated_frame(mask: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Check shapes and dtypes; return a bool mask and float32 metres."""
+    mask = np.asarray(mask)
+    depth = np.asarray(depth)
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be a 2-D h x w array, got shape {mask.shape}")
+    if depth.ndim != 2:
+        raise ValueError(f"depth must be a 2-D h x w array, got shape {depth.shape}")
+    if mask.size == 0:
+        raise ValueError(f"mask must not be empty, got shape {mask.shape}")
+    if mask.shape != depth.shape:
+        raise ValueError(f"mask and depth must have the same shape, got mask {mask.shape} and depth {depth.shape}")
+    if mask.dtype != bool:
+        if not (np.issubdtype(mask.dtype, np.integer) or np.issubdtype(mask.dtype, np.floating)):
+            raise ValueError(f"mask must be bool or numeric 0/1 (or 0/255), got dtype {mask.dtype}")
+        mask = mask != 0
+    return mask, to_metres(depth)
+
+
+def _check_method(method: str) -> None:
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
+
+
+def _check_threshold(value: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"depth_threshold must be a finite number of metres > 0, got {value!r}")
+
+
+def _check_window(value: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1 or value % 2 == 0:
+        raise ValueError(f"smooth_window must be an odd integer >= 1, got {value!r}")
+
+
+def _check_positive(name: str, value: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")

@@ -1,0 +1,42 @@
+"""Command-line entry points of the navigator: `segmin navigate-demo` and `segmin bench navigator`."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
+    demo = commands.add_parser(
+        "navigate-demo",
+        help="run SegMin, SegMinD and SegZeros on analytic row scenes and draw the histograms",
+        description="Builds a few synthetic mask + depth frames in memory (no simulator), runs the three "
+        "navigators and writes navigator_demo.png (like the paper's Figure 4) and summary.txt.",
+    )
+    demo.add_argument("--out", default="runs/demo", help="output folder (default: runs/demo)")
+    demo.add_argument("--size", type=int, default=224, help="frame size in pixels (default: 224)")
+    demo.set_defaults(func=_navigate_demo)
+
+    nav = bench.add_parser("navigator", help="time Navigator.step per method at 224 x 224 on one thread")
+    nav.add_argument("--size", type=int, default=224)
+    nav.add_argument("--steps", type=int, default=3000)
+    nav.set_defaults(func=_bench_navigator)
+
+
+def _navigate_demo(args: argparse.Namespace) -> int:
+    from nav_eval.demo import run_demo
+
+    if args.size < 32:
+        raise ValueError(f"--size must be at least 32 pixels, got {args.size}")
+    figure, summary, _ = run_demo(args.out, size=args.size)
+    print(summary.read_text(), end="")
+    print(f"figure: {figure}")
+    print(f"summary: {summary}")
+    return 0
+
+
+def _bench_navigator(args: argparse.Namespace) -> int:
+    from nav_eval.navigator_bench import bench_navigator, format_rows, single_thread_environment
+
+    single_thread_environment()
+    print(format_rows(bench_navigator(size=args.size, steps=args.steps), args.size))
+    return 0

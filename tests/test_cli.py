@@ -1,0 +1,59 @@
+"""The `segmin` command: every subcommand has help, the navigator demo and benchmark run."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+
+import cv2
+import pytest
+
+from segmin.cli import build_parser, main
+
+
+def _all_subparsers(parser: argparse.ArgumentParser, prefix: tuple[str, ...] = ()):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield prefix + (name,), sub
+                yield from _all_subparsers(sub, prefix + (name,))
+
+
+def test_top_level_help_lists_the_subcommands() -> None:
+    out = subprocess.run([sys.executable, "-m", "segmin.cli", "--help"], capture_output=True, text=True, check=True)
+    for name in ("navigate-demo", "bench"):
+        assert name in out.stdout
+
+
+def test_every_subcommand_has_help(capsys: pytest.CaptureFixture[str]) -> None:
+    paths = [path for path, _ in _all_subparsers(build_parser())]
+    assert ("navigate-demo",) in paths and ("bench", "navigator") in paths
+    for path in paths:
+        with pytest.raises(SystemExit) as exit_info:
+            build_parser().parse_args([*path, "--help"])
+        assert exit_info.value.code == 0
+        assert "usage: segmin " + " ".join(path) in capsys.readouterr().out
+
+
+def test_navigate_demo_writes_the_figure_and_summary(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["navigate-demo", "--out", str(tmp_path), "--size", "64"]) == 0
+    figure = cv2.imread(str(tmp_path / "navigator_demo.png"))
+    assert figure is not None and figure.shape[0] > 300 and figure.shape[1] > 600
+    summary = (tmp_path / "summary.txt").read_text()
+    for method in ("segmin", "segmind", "segzeros"):
+        assert summary.count(method) >= 4
+    assert "no free corridor: stop" in summary  # SegZeros under the closed canopy
+    assert "figure:" in capsys.readouterr().out
+
+
+def test_navigate_demo_rejects_a_tiny_size(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["navigate-demo", "--out", "unused", "--size", "8"]) == 2
+    assert "--size must be at least 32" in capsys.readouterr().err
+
+
+def test_bench_navigator_prints_every_method(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "navigator", "--size", "64", "--steps", "20"]) == 0
+    out = capsys.readouterr().out
+    for method in ("segmin", "segmind", "segzeros"):
+        assert f"{method}" in out and "median" in out and "p95" in out

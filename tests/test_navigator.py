@@ -1,0 +1,304 @@
+"""Navigator: exact scenes, control law numbers, degenerate frames, bad input and properties."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from nav_eval.navigator import (
+    METHODS,
+    Navigator,
+    NavigatorConfig,
+    control_law,
+    moving_average,
+    target_column,
+)
+
+H, W = 48, 64
+
+
+def two_rows(width: int = W, height: int = H, row_width: int = 16) -> np.ndarray:
+    """Vegetation on the left and right thirds, free corridor in the middle."""
+    mask = np.zeros((height, width), dtype=bool)
+    mask[:, :row_width] = True
+    mask[:, width - row_width:] = True
+    return mask
+
+
+def depth_frame(value: float = 2.0) -> np.ndarray:
+    return np.full((H, W), value, dtype=np.float32)
+
+
+# --- exact scenes ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_symmetric_rows_give_the_centre(method: str) -> None:
+    assert target_column(two_rows(), depth_frame(), method=method, depth_threshold=5.0) == pytest.approx((W - 1) / 2)
+
+
+@pytest.mark.parametrize("method", ["segmin", "segmind"])
+@pytest.mark.parametrize("shift", [-7, -3, 1, 5, 9])
+def test_shifting_the_scene_shifts_the_target(method: str, shift: int) -> None:
+    rng = np.random.default_rng(3)
+    mask = two_rows(row_width=20)
+    mask[: H // 3, 20:44] |= rng.random((H // 3, 24)) < 0.3  # ragged canopy edge
+    depth = (1.0 + 3.0 * rng.random((H, W))).astype(np.float32)
+    base = target_column(mask, depth, method=method, depth_threshold=5.0)
+    shifted = target_column(np.roll(mask, shift, axis=1), np.roll(depth, shift, axis=1),
+                            method=method, depth_threshold=5.0)
+    assert shifted == pytest.approx(base + shift)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_vegetation_beyond_the_threshold_is_ignored(method: str) -> None:
+    mask = two_rows()
+    mask[:10, 20:30] = True  # a bush inside the corridor
+    far = depth_frame(2.0)
+    far[:10, 20:30] = 7.0
+    assert target_column(mask, far, method=method, depth_threshold=5.0) == pytest.approx((W - 1) / 2)
+    near = depth_frame(2.0)
+    assert target_column(mask, near, method=method, depth_threshold=5.0) != pytest.approx((W - 1) / 2)
+
+
+def test_segmind_prefers_the_gap_whose_vegetation_is_farther() -> None:
+    mask = np.ones((H, W), dtype=bool)
+    depth = depth_frame(2.0)
+    mask[:, 10:20] = False
+    mask[:6, 10:20] = True  # gap A: little vegetation, but very near
+    depth[:6, 10:20] = 0.5
+    mask[:, 44:54] = False
+    mask[:12, 44:54] = True  # gap B: more vegetation, far away
+    depth[:12, 44:54] = 4.8
+    segmin = target_column(mask, depth, method="segmin", depth_threshold=5.0, smooth_window=3)
+    segmind = target_column(mask, depth, method="segmind", depth_threshold=5.0, smooth_window=3)
+    assert 10 <= segmin <= 19
+    assert 44 <= segmind <= 53
+
+
+def test_segzeros_fails_when_a_canopy_closes_the_row_but_segmin_finds_it() -> None:
+    mask = two_rows()
+    mask[:8, :] = True  # canopy across the top of the image
+    depth = depth_frame(3.0)
+    assert target_column(mask, depth, method="segzeros", depth_threshold=8.0) is None
+    assert target_column(mask, depth, method="segmin", depth_threshold=8.0) == pytest.approx((W - 1) / 2)
+    navigator = Navigator(NavigatorConfig(method="segzeros", depth_threshold=8.0))
+    command = navigator.step(mask, depth)
+    assert not command.valid and command.v == 0.0 and command.omega == 0.0 and command.target_column is None
+
+
+def test_ties_take_the_mean_of_all_minimum_columns() -> None:
+    mask = np.ones((H, W), dtype=bool)
+    mask[:, 10:20] = False
+    mask[:, 40:50] = False
+    target = target_column(mask, depth_frame(), method="segmin", depth_threshold=5.0, smooth_window=1)
+    assert target == pytest.approx(np.mean(list(range(10, 20)) + list(range(40, 50))))
+
+
+def test_invalid_depth_never_counts_as_near() -> None:
+    mask = two_rows()
+    mask[:, 20:40] = True  # vegetation in the corridor, but without a valid depth reading
+    depth = depth_frame(2.0)
+    depth[:, 20:25] = 0.0
+    depth[:, 25:30] = np.nan
+    depth[:, 30:35] = np.inf
+    depth[:, 35:40] = -1.0
+    for method in ("segmin", "segmind"):
+        assert target_column(mask, depth, method=method, depth_threshold=5.0, smooth_window=1) == pytest.approx((W - 1) / 2)
+
+
+def test_uint16_millimetres_equal_float_metres() -> None:
+    rng = np.random.default_rng(0)
+    mask = rng.random((H, W)) < 0.5
+    millimetres = rng.integers(0, 9000, size=(H, W)).astype(np.uint16)
+    metres = millimetres.astype(np.float32) / 1000.0
+    for method in METHODS:
+        a = target_column(mask, millimetres, method=method, depth_threshold=5.0)
+        b = target_column(mask, metres, method=method, depth_threshold=5.0)
+        assert a == b or (a is not None and b is not None and a == pytest.approx(b))
+
+
+def test_empty_mask_drives_straight_at_full_speed() -> None:
+    for method in ("segmin", "segmind"):
+        navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, ema_lambda=1.0))
+        command = navigator.step(np.zeros((H, W), bool), depth_frame())
+        assert command.valid and command.v == pytest.approx(0.5) and command.omega == pytest.approx(0.0)
+
+
+def test_moving_average_does_not_pull_the_borders_to_zero() -> None:
+    assert np.allclose(moving_average(np.full(20, 7.0), 11), 7.0)
+    ramp = np.arange(10, dtype=float)
+    smoothed = moving_average(ramp, 3)
+    assert smoothed[0] == pytest.approx(0.5) and smoothed[-1] == pytest.approx(8.5)
+    assert smoothed.shape == ramp.shape
+
+
+# --- fusion, control law and EMA -------------------------------------------------------------
+
+
+def test_fusion_is_the_or_of_the_last_n_masks() -> None:
+    navigator = Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, fuse_frames=3, smooth_window=1))
+    empty = np.zeros((H, W), bool)
+    bush = empty.copy()
+    bush[:, :10] = True  # vegetation on the left pushes the target right
+    depth = depth_frame()
+    assert navigator.step(bush, depth).target_column == pytest.approx(36.5)
+    assert navigator.step(empty, depth).target_column == pytest.approx(36.5)
+    assert navigator.step(empty, depth).target_column == pytest.approx(36.5)
+    assert navigator.step(empty, depth).target_column == pytest.approx((W - 1) / 2)  # the bush has left the window
+
+
+def test_control_law_matches_hand_computed_values() -> None:
+    config = NavigatorConfig(method="segmin", depth_threshold=5.0)
+    # w = 224, centre 111.5; x_h = 161.5 -> d = 50: v = 0.5 (1 - 2500/12544), omega = -0.5
+    v, omega = control_law(161.5, 224, config)
+    assert v == pytest.approx(0.5 * (1 - 2500 / 12544))
+    assert omega == pytest.approx(-0.5)
+    # d = -150 would ask omega = 1.5: clipped to omega_max; v clipped at 0
+    v, omega = control_law(-38.5, 224, config)
+    assert omega == pytest.approx(1.0) and v == pytest.approx(0.0)
+    zeros = NavigatorConfig(method="segzeros", depth_threshold=5.0)
+    v, omega = control_law(161.5, 224, zeros)
+    k = 2500 / 12544
+    assert v == pytest.approx(0.5 * (1 - k)) and omega == pytest.approx(-1.0 * k)
+
+
+def test_ema_matches_hand_computed_values() -> None:
+    config = NavigatorConfig(method="segmin", depth_threshold=5.0, ema_lambda=0.5, smooth_window=1, fuse_frames=1)
+    navigator = Navigator(config)
+    mask = np.ones((H, W), bool)
+    mask[:, 47:52] = False  # target column 49, d = 49 - 31.5 = 17.5
+    u_v, u_omega = control_law(49.0, W, config)
+    expected_v = expected_omega = 0.0
+    for _ in range(4):
+        command = navigator.step(mask, depth_frame())
+        expected_v = 0.5 * expected_v + 0.5 * u_v
+        expected_omega = 0.5 * expected_omega + 0.5 * u_omega
+        assert command.v == pytest.approx(expected_v) and command.omega == pytest.approx(expected_omega)
+    assert command.v == pytest.approx(u_v * (1 - 0.5 ** 4))
+    navigator.reset()
+    assert navigator.step(mask, depth_frame()).v == pytest.approx(0.5 * u_v)
+
+
+# --- bad input -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("mask", "depth", "message"),
+    [
+        (np.zeros((2, 3, 4), bool), np.zeros((2, 3)), "mask must be a 2-D"),
+        (np.zeros((2, 3), bool), np.zeros(6), "depth must be a 2-D"),
+        (np.zeros((0, 3), bool), np.zeros((0, 3)), "must not be empty"),
+        (np.zeros((4, 3), bool), np.zeros((3, 4)), "same shape"),
+        (np.zeros((4, 3), bool), np.zeros((4, 3), np.int32), "uint16 millimetres"),
+        (np.array([["a"]]), np.zeros((1, 1)), "mask must be bool"),
+    ],
+)
+def test_bad_frames_raise_value_errors(mask: np.ndarray, depth: np.ndarray, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        target_column(mask, depth, method="segmin", depth_threshold=5.0)
+    with pytest.raises(ValueError, match=message):
+        Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0)).step(mask, depth)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"method": "segmax"}, "method must be one of"),
+        ({"depth_threshold": float("nan")}, "depth_threshold"),
+        ({"depth_threshold": float("inf")}, "depth_threshold"),
+        ({"depth_threshold": 0.0}, "depth_threshold"),
+        ({"depth_threshold": -1.0}, "depth_threshold"),
+        ({"smooth_window": 4}, "smooth_window"),
+        ({"fuse_frames": 0}, "fuse_frames"),
+        ({"ema_lambda": 0.0}, "ema_lambda"),
+        ({"v_max": -0.1}, "v_max"),
+        ({"omega_gain": float("nan")}, "omega_gain"),
+    ],
+)
+def test_bad_config_raises_value_errors(kwargs: dict, message: str) -> None:
+    base = {"method": "segmin", "depth_threshold": 5.0}
+    with pytest.raises(ValueError, match=message):
+        NavigatorConfig(**{**base, **kwargs})
+
+
+def test_target_column_checks_its_arguments() -> None:
+    with pytest.raises(ValueError, match="method"):
+        target_column(two_rows(), depth_frame(), method="nope", depth_threshold=5.0)
+    with pytest.raises(ValueError, match="depth_threshold"):
+        target_column(two_rows(), depth_frame(), method="segmin", depth_threshold=float("nan"))
+
+
+# --- properties ------------------------------------------------------------------------------
+
+def frames_of_width(w: int) -> st.SearchStrategy:
+    return st.tuples(
+        arrays(bool, (6, w)),
+        arrays(np.float32, (6, w), elements=st.floats(0.0, 12.0, width=32)),
+    )
+
+
+frames = st.integers(4, 40).flatmap(frames_of_width)
+
+
+@settings(max_examples=150, deadline=None)
+@given(frame=frames, method=st.sampled_from(METHODS), window=st.sampled_from([1, 3, 11]))
+def test_target_is_inside_the_image(frame, method, window) -> None:
+    mask, depth = frame
+    target = target_column(mask, depth, method=method, depth_threshold=5.0, smooth_window=window)
+    assert target is None or 0 <= target <= mask.shape[1] - 1
+
+
+@settings(max_examples=150, deadline=None)
+@given(frame=frames, method=st.sampled_from(METHODS), window=st.sampled_from([1, 3, 11]))
+def test_mirroring_the_frame_mirrors_the_target(frame, method, window) -> None:
+    mask, depth = frame
+    w = mask.shape[1]
+    target = target_column(mask, depth, method=method, depth_threshold=5.0, smooth_window=window)
+    mirrored = target_column(mask[:, ::-1], depth[:, ::-1], method=method, depth_threshold=5.0, smooth_window=window)
+    assert (target is None) == (mirrored is None)
+    if target is None:
+        return
+    if method == "segzeros":
+        # two equally wide corridors at the same distance from the centre: SegZeros takes the left one
+        centre = (w - 1) / 2
+        assert mirrored == pytest.approx(w - 1 - target) or abs(mirrored - centre) == pytest.approx(abs(target - centre))
+    else:
+        assert mirrored == pytest.approx(w - 1 - target, abs=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    sequence=st.lists(frames_of_width(24), min_size=1, max_size=6),
+    method=st.sampled_from(METHODS),
+    v_max=st.floats(0.1, 2.0),
+    omega_max=st.floats(0.1, 3.0),
+    gain=st.floats(0.0, 0.5),
+)
+def test_commands_stay_within_limits(sequence, method, v_max, omega_max, gain) -> None:
+    config = NavigatorConfig(method=method, depth_threshold=5.0, v_max=v_max, omega_max=omega_max, omega_gain=gain)
+    navigator = Navigator(config)
+    for mask, depth in sequence:
+        command = navigator.step(mask, depth)
+        assert 0.0 <= command.v <= v_max + 1e-12
+        assert abs(command.omega) <= omega_max + 1e-12
+        assert math.isfinite(command.v) and math.isfinite(command.omega)
+
+
+@settings(max_examples=60, deadline=None)
+@given(frame=frames, method=st.sampled_from(["segmin", "segmind"]), lam=st.floats(0.05, 1.0))
+def test_ema_converges_to_the_constant_command(frame, method, lam) -> None:
+    mask, depth = frame
+    config = NavigatorConfig(method=method, depth_threshold=5.0, ema_lambda=lam, fuse_frames=1)
+    navigator = Navigator(config)
+    target = target_column(mask, depth, method=method, depth_threshold=5.0)
+    v_target, omega_target = control_law(target, mask.shape[1], config)
+    for _ in range(400):
+        command = navigator.step(mask, depth)
+    assert command.v == pytest.approx(v_target, abs=1e-6)
+    assert command.omega == pytest.approx(omega_target, abs=1e-6)
