@@ -1,0 +1,49 @@
+"""`segmin data inspect ROOT`: what a dataset folder holds and everything wrong with it."""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+
+
+def register(commands, bench) -> None:  # noqa: ARG001 - bench unused: data has no benchmark of its own
+    data = commands.add_parser("data", help="inspect datasets on disk (AgriSeg layouts, rendered frames)")
+    sub = data.add_subparsers(dest="data_command", metavar="ACTION", required=True)
+    inspect = sub.add_parser("inspect", help="frames per domain and subset, and every problem found")
+    inspect.add_argument("root", help="dataset root folder")
+    inspect.add_argument("--no-decode", action="store_true",
+                         help="only check the folder structure (skip reading every image and mask)")
+    inspect.set_defaults(func=_inspect)
+
+
+def _inspect(args: argparse.Namespace) -> int:
+    from data.agriseg_loader import DatasetError, load_frame, scan
+
+    result = scan(args.root)
+    problems = list(result.problems) + list(result.unpaired)
+    counts = Counter((f.domain, f.subset) for f in result.frames)
+    with_depth = Counter((f.domain, f.subset) for f in result.frames if f.depth_path is not None)
+    layouts = Counter(result.layouts.values())
+    print(f"{args.root}: {len(result.frames)} paired frames; layouts: "
+          + (", ".join(f"{k} x{v}" for k, v in sorted(layouts.items())) or "none"))
+    print(f"{'domain':<28} {'subset':<32} {'frames':>7} {'depth':>6}")
+    for domain in sorted({d for d, _ in counts}):
+        subsets = sorted(s for d, s in counts if d == domain)
+        for subset in subsets:
+            print(f"{domain:<28} {subset:<32} {counts[domain, subset]:>7} {with_depth[domain, subset]:>6}")
+        if len(subsets) > 1:
+            total = sum(counts[domain, s] for s in subsets)
+            print(f"{domain:<28} {'(all)':<32} {total:>7}")
+    if not args.no_decode:
+        for frame in result.frames:
+            try:
+                load_frame(frame)
+            except DatasetError as exc:
+                problems.append(str(exc))
+    if problems:
+        print(f"{len(problems)} problem(s):")
+        for message in problems:
+            print(f"  {message}")
+        return 1
+    print("no problems found" + (" (structure only)" if args.no_decode else ""))
+    return 0

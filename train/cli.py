@@ -1,0 +1,73 @@
+"""`segmin train` and `segmin bench train`; also `torchrun --nproc-per-node N -m train.cli ...`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _add_train_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, help="configs/train/<family>.yaml")
+    parser.add_argument("overrides", nargs="*", metavar="key=value",
+                        help="dotted overrides, e.g. epochs=5 data.root=/data/agriseg batch_size=16")
+    parser.add_argument("--out", default=None, help="run folder (default runs/train/<config name>)")
+    parser.add_argument("--resume", action="store_true", help="continue exactly from <out>/last.pt")
+
+
+def register(commands, bench) -> None:
+    train = commands.add_parser("train", help="train the segmentation network (CPU, one GPU or torchrun)")
+    _add_train_arguments(train)
+    train.set_defaults(func=_train)
+
+    b = bench.add_parser("train", help="training images/s: full data pipeline vs the model step alone")
+    b.add_argument("--root", default=None, help="dataset root (default: a generated 320x240 PNG set)")
+    b.add_argument("--size", type=int, default=224)
+    b.add_argument("--batch", type=int, default=8)
+    b.add_argument("--threads", type=int, default=2)
+    b.add_argument("--workers", type=int, default=1)
+    b.add_argument("--steps", type=int, default=6)
+    b.add_argument("--repeats", type=int, default=2)
+    b.add_argument("--device", default="cpu")
+    b.set_defaults(func=_bench)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from train.config import load_train_config
+    from train.run import fit
+
+    config = load_train_config(args.config, args.overrides)
+    out = Path(args.out) if args.out else Path("runs/train") / Path(args.config).stem
+    result = fit(config, out, resume=args.resume)
+    if result.interrupted:
+        return 130
+    if result.rank == 0:
+        best = result.history and max(r["val_iou"] for r in result.history)
+        print(f"done: best val IoU {best:.4f}; best checkpoint {result.best_path}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from train.bench import bench_train
+
+    r = bench_train(args.root, image_size=args.size, batch_size=args.batch, threads=args.threads,
+                    steps=args.steps, workers=args.workers, repeats=args.repeats, device=args.device)
+    print(f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
+          f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames")
+    print(f"  model step alone : {r['model_step_ips']:7.2f} images/s")
+    print(f"  full pipeline    : {r['full_pipeline_ips']:7.2f} images/s")
+    print(f"  ratio            : {r['ratio']:.3f}  (target >= 0.90)")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry for `python -m train.cli` (what torchrun launches): the same arguments as `segmin train`."""
+    parser = argparse.ArgumentParser(prog="train.cli", description="segmin training (torchrun entry)")
+    _add_train_arguments(parser)
+    args = parser.parse_args(argv)
+    return _train(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

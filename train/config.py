@@ -1,0 +1,98 @@
+"""Training configuration: one YAML file per crop family in configs/train/ (strict keys).
+
+Defaults are the paper's recipe: Adam lr 3e-4, 50 epochs, 224 x 224, batch 64, BCE on one
+logit channel, flip / square crop / greyscale / colour jitter, ImageNet backbone. Dice term and
+LR schedule exist but are off by default.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from data.augment import AugmentConfig
+from segmin.config import load_config
+
+
+@dataclass
+class DataConfig:
+    """Where frames come from. `domains` are families, domain names, globs or prefixes.
+
+    Validation is either a seeded split per domain (`val_fraction`, `split_seed`, or a saved
+    `split_file`), or, when `val_domains` is set, all frames of those domains under `val_root`
+    (default: `root`); then every training-domain frame trains. The second is how rendered
+    frames are evaluated on held-out worlds.
+    """
+
+    root: Path = Path("data/agriseg")
+    domains: list[str] | None = None
+    val_root: Path | None = None
+    val_domains: list[str] | None = None
+    val_fraction: float = 0.1
+    split_seed: int = 0
+    split_file: Path | None = None
+    skip_unpaired: bool = False
+    max_train_frames: int | None = None  # subsample (seeded) for quick demos
+    max_val_frames: int | None = None
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"data.val_fraction={self.val_fraction}: must be in [0, 1)")
+        for name in ("max_train_frames", "max_val_frames"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"data.{name}={value}: must be >= 1 or null")
+
+
+@dataclass
+class TrainConfig:
+    family: str = "custom"
+    data: DataConfig = field(default_factory=DataConfig)
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+    backbone_weights: str = "imagenet"  # "imagenet", "none" or a state-dict path
+    image_size: int = 224
+    epochs: int = 50
+    batch_size: int = 64  # paper: 64 (per process under torchrun); lower it on small GPUs / CPU
+    lr: float = 3e-4
+    weight_decay: float = 0.0
+    dice_weight: float = 0.0  # loss = BCE + dice_weight * soft Dice
+    schedule: Literal["none", "cosine", "step"] = "none"
+    step_size: int = 20  # epochs, for schedule=step
+    gamma: float = 0.1
+    threshold: float = 0.5
+    seed: int = 0
+    device: str = "auto"  # "auto", "cpu", "cuda", "cuda:N"
+    amp: bool = True  # GPU only
+    channels_last: bool = True  # GPU only
+    threads: int | None = None  # torch CPU threads (None = torch's default)
+    num_workers: int = 2
+    prefetch_factor: int = 2
+    max_steps_per_epoch: int | None = None
+    eval_batch_size: int | None = None
+    preview_images: int = 4
+    tensorboard: bool = True
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        positive = ("image_size", "epochs", "batch_size", "step_size", "prefetch_factor")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
+        if self.image_size % 32:
+            raise ValueError(f"image_size={self.image_size}: must be a multiple of 32 (MobileNetV3 stride)")
+        if self.lr <= 0:
+            raise ValueError(f"lr={self.lr}: must be > 0")
+        if self.dice_weight < 0:
+            raise ValueError(f"dice_weight={self.dice_weight}: must be >= 0")
+        if not 0 < self.threshold < 1:
+            raise ValueError(f"threshold={self.threshold}: must be in (0, 1)")
+        if self.num_workers < 0:
+            raise ValueError(f"num_workers={self.num_workers}: must be >= 0")
+        if self.max_steps_per_epoch is not None and self.max_steps_per_epoch < 1:
+            raise ValueError(f"max_steps_per_epoch={self.max_steps_per_epoch}: must be >= 1 or null")
+
+
+def load_train_config(path: str | Path | None, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
+    """Load configs/train/<family>.yaml plus dotted `key=value` overrides."""
+    return load_config(TrainConfig, path, overrides)

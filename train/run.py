@@ -1,0 +1,263 @@
+"""Fit a model: data -> sampler -> loader -> model -> optimizer -> resume -> epochs -> checkpoints.
+
+Reads top to bottom like torchvision's reference `train.py`. `train_model(config, out_dir)` is
+the entry point for other stages; `segmin train` and `torchrun -m train.cli` call `fit`.
+
+Run folder (written by rank 0 only): `best.pt` (best val IoU), `last.pt` (end of the last epoch,
+or the moment of a Ctrl-C, with the state for `--resume`), `metrics.csv`, `tensorboard/`,
+`previews/epoch_NNN.png`, `split.json` (the exact frames of each split), `config.yaml`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+from torch.utils.data import DataLoader, DistributedSampler
+
+from data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
+from data.augment import eval_transform, train_transform
+from models import build_model
+from segmin.atomic import write_text
+from segmin.config import to_dict
+from train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
+from train.config import TrainConfig
+from train.distributed import DistInfo, EpochSampler, ShardSampler, barrier, cleanup, init_distributed
+from train.logs import RunLogger
+from train.loop import SegLoss, StepContext, evaluate, train_one_epoch
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FitResult:
+    best_path: Path
+    last_path: Path
+    history: list[dict[str, Any]] = field(default_factory=list)
+    model: torch.nn.Module | None = None
+    interrupted: bool = False
+    rank: int = 0
+    world_size: int = 1
+
+
+def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> Path:
+    """Train and return the path of the best checkpoint (by validation IoU)."""
+    result = fit(config, out_dir, resume=resume)
+    if result.interrupted:
+        raise KeyboardInterrupt(f"training interrupted; resume with --resume from {result.last_path}")
+    return result.best_path
+
+
+# ----------------------------------------------------------------------------- data
+
+
+def select_frames(config: TrainConfig) -> tuple[list[Frame], list[Frame]]:
+    """(train frames, val frames) as the config says: held-out domains, split file or seeded split."""
+    d = config.data
+    if d.val_domains:
+        train = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
+        val = find_frames(d.val_root or d.root, d.val_domains, skip_unpaired=d.skip_unpaired)
+        overlap = {f.image_path for f in train} & {f.image_path for f in val}
+        if overlap:
+            raise DatasetError(f"{sorted(overlap)[0]}: frame is in both training and validation domains")
+    else:
+        frames = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
+        splits = load_split(d.split_file, frames) if d.split_file else make_splits(frames, d.val_fraction, d.split_seed)
+        train, val = splits["train"], splits["val"]
+    train = _subsample(train, d.max_train_frames, d.split_seed)
+    val = _subsample(val, d.max_val_frames, d.split_seed + 1)
+    if not train:
+        raise DatasetError(f"{d.root}: no training frames for domains {d.domains}")
+    if not val:
+        raise DatasetError(f"{d.val_root or d.root}: no validation frames (set data.val_fraction > 0 or data.val_domains)")
+    return train, val
+
+
+def _subsample(frames: list[Frame], limit: int | None, seed: int) -> list[Frame]:
+    if limit is None or len(frames) <= limit:
+        return frames
+    keep = np.random.default_rng(seed).choice(len(frames), size=limit, replace=False)
+    return [frames[i] for i in sorted(keep.tolist())]
+
+
+def _worker_init(_: int) -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # loader workers must not fight the training threads for the cores
+
+
+def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame], val_frames: list[Frame]):
+    size = config.image_size
+    train_ds = AgriSegDataset(config.data.root, split="all", seed=config.seed, frames=train_frames,
+                              transform=train_transform(size, config.augment), image_size=size)
+    val_ds = AgriSegDataset(config.data.root, split="all", seed=config.seed, frames=val_frames,
+                            transform=eval_transform(size), image_size=size)
+    base = DistributedSampler(train_ds, num_replicas=dist.world_size, rank=dist.rank, shuffle=True,
+                              seed=config.seed, drop_last=False)
+    sampler = EpochSampler(base)
+    common: dict[str, Any] = {"num_workers": config.num_workers, "pin_memory": dist.device.type == "cuda"}
+    if config.num_workers > 0:
+        common.update(prefetch_factor=config.prefetch_factor, persistent_workers=True,
+                      worker_init_fn=_worker_init)
+    per_rank = len(base)
+    train_loader = DataLoader(train_ds, batch_size=config.batch_size, sampler=sampler,
+                              drop_last=per_rank > config.batch_size, **common)
+    val_loader = DataLoader(val_ds, batch_size=config.eval_batch_size or config.batch_size,
+                            sampler=ShardSampler(len(val_ds), dist.rank, dist.world_size), **common)
+    return train_loader, sampler, val_loader
+
+
+# ----------------------------------------------------------------------------- fit
+
+
+def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> FitResult:
+    out_dir = Path(out_dir)
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    dist = init_distributed(config.device)
+    try:
+        return _fit(config, out_dir, resume, dist)
+    finally:
+        cleanup()
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> FitResult:
+    from tqdm import tqdm
+
+    _seed_everything(config.seed)
+    train_frames, val_frames = select_frames(config)
+    train_loader, sampler, val_loader = build_loaders(config, dist, train_frames, val_frames)
+
+    model = build_model(config.backbone_weights)
+    cuda = dist.device.type == "cuda"
+    model.to(dist.device)
+    if cuda and config.channels_last:
+        model.to(memory_format=torch.channels_last)
+    net: torch.nn.Module = model
+    if dist.distributed:
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[dist.device.index] if cuda else None)
+    optimizer = torch.optim.Adam(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    scheduler: torch.optim.lr_scheduler.LRScheduler | None = None
+    if config.schedule == "cosine":
+        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.epochs)
+    elif config.schedule == "step":
+        scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.step_size, gamma=config.gamma)
+    scaler = torch.amp.GradScaler("cuda") if cuda and config.amp else None
+    ctx = StepContext(net, optimizer, SegLoss(config.dice_weight), dist.device, scaler,
+                      amp=cuda and config.amp, channels_last=cuda and config.channels_last)
+
+    info = model_info(backbone_weights=str(config.backbone_weights), input_size=(config.image_size, config.image_size),
+                      family=config.family, train_data=_describe_data(config), threshold=config.threshold)
+    config_dict = to_dict(config)
+    best_path, last_path = out_dir / "best.pt", out_dir / "last.pt"
+    start_epoch, skip_steps, best_iou, history = 0, 0, -math.inf, []
+    if resume:
+        payload = read_training_state(last_path)
+        state = payload["training_state"]
+        model.load_state_dict(payload["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        if scheduler is not None and state.get("scheduler") is not None:
+            scheduler.load_state_dict(state["scheduler"])
+        if scaler is not None and state.get("scaler"):
+            scaler.load_state_dict(state["scaler"])
+        set_rng_state(state["rng"])
+        start_epoch, skip_steps = int(state["epoch"]), int(state["step"])
+        best_iou, history = float(state["best_iou"]), list(state["history"])
+        if dist.is_main:
+            print(f"resuming {last_path}: epoch {start_epoch + 1}, step {skip_steps}")
+
+    logger = RunLogger(out_dir, config.tensorboard) if dist.is_main else None
+    if dist.is_main:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        write_text(out_dir / "config.yaml", yaml.safe_dump(config_dict, sort_keys=False))
+        save_split(out_dir / "split.json", {"train": train_frames, "val": val_frames},
+                   root=str(config.data.root), val_root=str(config.data.val_root or config.data.root))
+
+    progress = {"epoch": start_epoch, "step": skip_steps}
+
+    def save_last(metrics: dict[str, float]) -> None:
+        write_training_checkpoint(last_path, model=model, info=info, epoch=progress["epoch"], metrics=metrics,
+                                  config=config_dict, training_state={
+                                      "epoch": progress["epoch"], "step": progress["step"],
+                                      "optimizer": optimizer.state_dict(),
+                                      "scheduler": scheduler.state_dict() if scheduler is not None else None,
+                                      "scaler": scaler.state_dict() if scaler is not None else {},
+                                      "rng": rng_state(), "best_iou": best_iou, "history": history,
+                                  })
+
+    interrupted = False
+    last_metrics: dict[str, float] = history[-1] if history else {}
+    steps_per_epoch = len(train_loader)
+    if config.max_steps_per_epoch is not None:
+        steps_per_epoch = min(steps_per_epoch, config.max_steps_per_epoch)
+    try:
+        for epoch in range(start_epoch, config.epochs):
+            started = time.perf_counter()
+            skip = skip_steps if epoch == start_epoch else 0
+            progress.update(epoch=epoch, step=skip)
+            sampler.set_epoch(epoch, skip=skip * config.batch_size)
+            bar = tqdm(total=max(0, steps_per_epoch - skip), desc=f"epoch {epoch + 1}/{config.epochs}",
+                       disable=not (config.progress and dist.is_main), leave=False)
+            train = train_one_epoch(ctx, train_loader, max_steps=steps_per_epoch - skip,
+                                    on_step=lambda s, skip=skip: progress.update(step=skip + s), progress=bar)
+            bar.close()
+            keep = config.preview_images if dist.is_main else 0
+            bar = tqdm(total=len(val_loader), desc="validate", disable=not (config.progress and dist.is_main),
+                       leave=False)
+            val, samples = evaluate(ctx, val_loader, threshold=config.threshold, keep=keep, progress=bar)
+            bar.close()
+            lr = optimizer.param_groups[0]["lr"]
+            if scheduler is not None:
+                scheduler.step()
+            row = {"epoch": epoch + 1, "train_loss": train["loss"], "val_loss": val["loss"], "val_iou": val["iou"],
+                   "val_pixel_acc": val["pixel_acc"], "lr": lr, "seconds": time.perf_counter() - started}
+            history.append(row)
+            last_metrics = row
+            improved = val["iou"] > best_iou
+            best_iou = max(best_iou, val["iou"])
+            progress.update(epoch=epoch + 1, step=0)
+            if dist.is_main:
+                metrics = {k: v for k, v in row.items() if k != "epoch"}
+                if improved:
+                    write_training_checkpoint(best_path, model=model, info=info, epoch=epoch + 1,
+                                              metrics=metrics, config=config_dict)
+                save_last(metrics)
+                assert logger is not None
+                logger.epoch(history)
+                logger.preview(epoch + 1, samples, config.threshold)
+                print(f"epoch {epoch + 1}/{config.epochs}: train loss {train['loss']:.4f}  val loss "
+                      f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
+                      f"({row['seconds']:.0f} s){'  *best*' if improved else ''}", flush=True)
+            barrier()
+    except KeyboardInterrupt:
+        interrupted = True
+        if dist.is_main:
+            save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
+            print(f"\ninterrupted: saved {last_path} (epoch {progress['epoch'] + 1}, step {progress['step']}); "
+                  "continue with --resume", flush=True)
+    finally:
+        if logger is not None:
+            logger.close()
+    return FitResult(best_path, last_path, history, model, interrupted, dist.rank, dist.world_size)
+
+
+def _describe_data(config: TrainConfig) -> str:
+    d = config.data
+    text = f"{d.root} domains={d.domains or 'all'}"
+    if d.val_domains:
+        text += f"; val {d.val_root or d.root} domains={d.val_domains}"
+    return text
