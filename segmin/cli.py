@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "train.cli",
     "export.cli",
     "nav_eval.navigator_cli",
+    "nav_eval.cli",
 )
 
 

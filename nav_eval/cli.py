@@ -1,0 +1,76 @@
+"""`segmin nav-eval` (closed-loop evaluation) and `segmin bench nav-eval` (simulation speed)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _add_common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None,
+                        help="evaluation config YAML (default: configs/nav/default.yaml)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="config override, repeatable (e.g. --set run.length_m=10)")
+    parser.add_argument("--seed", type=int, default=0, help="base seed of the start noise (default 0)")
+
+
+def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser(
+        "nav-eval",
+        help="closed-loop navigation in the simulated test fields (Table 3 metrics, plots)",
+        description="Drive a simulated Jackal through the row gaps of the test fields with SegMin, SegMinD "
+        "and/or SegZeros, guided by an exported ONNX model or the simulator's exact mask ('oracle'). Writes "
+        "results.csv, results.json, report.md, trajectory and histogram figures (and GIFs with --video).",
+    )
+    parser.add_argument("--model", required=True, help="exported .onnx file, or 'oracle' (exact masks)")
+    parser.add_argument("--fields", default="all",
+                        help="'all' (the five test fields), comma-separated names, or world spec YAML paths")
+    parser.add_argument("--methods", default="segmin,segmind,segzeros", help="comma-separated methods")
+    parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
+    parser.add_argument("--video", action="store_true", help="GIF of the camera view for run 0 of each pair")
+    parser.add_argument("--no-plots", action="store_true", help="skip the figures")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_common(parser)
+    parser.set_defaults(func=_nav_eval)
+
+    b = bench.add_parser("nav-eval", help="simulated seconds per wall-clock second (one worker, ONNX segmenter)")
+    b.add_argument("--model", default=None,
+                   help="ONNX file or 'oracle' (default: an untrained model exported to a temporary file)")
+    b.add_argument("--field", default="straight_vineyard", help="field to drive (default straight_vineyard)")
+    b.add_argument("--method", default="segmind", help="navigator method (default segmind)")
+    b.add_argument("--seconds", type=float, default=20.0, help="simulated seconds to drive (default 20)")
+    b.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1, as with 2 workers)")
+    b.add_argument("--matrix", action="store_true",
+                   help="also run the full matrix (5 fields x 3 methods x 3 runs) on --workers and time it")
+    b.add_argument("--workers", type=int, default=2, help="workers for --matrix (default 2)")
+    b.add_argument("--out", type=Path, default=None, help="folder for --matrix outputs (default: a temp folder)")
+    _add_common(b)
+    b.set_defaults(func=_bench)
+
+
+def _nav_eval(args: argparse.Namespace) -> int:
+    from nav_eval.eval_config import load_nav_config
+    from nav_eval.evaluate import run_evaluation
+    from nav_eval.report import table3_markdown
+
+    config = load_nav_config(args.config, args.overrides)
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    results = run_evaluation(args.model, args.fields, args.methods, args.runs, args.out, args.workers, config,
+                             seed=args.seed, video=args.video, progress=not args.no_progress,
+                             plots=not args.no_plots)
+    print(table3_markdown(results), end="")
+    failed = [r for r in results if r.reason == "error"]
+    for r in failed:
+        print(f"run raised: {r.field}/{r.method}/{r.run}: {r.error.splitlines()[0]}")
+    print(f"outputs: {args.out}/report.md, results.csv, results.json")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from nav_eval.bench import bench_nav_eval
+
+    bench_nav_eval(args)
+    return 0

@@ -1,0 +1,353 @@
+"""Run the evaluation matrix (fields x methods x runs) in worker processes and write the outputs.
+
+Public entry point for the pipeline: `run_evaluation(model, fields, methods, runs, out_dir,
+workers, config) -> list[RunResult]`.
+
+Each run is one job. A worker process (spawned, never forked: pybullet and onnxruntime hold
+threads) builds its own pybullet DIRECT client per field, its own segmenter and navigators, and
+returns a `RunResult`. An exception inside a run becomes a failure row (reason "error", with the
+exception text); a crashed worker marks its unfinished jobs the same way. Seeds: the start noise
+and the depth noise of run k in a field depend on (seed, field, k) only, so every method starts
+from the same pose with the same noise (a paired comparison).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+import traceback
+import zlib
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from nav_eval.eval_config import METHODS, NavEvalConfig, load_nav_config
+from nav_eval.metrics import Trajectory, compute_metrics
+from segmin.config import from_dict, to_dict
+
+METRIC_KEYS = ("clearance_time", "mae", "mse", "heading_avg", "v_avg", "omega_std", "collisions",
+               "min_plant_distance", "distance")
+
+
+@dataclasses.dataclass
+class RunResult:
+    """One row of results.csv / results.json (the trajectory is kept aside for the plots)."""
+
+    field: str
+    method: str
+    run: int
+    seed: int
+    model: str
+    success: bool
+    reason: str
+    error: str = ""
+    clearance_time: float = math.nan
+    mae: float = math.nan
+    mse: float = math.nan
+    heading_avg: float = math.nan
+    v_avg: float = math.nan
+    omega_std: float = math.nan
+    collisions: int = 0
+    min_plant_distance: float = math.nan
+    distance: float = math.nan
+    goal_m: float = math.nan
+    sim_time: float = math.nan
+    wall_time: float = math.nan
+    depth_threshold: float = math.nan
+    gap: int = -1
+    start_x: float = math.nan
+    start_y: float = math.nan
+    start_yaw: float = math.nan
+    trajectory: Trajectory | None = dataclasses.field(default=None, repr=False)
+    commands: list = dataclasses.field(default_factory=list, repr=False)
+
+    def row(self) -> dict[str, Any]:
+        """Plain row without the trajectory (for CSV and JSON)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name not in ("trajectory", "commands")}
+
+
+@dataclasses.dataclass
+class Job:
+    field: str
+    method: str
+    run: int
+    seed: int
+    video_path: str = ""
+
+
+# ---------------------------------------------------------------------------------------------
+# Field resolution and seeds
+# ---------------------------------------------------------------------------------------------
+
+
+def resolve_fields(fields: str | list[str] | tuple[str, ...]) -> list[str]:
+    """'all' -> the five test fields; 'a,b' or a list -> names or world spec paths (checked)."""
+    from data.synth.spec import TEST_FIELDS, load_world_spec
+
+    items = [f.strip() for f in fields.split(",")] if isinstance(fields, str) else [str(f) for f in fields]
+    items = [f for f in items if f]
+    if items == ["all"]:
+        items = list(TEST_FIELDS)
+    if not items:
+        raise ValueError("--fields: no field given")
+    for item in items:
+        spec = load_world_spec(item)
+        if spec.name.startswith("train_"):
+            raise ValueError(f"--fields: {item!r} is a training world ({spec.name}); evaluate only on test fields")
+    return items
+
+
+def field_label(field: str) -> str:
+    """Short name of a field for tables and files: the spec name for a path."""
+    p = Path(field)
+    return p.stem if p.suffix in (".yaml", ".yml") else field
+
+
+def run_seed(base_seed: int, field: str, run: int) -> int:
+    """Seed of run `run` in `field` (the same for every method: paired starts)."""
+    key = zlib.crc32(field_label(field).encode())
+    return int(np.random.SeedSequence([int(base_seed), key, int(run)]).generate_state(1)[0])
+
+
+def parse_methods(methods: str | list[str] | tuple[str, ...]) -> list[str]:
+    items = [m.strip().lower() for m in methods.split(",")] if isinstance(methods, str) else list(methods)
+    bad = [m for m in items if m not in METHODS]
+    if bad or not items:
+        raise ValueError(f"--methods: unknown {bad}; choose from {list(METHODS)}")
+    return items
+
+
+# ---------------------------------------------------------------------------------------------
+# Inside a worker
+# ---------------------------------------------------------------------------------------------
+
+
+class FieldContext:
+    """A field built in its own pybullet DIRECT client, with its renderer."""
+
+    def __init__(self, field: str, config: NavEvalConfig) -> None:
+        import pybullet as p
+
+        from data.synth.camera import CameraModel
+        from data.synth.render import Renderer
+        from data.synth.spec import load_world_spec
+        from data.synth.world import build_world
+
+        self.spec = load_world_spec(field)
+        self.client = p.connect(p.DIRECT)
+        self.world = build_world(self.spec, self.client)
+        camera = CameraModel()
+        changes = {k: v for k, v in (("width", config.perception.width), ("height", config.perception.height)) if v}
+        if changes:
+            camera = dataclasses.replace(camera, **changes)
+        self.camera = camera
+        self.renderer = Renderer(self.world, camera)
+        self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
+        self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap
+
+    def close(self) -> None:
+        import pybullet as p
+
+        try:
+            p.disconnect(self.client)
+        except Exception:  # already gone
+            pass
+
+
+def make_segmenter(model: str, threads: int = 1) -> Any:
+    """'oracle' -> OracleSegmenter; otherwise an ONNX file -> nav_eval.segmenter.OnnxSegmenter."""
+    if str(model) == "oracle":
+        from nav_eval.oracle import OracleSegmenter
+
+        return OracleSegmenter()
+    path = Path(model)
+    if not path.is_file():
+        raise FileNotFoundError(f"--model: {path} not found (give an .onnx file or 'oracle')")
+    from nav_eval.segmenter import OnnxSegmenter
+
+    return OnnxSegmenter(str(path), threads=threads)
+
+
+def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
+    """The paper's navigator; fusion happens in the sim (see sim.py), so fuse_frames=1 here."""
+    from nav_eval.navigator import Navigator, NavigatorConfig
+
+    return Navigator(NavigatorConfig(method=method, depth_threshold=depth_threshold, fuse_frames=1,
+                                     **config.navigator))
+
+
+class Worker:
+    """Per-process state: fields built on first use, one segmenter."""
+
+    def __init__(self, model: str, config: NavEvalConfig, threads: int = 1) -> None:
+        self.model = str(model)
+        self.config = config
+        self.threads = threads
+        self._segmenter: Any = None
+        self._fields: dict[str, FieldContext] = {}
+
+    def field(self, name: str) -> FieldContext:
+        if name not in self._fields:
+            self._fields[name] = FieldContext(name, self.config)
+        return self._fields[name]
+
+    @property
+    def segmenter(self) -> Any:
+        if self._segmenter is None:
+            self._segmenter = make_segmenter(self.model, self.threads)
+        return self._segmenter
+
+    def run(self, job: Job) -> RunResult:
+        """One run; never raises (an exception becomes a failure row)."""
+        from nav_eval.sim import RowEnv, run_episode
+
+        start = time.perf_counter()
+        result = RunResult(field=field_label(job.field), method=job.method, run=job.run, seed=job.seed,
+                           model=self.model, success=False, reason="error")
+        try:
+            ctx = self.field(job.field)
+            result.depth_threshold = ctx.depth_threshold
+            env = RowEnv(ctx.world, ctx.renderer, self.config, gap=ctx.gap)
+            result.gap = env.gap
+            navigator = make_navigator(job.method, ctx.depth_threshold, self.config)
+            episode = run_episode(env, self.segmenter, navigator, job.seed, video=bool(job.video_path))
+            metrics = compute_metrics(episode.trajectory, env.centreline, success=episode.success,
+                                      clearance_time=episode.clearance_time, collisions=episode.collisions)
+            for key in METRIC_KEYS:
+                setattr(result, key, metrics[key])
+            result.success, result.reason = episode.success, episode.reason
+            result.goal_m = episode.goal_m
+            result.sim_time = float(episode.trajectory.t[-1])
+            result.start_x, result.start_y, result.start_yaw = episode.start_pose
+            result.trajectory = episode.trajectory
+            result.commands = episode.commands
+            if job.video_path and episode.video:
+                from nav_eval.plots import write_video
+
+                write_video(job.video_path, episode.video, fps=self.config.rates.command_hz)
+        except Exception as exc:  # a failed run is a row, never a crash of the evaluation
+            result.success, result.reason = False, "error"
+            result.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
+        result.wall_time = time.perf_counter() - start
+        return result
+
+
+_WORKER: Worker | None = None
+
+
+def _init_worker(model: str, config_raw: dict, threads: int) -> None:
+    global _WORKER
+    _WORKER = Worker(model, from_dict(NavEvalConfig, config_raw), threads)
+
+
+def _run_in_worker(job: Job) -> RunResult:
+    assert _WORKER is not None, "worker not initialised"
+    return _WORKER.run(job)
+
+
+# ---------------------------------------------------------------------------------------------
+# The matrix
+# ---------------------------------------------------------------------------------------------
+
+
+def run_evaluation(
+    model: str | Path,
+    fields: str | list[str] = "all",
+    methods: str | list[str] = METHODS,
+    runs: int = 3,
+    out_dir: str | Path | None = None,
+    workers: int = 1,
+    config: NavEvalConfig | None = None,
+    *,
+    seed: int = 0,
+    video: bool = False,
+    progress: bool = True,
+    plots: bool = True,
+) -> list[RunResult]:
+    """Evaluate `model` ('oracle' or an .onnx path) on fields x methods x runs.
+
+    With `out_dir`, writes results.csv/json (rewritten atomically after every finished run, so
+    an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
+    workers <= 1 runs in this process; more uses spawned processes.
+    """
+    config = config or load_nav_config()
+    field_list = resolve_fields(fields)
+    method_list = parse_methods(methods)
+    if runs < 1:
+        raise ValueError(f"--runs must be >= 1, got {runs}")
+    out = Path(out_dir) if out_dir is not None else None
+    jobs = []
+    for f in field_list:
+        for r in range(runs):
+            for m in method_list:
+                path = ""
+                if video and out is not None and r == 0:
+                    path = str(out / "videos" / f"{field_label(f)}_{m}.gif")
+                jobs.append(Job(f, m, r, run_seed(seed, f, r), path))
+    meta = {"model": str(model), "fields": [field_label(f) for f in field_list], "methods": method_list,
+            "runs": runs, "seed": seed, "workers": workers, "config": to_dict(config)}
+    results: list[RunResult] = []
+
+    def done(result: RunResult) -> None:
+        results.append(result)
+        if out is not None:
+            from nav_eval.report import write_results
+
+            write_results(out, sorted(results, key=_order(jobs)), meta)
+
+    bar = _progress(len(jobs), progress)
+    try:
+        if workers <= 1:
+            worker = Worker(str(model), config, threads=max(1, os.cpu_count() or 1))
+            for job in jobs:
+                done(worker.run(job))
+                bar.update(1)
+        else:
+            _run_pool(jobs, str(model), config, workers, done, bar)
+    finally:
+        bar.close()
+    results.sort(key=_order(jobs))
+    if out is not None:
+        from nav_eval.report import write_report
+
+        write_report(out, results, meta, field_list, config, plots=plots)
+    return results
+
+
+def _order(jobs: list[Job]) -> Callable[[RunResult], int]:
+    index = {(field_label(j.field), j.method, j.run): i for i, j in enumerate(jobs)}
+    return lambda r: index.get((r.field, r.method, r.run), len(index))
+
+
+def _run_pool(jobs: list[Job], model: str, config: NavEvalConfig, workers: int,
+              done: Callable[[RunResult], None], bar: Any) -> None:
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    ctx = get_context("spawn")
+    pending = {}
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                             initargs=(model, to_dict(config), threads)) as pool:
+        for job in jobs:
+            pending[pool.submit(_run_in_worker, job)] = job
+        for future in as_completed(pending):
+            job = pending[future]
+            try:
+                result = future.result()
+            except (BrokenProcessPool, Exception) as exc:  # a dead worker: its job is a failure row
+                result = RunResult(field=field_label(job.field), method=job.method, run=job.run, seed=job.seed,
+                                   model=model, success=False, reason="error",
+                                   error=f"{type(exc).__name__}: {exc}")
+            done(result)
+            bar.update(1)
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="nav-eval runs", unit="run", disable=not enabled)

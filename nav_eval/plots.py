@@ -1,0 +1,158 @@
+"""Figures of the evaluation (matplotlib, Agg backend: no display needed).
+
+Per field:
+- `<field>_trajectories.png`: top view (trunks, posts, ground-truth centreline, each method's
+  path; run 0 solid, other runs thin) and, below, the lateral deviation along the row, where
+  centimetre differences are visible;
+- `<field>_histograms.png`: the paper's histogram figure: the camera frame (mask tinted, chosen
+  columns marked) | SegMin histogram | SegMinD histogram, of the same frame, rendered on the
+  centreline a few metres into the row and segmented by the evaluated segmenter.
+With `--video`: `videos/<field>_<method>.gif`, the camera view with the fused mask and the
+chosen column, one frame per command.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from nav_eval.metrics import project_onto_polyline  # noqa: E402
+from segmin.atomic import write_bytes  # noqa: E402
+
+COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
+
+
+def _save(fig: Any, path: Path) -> None:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    write_bytes(path, buffer.getvalue())
+
+
+def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> None:
+    """Top view and lateral deviation of every run of one field."""
+    fig, (top, lat) = plt.subplots(2, 1, figsize=(11, 7), gridspec_kw={"height_ratios": [1.4, 1]})
+    line = env.centreline
+    xs = [line[:, 0]] + [r.trajectory.x for r in results if r.trajectory is not None]
+    ys = [line[:, 1]] + [r.trajectory.y for r in results if r.trajectory is not None]
+    lo = np.array([min(v.min() for v in xs), min(v.min() for v in ys)]) - 2.5
+    hi = np.array([max(v.max() for v in xs), max(v.max() for v in ys)]) + 2.5
+    for circles, colour, label in ((env.plants, "saddlebrown", "trunks"), (env.obstacles, "grey", "posts")):
+        if len(circles):
+            inside = np.all((circles[:, :2] >= lo) & (circles[:, :2] <= hi), axis=1)
+            c = circles[inside]
+            top.scatter(c[:, 0], c[:, 1], s=np.clip((c[:, 2] * 60) ** 2, 4, 200), c=colour, label=label, zorder=2)
+    top.plot(line[:, 0], line[:, 1], "k--", lw=1, label="centreline", zorder=3)
+    seen = set()
+    for r in results:
+        if r.trajectory is None:
+            continue
+        colour = COLOURS.get(r.method, "k")
+        label = None if r.method in seen else f"{r.method}"
+        seen.add(r.method)
+        width = 1.8 if r.run == 0 else 0.8
+        top.plot(r.trajectory.x, r.trajectory.y, color=colour, lw=width, label=label, zorder=4)
+        if not r.success:
+            top.plot(r.trajectory.x[-1], r.trajectory.y[-1], "x", color=colour, ms=9, mew=2, zorder=5)
+        s, e, _ = project_onto_polyline(np.stack([r.trajectory.x, r.trajectory.y], 1), line)
+        lat.plot(s, e, color=colour, lw=width, label=label)
+    top.set_xlim(lo[0], hi[0])
+    top.set_ylim(lo[1], hi[1])
+    top.set_aspect("equal")
+    top.set_xlabel("x (m)")
+    top.set_ylabel("y (m)")
+    top.set_title(f"{field}: trajectories (x = failed run ends)")
+    top.legend(loc="upper right", fontsize=8, ncol=3)
+    lat.axhline(0, color="k", lw=0.8, ls="--")
+    lat.set_xlabel("distance along the centreline (m)")
+    lat.set_ylabel("lateral deviation (m, + left)")
+    lat.grid(alpha=0.3)
+    _save(fig, path)
+
+
+def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth_threshold: float) -> None:
+    """RGB (mask tinted, targets marked) | SegMin histogram | SegMinD histogram of one frame."""
+    from nav_eval.navigator import column_histogram, histogram_minimum, moving_average
+
+    depth = np.asarray(frame.depth, dtype=np.float32)
+    hists, targets = {}, {}
+    for method in ("segmin", "segmind"):
+        h = moving_average(column_histogram(mask, depth, method=method, depth_threshold=depth_threshold), 11)
+        hists[method], targets[method] = h, histogram_minimum(h)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    img = np.asarray(frame.rgb, dtype=np.uint8).copy()
+    tint = mask.astype(bool)
+    img[tint] = (0.6 * img[tint] + 0.4 * np.array([0, 255, 0])).astype(np.uint8)
+    axes[0].imshow(img)
+    for method, x in targets.items():
+        axes[0].axvline(x, color=COLOURS[method], lw=2, label=f"{method} target")
+    axes[0].set_title(f"{field}: RGB + mask (green)")
+    axes[0].legend(fontsize=7, loc="lower right")
+    axes[0].axis("off")
+    for ax, method in zip(axes[1:], ("segmin", "segmind")):
+        h = hists[method]
+        ax.bar(np.arange(h.size), h, width=1.0, color=COLOURS[method], alpha=0.7)
+        ax.axvline(targets[method], color="k", ls="--", lw=1.2, label=f"min at {targets[method]:.0f}")
+        ax.axvline((h.size - 1) / 2, color="grey", ls=":", lw=1, label="image centre")
+        ax.set_xlim(0, h.size - 1)
+        ax.set_title(f"{'SegMin' if method == 'segmin' else 'SegMinD'} histogram (d_th = {depth_threshold:g} m)")
+        ax.set_xlabel("image column")
+        ax.legend(fontsize=7)
+    axes[1].set_ylabel("near-vegetation pixels (smoothed)")
+    axes[2].set_ylabel("depth-weighted sum (smoothed)")
+    _save(fig, path)
+
+
+def make_field_figures(out: Path, results: list[Any], fields: list[str], config: Any, model: str) -> list[str]:
+    """Both figures for every field; returns their paths relative to `out`."""
+    from nav_eval.evaluate import FieldContext, field_label, make_segmenter
+    from nav_eval.oracle import segment_frame
+    from nav_eval.sim import RowEnv, point_on_polyline
+
+    written: list[str] = []
+    segmenter = None
+    for field in fields:
+        label = field_label(field)
+        try:
+            ctx = FieldContext(field, config)
+        except Exception as exc:  # the field could not even be built: the rows already say so
+            print(f"nav-eval: no figures for {label}: {exc}")
+            continue
+        try:
+            env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
+            rel = f"{label}_trajectories.png"
+            trajectory_figure(out / rel, label, env, [r for r in results if r.field == label])
+            written.append(rel)
+            if segmenter is None:
+                segmenter = make_segmenter(model)
+            s = config.run.start_s + min(4.0, 0.5 * config.run.length_m)
+            x, y, yaw = point_on_polyline(env.centreline, s)
+            frame = ctx.renderer.render(x, y, yaw, rng=np.random.default_rng(0),
+                                        noisy_depth=config.perception.depth_noise)
+            mask = segment_frame(segmenter, frame)
+            rel = f"{label}_histograms.png"
+            histogram_figure(out / rel, label, frame, mask, ctx.depth_threshold)
+            written.append(rel)
+        finally:
+            ctx.close()
+    return written
+
+
+def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> None:
+    """Animated GIF (Pillow), written atomically; one frame per navigator command."""
+    from PIL import Image
+
+    if not frames:
+        return
+    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
+                   duration=int(round(1000.0 / fps)), loop=0)
+    write_bytes(path, buffer.getvalue())
