@@ -1,0 +1,154 @@
+"""The closed loop on an analytic stand-in world (no pybullet): timing, end conditions, determinism.
+
+The stand-in renders trunks as upright boxes of the right width and height into a pinhole
+camera (z-buffered, column ranges), which is all SegMin needs to steer down a row gap. The real
+synth worlds are exercised in test_nav_eval_fields.py.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from nav_eval.eval_config import NavEvalConfig, Perception, Rates, RunSettings
+from nav_eval.evaluate import make_navigator
+from nav_eval.oracle import OracleSegmenter
+from nav_eval.sim import RowEnv, run_episode
+
+
+@dataclasses.dataclass
+class Frame:
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    camera_pose: tuple
+
+
+class FakeWorld:
+    """Four straight vine rows 1.8 m apart along +x (the gap between the middle two), flat ground."""
+
+    canopy_half_width = 0.25
+
+    def __init__(self, length: float = 12.0, spacing: float = 1.8, plant_step: float = 0.6) -> None:
+        xs = np.arange(0.0, length + 6.0, plant_step)
+        rows = [-1.5 * spacing, -spacing / 2, spacing / 2, 1.5 * spacing]
+        self.plant_circles = np.array([[x, y, 0.05] for y in rows for x in xs])
+        self.obstacle_circles = np.zeros((0, 3))
+        cx = np.arange(0.0, length + 0.01, 0.25)
+        self.centrelines = [np.stack([cx, np.zeros_like(cx)], 1)]
+        self.gap_half_widths = [spacing / 2 - 0.1]
+        self.spec = type("Spec", (), {"name": "fake", "family": "vineyards"})()
+
+    def terrain_height(self, x, y):
+        return 0.0 * np.asarray(x, dtype=float)
+
+    def terrain_normal(self, x, y):
+        return np.array([0.0, 0.0, 1.0])
+
+
+class FakeRenderer:
+    """Pinhole camera 0.2 m ahead of the robot; each vine a 0.5 m wide, 1.5 m tall box of leaves."""
+
+    def __init__(self, world: FakeWorld, size: int = 48, hfov_deg: float = 69.0) -> None:
+        self.world, self.size = world, size
+        self.f = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
+        self.calls = 0
+
+    def render(self, x, y, yaw, *, rng=None, noisy_depth=False, pose_offset=None) -> Frame:
+        self.calls += 1
+        n = self.size
+        cx, cy = x + 0.2 * math.cos(yaw), y + 0.2 * math.sin(yaw)
+        depth = np.full((n, n), np.inf, dtype=np.float32)
+        mask = np.zeros((n, n), dtype=bool)
+        r = self.world.canopy_half_width
+        for px, py, _ in self.world.plant_circles:
+            dx, dy = px - cx, py - cy
+            fwd = math.cos(yaw) * dx + math.sin(yaw) * dy
+            left = -math.sin(yaw) * dx + math.cos(yaw) * dy
+            if fwd < 0.3:
+                continue
+            u0 = int(np.floor(n / 2 - self.f * (left + r) / fwd))
+            u1 = int(np.ceil(n / 2 - self.f * (left - r) / fwd))
+            top = int(np.floor(n / 2 - self.f * (1.5 - 0.4) / fwd))
+            bottom = int(np.ceil(n / 2 + self.f * 0.4 / fwd))
+            u0, u1, top, bottom = max(u0, 0), min(u1, n), max(top, 0), min(bottom, n)
+            if u0 >= u1 or top >= bottom:
+                continue
+            region = depth[top:bottom, u0:u1]
+            closer = fwd < region
+            region[closer] = fwd
+            mask[top:bottom, u0:u1] |= closer
+        mask &= np.isfinite(depth)
+        ground = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
+        if noisy_depth and rng is not None:
+            ground = ground + rng.normal(0, 0.01, ground.shape).astype(np.float32) * (ground > 0)
+        rgb = np.zeros((n, n, 3), dtype=np.uint8)
+        rgb[mask] = (40, 160, 40)
+        return Frame(rgb, ground, mask, (cx, cy, yaw))
+
+
+def _config(**run) -> NavEvalConfig:
+    settings = dict(length_m=8.0, time_limit_s=40.0)
+    settings.update(run)
+    return NavEvalConfig(rates=Rates(), perception=Perception(width=48, height=48), run=RunSettings(**settings))
+
+
+def _run(method: str = "segmin", seed: int = 3, **run):
+    world = FakeWorld()
+    config = _config(**run)
+    renderer = FakeRenderer(world)
+    env = RowEnv(world, renderer, config)
+    nav = make_navigator(method, 5.0, config)
+    return run_episode(env, OracleSegmenter(), nav, seed), renderer, env
+
+
+def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
+    episode, renderer, env = _run()
+    assert episode.reason == "success", episode.reason
+    assert episode.clearance_time == pytest.approx(episode.trajectory.t[-1])
+    assert 8.0 / 0.5 < episode.clearance_time < 40.0
+    # Rendering schedule: 3 of every 4 segmentation ticks per 0.2 s command period = 15 frames/s.
+    assert renderer.calls == pytest.approx(15 * episode.clearance_time, abs=4)
+    # Commands at 5 Hz, robot samples at 60 Hz.
+    assert len(episode.commands) == pytest.approx(5 * episode.clearance_time, abs=2)
+    assert np.allclose(np.diff(episode.trajectory.t), 1 / 60)
+    assert np.max(np.abs(episode.trajectory.y)) < 0.4
+
+
+def test_same_seed_same_trajectory_and_seeded_start() -> None:
+    a, _, _ = _run(seed=11)
+    b, _, _ = _run(seed=11)
+    c, _, _ = _run(seed=12)
+    assert np.array_equal(a.trajectory.x, b.trajectory.x) and np.array_equal(a.trajectory.y, b.trajectory.y)
+    assert a.start_pose != c.start_pose
+    for ep in (a, c):
+        assert abs(ep.start_pose[1]) <= 0.15 and abs(ep.start_pose[2]) <= math.radians(5) + 1e-12
+
+
+class _Straight:
+    """A 'navigator' that ignores the camera and drives a fixed command."""
+
+    def __init__(self, v: float, omega: float) -> None:
+        self.v, self.omega = v, omega
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, mask, depth):
+        return type("Cmd", (), {"v": self.v, "omega": self.omega, "target_column": None})()
+
+
+def test_driving_into_the_row_is_a_collision_and_standing_still_stalls() -> None:
+    world = FakeWorld()
+    config = _config(start_lateral_max=0.0, start_heading_max_deg=0.0)
+    env = RowEnv(world, FakeRenderer(world), config)
+    ep = run_episode(env, OracleSegmenter(), _Straight(0.4, 0.6), seed=0)
+    assert ep.reason == "collision" and ep.collisions == 1 and not ep.success
+    assert math.isnan(ep.clearance_time or math.nan)
+    config = _config(stall_time_s=3.0, time_limit_s=10.0)
+    env = RowEnv(world, FakeRenderer(world), config)
+    ep = run_episode(env, OracleSegmenter(), _Straight(0.0, 0.0), seed=0)
+    assert ep.reason == "stalled" and 3.0 <= ep.trajectory.t[-1] < 3.5
