@@ -1,0 +1,226 @@
+"""Procedural plants: a trunk, a few branches and a canopy of leaf clusters.
+
+A plant is first drawn as a skeleton (tapered segments and ellipsoidal leaf clusters, in the
+plant's local frame: `a` along the row, `c` across it towards the left, `h` up) and then meshed at
+two levels of detail. Leaves are individual double-sided triangles scattered near each cluster's
+surface, so masks get holes and ragged edges like real foliage. The coarse level keeps the
+same clusters with fewer, bigger leaves (same covered area), for plants far from the camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from data.synth.mesh import Mesh, cylinders, ellipsoid_area, ellipsoid_shell_points, leaves
+from data.synth.spec import WorldSpec, pergola_reach
+
+# Leaves per plant at the fine level (TinyRenderer pays ~1.5 us per visible triangle).
+LEAF_BUDGET = {"vineyard": 200, "pear": 240, "pergola": 300, "tree": 700}
+COARSE_FACTOR = 6
+
+
+@dataclass
+class Plant:
+    """Skeleton of one plant; `mesh(lod)` turns it into triangles in world coordinates."""
+
+    kind: str
+    base: np.ndarray                 # (3,) trunk foot on the ground
+    along: np.ndarray                # (2,) unit row direction
+    trunk_radius: float
+    leaf_size: float
+    density: float
+    seed: int
+    segments: list[tuple[np.ndarray, np.ndarray, float, float]] = field(default_factory=list)
+    clusters: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    def to_world(self, local: np.ndarray) -> np.ndarray:
+        """Local (a, c, h) points (n, 3) to world coordinates."""
+        t = np.array([self.along[0], self.along[1], 0.0])
+        left = np.array([-self.along[1], self.along[0], 0.0])
+        local = np.atleast_2d(local)
+        return self.base[None, :] + local[:, :1] * t + local[:, 1:2] * left + local[:, 2:3] * np.array([0, 0, 1.0])
+
+    def mesh(self, lod: str) -> Mesh:
+        fine = lod == "fine"
+        rng = np.random.default_rng([self.seed, 0 if fine else 1])
+        parts = []
+        if self.segments:
+            p0 = self.to_world(np.array([s[0] for s in self.segments]))
+            p1 = self.to_world(np.array([s[1] for s in self.segments]))
+            r0 = np.array([s[2] for s in self.segments])
+            r1 = np.array([s[3] for s in self.segments])
+            trunk = r0 >= 0.6 * self.trunk_radius
+            if fine:
+                parts.append(cylinders(p0[trunk], p1[trunk], r0[trunk], r1[trunk], 6))
+                parts.append(cylinders(p0[~trunk], p1[~trunk], r0[~trunk], r1[~trunk], 4))
+            else:
+                keep = r0 >= 0.012
+                parts.append(cylinders(p0[keep], p1[keep], r0[keep], r1[keep], 3))
+        areas = np.array([ellipsoid_area(r) for _, r in self.clusters])
+        leaf_area = 0.43 * self.leaf_size ** 2
+        wanted = self.density * areas / leaf_area * 0.5
+        budget = LEAF_BUDGET[self.kind]
+        scale = max(1.0, wanted.sum() / budget)
+        if not fine:
+            scale *= COARSE_FACTOR
+        counts = np.maximum(1, np.round(wanted / scale)).astype(int)
+        size = self.leaf_size * np.sqrt(scale)
+        for (centre, radii), n in zip(self.clusters, counts):
+            local, outward = ellipsoid_shell_points(centre, radii, int(n), rng)
+            sizes = size * rng.uniform(0.7, 1.3, size=len(local))
+            facing = self.to_world(outward) - self.base[None, :]
+            parts.append(leaves(self.to_world(local), sizes, rng, facing=facing))
+        return Mesh.concat(parts)
+
+
+def _u(rng: np.random.Generator, pair) -> float:
+    return float(rng.uniform(pair[0], pair[1]))
+
+
+def _i(rng: np.random.Generator, pair) -> int:
+    return int(rng.integers(pair[0], pair[1] + 1))
+
+
+def make_plant(spec: WorldSpec, rng: np.random.Generator, base: np.ndarray, along: np.ndarray,
+               row_index: int) -> Plant:
+    """Draw one plant of the spec's crop at `base` (ground point) facing `along` the row."""
+    ps = spec.plants
+    plant = Plant(
+        kind=spec.crop, base=np.asarray(base, float), along=np.asarray(along, float),
+        trunk_radius=_u(rng, ps.trunk_radius), leaf_size=_u(rng, ps.leaf_size),
+        density=ps.leaf_density, seed=int(rng.integers(2**31)),
+    )
+    builder = {"vineyard": _vine, "pear": _pear, "tree": _tree, "pergola": _pergola}[spec.crop]
+    builder(plant, spec, rng, row_index)
+    _low_branches(plant, spec, rng)
+    return plant
+
+
+def _seg(plant: Plant, a, b, r0: float, r1: float) -> None:
+    plant.segments.append((np.asarray(a, float), np.asarray(b, float), r0, r1))
+
+
+def _vine(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: int) -> None:
+    ps = spec.plants
+    r = plant.trunk_radius
+    height, trunk_h = _u(rng, ps.height), _u(rng, ps.trunk_height)
+    bottom, width = _u(rng, ps.canopy_bottom), _u(rng, ps.canopy_width)
+    lean = rng.normal(0, 0.03, size=2)
+    top = np.array([lean[0], lean[1], trunk_h])
+    _seg(plant, [0, 0, -0.1], top, r, 0.8 * r)
+    arm = 0.45 * ps.spacing
+    for sign in (-1, 1):  # cordon arms along the wire
+        _seg(plant, top, [sign * arm, lean[1] + rng.normal(0, 0.02), trunk_h + 0.04], 0.6 * r, 0.35 * r)
+    for _ in range(_i(rng, ps.branches)):  # shoots up into the canopy
+        a0 = rng.uniform(-arm, arm)
+        _seg(plant, [a0, lean[1], trunk_h + 0.03], [a0 + rng.normal(0, 0.15), rng.normal(0, 0.08), height * 0.92],
+             0.012, 0.007)
+    n = _i(rng, ps.clusters)
+    span = 0.5 * ps.spacing
+    depth = height - bottom
+    for k in range(n):
+        a = -span + (2 * span) * (k + 0.5) / n + rng.normal(0, 0.05)
+        rz = 0.5 * depth * rng.uniform(0.5, 0.75)
+        hz = rng.uniform(bottom + rz * 0.9, height - rz)
+        radii = np.array([span / n * 1.3 + 0.08, 0.5 * width * rng.uniform(0.8, 1.15), rz])
+        plant.clusters.append((np.array([a, rng.normal(0, 0.04), hz]), radii))
+    # The top of the hedge: one flatter cluster that reaches the nominal height.
+    plant.clusters.append((np.array([rng.normal(0, 0.1), 0.0, height - 0.18]),
+                           np.array([span * 0.9, 0.5 * width * 0.8, 0.18])))
+
+
+def _pear(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: int) -> None:
+    ps = spec.plants
+    r = plant.trunk_radius
+    height, trunk_h = _u(rng, ps.height), _u(rng, ps.trunk_height)
+    bottom, width = _u(rng, ps.canopy_bottom), _u(rng, ps.canopy_width)
+    _seg(plant, [0, 0, -0.1], [0, 0, trunk_h], r, 0.85 * r)
+    _seg(plant, [0, 0, trunk_h], [rng.normal(0, 0.05), rng.normal(0, 0.05), 0.95 * height], 0.8 * r, 0.25 * r)
+    nb = _i(rng, ps.branches)
+    for k in range(nb):  # fruiting tiers along the row, slightly upwards
+        z = trunk_h + (0.95 * height - trunk_h - 0.3) * (k + 0.5) / max(nb, 1)
+        sign = rng.choice([-1, 1])
+        length = rng.uniform(0.3, 0.6)
+        _seg(plant, [0, 0, z], [sign * length, rng.normal(0, 0.15), z + rng.uniform(0.05, 0.3)], 0.4 * r, 0.15 * r)
+    n = _i(rng, ps.clusters)
+    for k in range(n):
+        hz = bottom + (height - bottom) * (k + 0.5) / n + rng.normal(0, 0.08)
+        taper = 1.0 - 0.45 * (hz - bottom) / max(height - bottom, 1e-3)  # narrower at the top
+        radii = np.array([rng.uniform(0.3, 0.45) * taper + 0.1, 0.5 * width * taper * rng.uniform(0.8, 1.1),
+                          rng.uniform(0.25, 0.4)])
+        plant.clusters.append((np.array([rng.normal(0, 0.12), rng.normal(0, 0.06), hz]), radii))
+
+
+def _tree(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: int) -> None:
+    ps = spec.plants
+    r = plant.trunk_radius
+    height, trunk_h = _u(rng, ps.height), _u(rng, ps.trunk_height)
+    bottom, width = _u(rng, ps.canopy_bottom), _u(rng, ps.canopy_width)
+    lean = rng.normal(0, 0.1, size=2)
+    top = np.array([lean[0], lean[1], trunk_h])
+    _seg(plant, [0, 0, -0.2], top, r, 0.75 * r)
+    rh, rv = 0.5 * width, 0.5 * (height - bottom)
+    centre = np.array([lean[0], lean[1], bottom + rv])
+    n = _i(rng, ps.clusters)
+    clusters = [(centre + np.array([0, 0, rv * 0.55]), np.array([rh * 0.55, rh * 0.55, rv * 0.45]))]
+    for _ in range(n - 1):
+        d = rng.normal(size=3)
+        d[2] *= 0.6
+        d /= np.linalg.norm(d)
+        c = centre + d * rng.uniform(0.3, 0.55) * np.array([rh, rh, rv])
+        clusters.append((c, np.array([rh, rh, rv]) * rng.uniform(0.4, 0.55, size=3)))
+    plant.clusters.extend(clusters)
+    for c, _ in clusters[: max(2, _i(rng, ps.branches))]:  # scaffold branches to the clusters
+        _seg(plant, top, c * np.array([0.8, 0.8, 1.0]) + np.array([0, 0, -0.3]), 0.5 * r, 0.15 * r)
+    for _ in range(_i(rng, ps.branches)):
+        d = rng.normal(size=2)
+        d /= np.linalg.norm(d)
+        tip = top + np.array([d[0] * rh * 0.7, d[1] * rh * 0.7, rng.uniform(0.5, 2.0)])
+        _seg(plant, top, tip, 0.35 * r, 0.1 * r)
+
+
+def _pergola(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: int) -> None:
+    ps, st = spec.plants, spec.structures
+    r = plant.trunk_radius
+    ph = st.pergola_height
+    height = max(_u(rng, ps.height), ph + 0.15)
+    reach_right, reach_left = pergola_reach(spec)
+    if row_index == 0:  # the outermost rows have no neighbouring band: spread symmetrically
+        reach_right = reach_left
+    if row_index == spec.rows.count - 1:
+        reach_left = reach_right
+    lean = rng.normal(0, 0.04, size=2)
+    top = np.array([lean[0], lean[1], ph - 0.05])
+    _seg(plant, [0, 0, -0.1], top, r, 0.8 * r)
+    for sign, reach in ((1, reach_left), (-1, reach_right)):  # arms on the overhead wires
+        _seg(plant, top, [rng.normal(0, 0.2), sign * reach * 0.85, ph + 0.02], 0.5 * r, 0.25 * r)
+    n = max(2, _i(rng, ps.clusters))
+    c0, c1 = -reach_right, reach_left
+    thickness = height - ph
+    along = 0.5 * ps.spacing + 0.15
+    for k in range(n):  # flat clusters covering the overhead span, edges at the free bands
+        c = c0 + (c1 - c0) * (k + 0.5) / n
+        rc = min(0.5 * (c1 - c0) / n * 1.25, c - c0, c1 - c)  # never past the band edges
+        plant.clusters.append((np.array([rng.normal(0, 0.1), c, ph + 0.5 * thickness]),
+                               np.array([along, rc, 0.5 * thickness + 0.08])))
+    for sign, reach in ((1, reach_left), (-1, reach_right)):  # shoots hanging at the band edges
+        drop = rng.uniform(0.25, 0.6)
+        plant.clusters.append((np.array([rng.normal(0, 0.15), sign * (reach - 0.15), ph - drop * 0.5]),
+                               np.array([0.35 * ps.spacing, 0.15, drop * 0.5 + 0.05])))
+    bottom = _u(rng, ps.canopy_bottom)  # a few leaves on the trunk, the vine's own head
+    plant.clusters.append((np.array([0.0, 0.0, 0.5 * (bottom + ph)]),
+                           np.array([0.3, 0.2, 0.5 * (ph - bottom)])))
+
+
+def _low_branches(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> None:
+    """Branches that stick out into the gap below the canopy, each with a little foliage."""
+    ps = spec.plants
+    for _ in range(_i(rng, ps.low_branches)):
+        side = rng.choice([-1.0, 1.0])
+        z0 = rng.uniform(0.25, max(0.3, ps.canopy_bottom[0] + 0.2))
+        reach = ps.low_branch_reach * rng.uniform(0.5, 1.0)
+        tip = np.array([rng.normal(0, 0.25), side * reach, z0 + rng.uniform(-0.05, 0.25)])
+        _seg(plant, [0, 0, z0], tip, 0.35 * plant.trunk_radius, 0.1 * plant.trunk_radius)
+        plant.clusters.append((tip, np.array([0.18, 0.12, 0.12]) * rng.uniform(0.8, 1.4)))

@@ -1,0 +1,242 @@
+"""Render RGB, planar depth and an exact vegetation mask of a built world, fast.
+
+pybullet's TinyRenderer has no culling of its own: every frame we hide (alpha 0) the chunks
+outside the view frustum or beyond `render.cull_distance`, and show far chunks at their coarse
+level of detail. Shadows stay off (they double the cost and look wrong); instead light
+direction, colour and ambient/diffuse terms are randomised. Where nothing was hit, a sky
+(gradient plus clouds, randomised) is composited and depth is 0 (no return).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import pybullet as p
+
+from data.synth.camera import CameraModel
+from data.synth.world import World
+
+
+@dataclass
+class PoseOffset:
+    """Camera pose perturbation relative to the nominal robot pose (metres, radians)."""
+
+    lateral: float = 0.0   # + = left of the robot heading
+    yaw: float = 0.0
+    pitch: float = 0.0     # + = camera looks further up
+    roll: float = 0.0
+
+    @staticmethod
+    def coerce(value) -> "PoseOffset":
+        if value is None:
+            return PoseOffset()
+        if isinstance(value, PoseOffset):
+            return value
+        if isinstance(value, dict):
+            return PoseOffset(**value)
+        return PoseOffset(*[float(v) for v in value])
+
+
+@dataclass
+class RenderedFrame:
+    """One camera frame. `camera_pose` is camera-to-world 4x4 (OpenCV axes: x right, y down, z forward)."""
+
+    rgb: np.ndarray           # uint8 H x W x 3
+    depth: np.ndarray         # float32 H x W metres, planar, 0 = invalid / no return
+    mask: np.ndarray          # bool H x W, exact vegetation (trunks, branches, leaves)
+    camera_pose: np.ndarray   # float64 4 x 4
+    robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    stats: dict = field(default_factory=dict)
+
+
+def camera_pose(world: World, camera: CameraModel, x: float, y: float, yaw: float,
+                pose_offset: PoseOffset | None = None) -> np.ndarray:
+    """Camera-to-world 4x4 of the camera on a robot at (x, y, yaw), following the terrain."""
+    off = PoseOffset.coerce(pose_offset)
+    x = x - math.sin(yaw) * off.lateral
+    y = y + math.cos(yaw) * off.lateral
+    heading = yaw + off.yaw
+    n = np.asarray(world.terrain_normal(x, y), float).reshape(3)
+    f0 = np.array([math.cos(heading), math.sin(heading), 0.0])
+    f = f0 - f0.dot(n) * n
+    f /= np.linalg.norm(f)
+    base = np.array([x, y, world.terrain_height(x, y)])
+    pos = base + camera.mount_forward * f + camera.mount_height * n
+    pitch = math.radians(camera.tilt_deg) + off.pitch
+    fwd = math.cos(pitch) * f + math.sin(pitch) * n
+    up = -math.sin(pitch) * f + math.cos(pitch) * n
+    y_cv = -up
+    x_cv = np.cross(y_cv, fwd)
+    if off.roll:
+        c, s = math.cos(off.roll), math.sin(off.roll)
+        x_cv, y_cv = c * x_cv + s * y_cv, -s * x_cv + c * y_cv
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x_cv, y_cv, fwd, pos
+    return pose
+
+
+class Renderer:
+    """Renders frames of one world with one camera model; keeps the per-body visibility state."""
+
+    def __init__(self, world: World, camera: CameraModel | None = None) -> None:
+        self.world = world
+        self.camera = camera or CameraModel()
+        self.client = world.client_id
+        cam = self.camera
+        self.aspect = math.tan(math.radians(cam.hfov_deg) / 2) / math.tan(math.radians(cam.vfov_deg) / 2)
+        self.projection = p.computeProjectionMatrixFOV(cam.vfov_deg, self.aspect, cam.near, cam.far,
+                                                       physicsClientId=self.client)
+        self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
+        self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
+        rays = cam.pixel_rays()
+        self.rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+        chunks = world.chunks
+        self.centres = np.array([c.centre for c in chunks])
+        self.radii = np.array([c.radius for c in chunks])
+        self.fine = np.array([c.fine for c in chunks])
+        self.coarse = np.array([c.coarse for c in chunks])
+        self.always = np.isinf(self.radii)
+        self.tris = np.array([c.triangles for c in chunks]).reshape(-1, 2)
+        max_id = max([c.fine for c in chunks] + [c.coarse for c in chunks] + [0])
+        self.veg_lut = np.zeros(max_id + 2, bool)
+        for b in world.vegetation_ids:
+            self.veg_lut[b + 1] = True
+        self.rgba: dict[int, list[float]] = {}
+        self.texture: dict[int, int] = {}
+        self.shown: dict[int, bool] = {}
+        for c in chunks:
+            for b in (c.fine, c.coarse):
+                if b >= 0:
+                    self.rgba[b] = [1.0, 1.0, 1.0] if c.kind != "structure" else [0.9, 0.9, 0.9]
+                    self.texture[b] = c.texture
+                    self.shown[b] = True
+        self._noise_rng = np.random.default_rng([world.seed, 7])
+
+    # ----------------------------------------------------------------- appearance
+    def randomize_appearance(self, rng: np.random.Generator) -> None:
+        """Per-episode look: texture variants (incl. autumn) and colour tints of every chunk."""
+        tex = self.world.textures
+        main_plant = int(rng.integers(len(tex.plant)))
+        ground = int(rng.integers(len(tex.ground)))
+        ground_tint = rng.uniform(0.75, 1.0) * (1 + rng.uniform(-0.06, 0.06, 3))
+        struct_tint = rng.uniform(0.55, 1.0) * (1 + rng.uniform(-0.05, 0.05, 3))
+        for c in self.world.chunks:
+            if c.kind == "plants":
+                variant = main_plant if rng.uniform() > 0.2 else int(rng.integers(len(tex.plant)))
+                texture = tex.plant[variant]
+                tint = rng.uniform(0.78, 1.0) * (1 + rng.uniform(-0.07, 0.07, 3))
+            elif c.kind in ("ground", "skirt"):
+                texture, tint = tex.ground[ground], ground_tint * (0.85 if c.kind == "skirt" else 1.0)
+            else:
+                texture, tint = tex.structure, struct_tint
+            for b in (c.fine, c.coarse):
+                if b < 0:
+                    continue
+                self.rgba[b] = [float(v) for v in np.clip(tint, 0, 1)]
+                self.texture[b] = texture
+                alpha = 1.0 if self.shown[b] else 0.0
+                p.changeVisualShape(b, -1, textureUniqueId=texture, rgbaColor=self.rgba[b] + [alpha],
+                                    physicsClientId=self.client)
+
+    # ----------------------------------------------------------------- culling
+    def _cull(self, pose: np.ndarray) -> dict:
+        rot, pos = pose[:3, :3], pose[:3, 3]
+        rel = (self.centres - pos) @ rot  # camera-frame coordinates (x right, y down, z fwd)
+        r = self.radii
+        spec = self.world.spec.render
+        with np.errstate(invalid="ignore"):
+            visible = (
+                (rel[:, 2] > -r)
+                & (rel[:, 2] - r < spec.cull_distance)
+                & (np.abs(rel[:, 0]) <= rel[:, 2] * self.tan_h + r * math.sqrt(1 + self.tan_h ** 2))
+                & (np.abs(rel[:, 1]) <= rel[:, 2] * self.tan_v + r * math.sqrt(1 + self.tan_v ** 2))
+            )
+        visible |= self.always
+        dist = np.linalg.norm(self.centres - pos, axis=1) - r
+        near = dist < spec.lod_distance
+        has_coarse = self.coarse >= 0
+        want_fine = visible & (near | ~has_coarse)
+        want_coarse = visible & ~near & has_coarse
+        changes = 0
+        for bodies, wanted in ((self.fine, want_fine), (self.coarse, want_coarse)):
+            for b, w in zip(bodies.tolist(), wanted.tolist()):
+                if b < 0 or self.shown[b] == w:
+                    continue
+                self.shown[b] = w
+                p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0], physicsClientId=self.client)
+                changes += 1
+        triangles = int(self.tris[want_fine, 0].sum() + self.tris[want_coarse, 1].sum())
+        return {"visible_chunks": int(visible.sum()), "fine_chunks": int(want_fine.sum()), "changes": changes,
+                "triangles": triangles}
+
+    # ----------------------------------------------------------------- sky
+    def _sky(self, pose: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+        cam = self.camera
+        elev = self.rays @ pose[2, :3]  # world z of each pixel's ray
+        if rng is None:
+            horizon, zenith, clouds, cover = np.array([0.80, 0.85, 0.90]), np.array([0.35, 0.55, 0.85]), None, 0.0
+        else:
+            horizon = np.clip(np.array([0.78, 0.83, 0.88]) + rng.uniform(-0.1, 0.1, 3), 0, 1)
+            zenith = np.clip(np.array([0.3, 0.5, 0.85]) + rng.uniform(-0.15, 0.12, 3), 0, 1)
+            cover = rng.uniform(0.0, 0.8)
+            small = rng.uniform(0, 1, size=(5, 7)).astype(np.float32)
+            fine = rng.uniform(0, 1, size=(14, 14)).astype(np.float32)
+            clouds = (0.75 * cv2.resize(small, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
+                      + 0.25 * cv2.resize(fine, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC))
+        t = np.clip(elev / 0.6, 0, 1) ** 0.7
+        sky = horizon[None, None] * (1 - t[..., None]) + zenith[None, None] * t[..., None]
+        if clouds is not None and cover > 0:
+            amount = np.clip((clouds - (1 - cover)) * 3, 0, 1) * np.clip(elev * 8 + 0.3, 0, 1)
+            grey = rng.uniform(0.75, 1.0)
+            sky = sky * (1 - amount[..., None]) + grey * amount[..., None]
+        return (np.clip(sky, 0, 1) * 255).astype(np.uint8)
+
+    # ----------------------------------------------------------------- render
+    def render(self, x: float, y: float, yaw: float, *, rng: np.random.Generator | None = None,
+               noisy_depth: bool = False, pose_offset=None) -> RenderedFrame:
+        """Render the camera of a robot at (x, y, yaw); `rng` randomises light, sky and exposure."""
+        cam = self.camera
+        pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
+        stats = self._cull(pose)
+        eye = pose[:3, 3]
+        view = p.computeViewMatrix(eye.tolist(), (eye + pose[:3, 2]).tolist(), (-pose[:3, 1]).tolist(),
+                                   physicsClientId=self.client)
+        if rng is None:
+            light = dict(lightDirection=[0.4, 0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=100.0,
+                         lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.05)
+        else:
+            az, el = rng.uniform(0, 2 * np.pi), rng.uniform(math.radians(20), math.radians(80))
+            warm = rng.uniform(-0.12, 0.12)
+            light = dict(
+                lightDirection=[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
+                lightColor=[float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
+                lightDistance=100.0, lightAmbientCoeff=rng.uniform(0.35, 0.7),
+                lightDiffuseCoeff=rng.uniform(0.3, 0.7), lightSpecularCoeff=rng.uniform(0.0, 0.12),
+            )
+        _, _, rgba, zbuf, seg = p.getCameraImage(
+            cam.width, cam.height, view, self.projection, shadow=0, renderer=p.ER_TINY_RENDERER,
+            physicsClientId=self.client, **light,
+        )
+        rgba = np.reshape(np.asarray(rgba, np.uint8), (cam.height, cam.width, 4))
+        zbuf = np.reshape(np.asarray(zbuf, np.float32), (cam.height, cam.width))
+        seg = np.reshape(np.asarray(seg, np.int64), (cam.height, cam.width))
+        hit = seg >= 0
+        ids = np.where(hit, seg & 0xFFFFFF, -1)
+        mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)] & hit
+        near, far = cam.near, cam.far
+        depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
+        depth[~hit] = 0.0
+        rgb = rgba[..., :3].copy()
+        if not hit.all():
+            sky = self._sky(pose, rng)
+            rgb[~hit] = sky[~hit]
+        if rng is not None:
+            gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
+            rgb = np.clip(rgb.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+        if noisy_depth and cam.depth_noise_enabled:
+            depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
+        return RenderedFrame(rgb=rgb, depth=depth, mask=mask, camera_pose=pose,
+                             robot_pose=(float(x), float(y), float(yaw)), stats=stats)

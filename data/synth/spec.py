@@ -1,0 +1,311 @@
+"""World specs: every number that shapes a procedural field, validated before anything is built.
+
+A spec is a YAML file in `configs/worlds/` loaded strictly (unknown keys are errors, see
+`segmin.config`). Geometry is in metres and degrees; ranges are `[low, high]` pairs that the
+world builder samples per plant. Validation raises an error naming the field, so a typo or an
+impossible field (negative spacing, rows that would intersect) fails before pybullet starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from segmin.config import ConfigError, apply_overrides, from_dict, read_yaml
+
+TEST_FIELDS: tuple[str, ...] = (
+    "straight_vineyard",
+    "curved_vineyard",
+    "pergola_vineyard",
+    "pear_field",
+    "high_trees",
+)
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "worlds"
+
+Range = tuple[float, float]
+
+
+def _check_range(name: str, value: Range, *, low: float | None = 0.0, strict: bool = False) -> None:
+    a, b = value
+    if a > b:
+        raise ValueError(f"{name}: range [{a}, {b}] has low > high")
+    if low is not None and (a < low or (strict and a <= low)):
+        raise ValueError(f"{name}: values must be {'>' if strict else '>='} {low}, got [{a}, {b}]")
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not value > 0:
+        raise ValueError(f"{name}: must be > 0, got {value}")
+
+
+def _check_fraction(name: str, value: float) -> None:
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"{name}: must be within [0, 1], got {value}")
+
+
+@dataclass
+class RowsSpec:
+    """Row layout: `count` plant rows, `count - 1` gaps the robot can drive through."""
+
+    count: int = 4
+    length: float = 25.0          # along the row, from the entrance at s = 0
+    spacing: float = 1.8          # distance between neighbouring row lines
+    start_x: float = 0.0          # x of the row entrance
+    curve_radius: float = 0.0     # 0 = straight; > 0 bends left, < 0 bends right
+    curve_start: float = 0.0      # straight part before the bend starts
+    polyline: list[tuple[float, float]] = field(default_factory=list)  # optional reference line (x, y)
+    lateral_jitter: float = 0.03  # plant offset from the row line (std, m)
+    eval_gap: int = -1            # gap the evaluation drives through; -1 = the middle one
+
+    def __post_init__(self) -> None:
+        if self.count < 2:
+            raise ValueError(f"rows.count: need at least 2 rows (one gap), got {self.count}")
+        _check_positive("rows.length", self.length)
+        _check_positive("rows.spacing", self.spacing)
+        if self.lateral_jitter < 0:
+            raise ValueError(f"rows.lateral_jitter: must be >= 0, got {self.lateral_jitter}")
+        if self.curve_start < 0:
+            raise ValueError(f"rows.curve_start: must be >= 0, got {self.curve_start}")
+        half_width = 0.5 * (self.count - 1) * self.spacing
+        if self.curve_radius != 0 and abs(self.curve_radius) <= half_width + 1.0:
+            raise ValueError(
+                f"rows.curve_radius: |{self.curve_radius}| m is too tight for {self.count} rows "
+                f"{self.spacing} m apart; the inner rows would intersect (need > {half_width + 1.0:.1f} m)"
+            )
+        if self.polyline and len(self.polyline) < 2:
+            raise ValueError("rows.polyline: needs at least 2 points (or leave it empty)")
+        if not -1 <= self.eval_gap < self.count - 1:
+            raise ValueError(f"rows.eval_gap: must be -1 or a gap index below {self.count - 1}, got {self.eval_gap}")
+
+
+@dataclass
+class PlantsSpec:
+    """One plant = trunk, a few branches and a canopy of leaf clusters (see `plants.py`)."""
+
+    spacing: float = 1.3
+    spacing_jitter: float = 0.15          # uniform +- along the row (m)
+    gap_probability: float = 0.05         # chance a plant is missing
+    height: Range = (1.8, 2.1)            # top of the canopy above ground
+    trunk_height: Range = (0.6, 0.8)      # where the trunk splits into branches / cordon
+    trunk_radius: Range = (0.03, 0.05)
+    canopy_bottom: Range = (0.8, 1.0)     # lowest leaves above ground
+    canopy_width: Range = (0.4, 0.6)      # across the row (for pergola: unused, see structures)
+    clusters: tuple[int, int] = (3, 5)    # leaf clusters per plant
+    branches: tuple[int, int] = (2, 4)
+    low_branches: tuple[int, int] = (0, 0)  # bare-ish branches reaching into the gap below the canopy
+    low_branch_reach: float = 0.4
+    leaf_size: Range = (0.08, 0.14)       # triangle edge length (fine level of detail)
+    leaf_density: float = 0.7             # 0..1, how much of each cluster's shell is covered
+
+    def __post_init__(self) -> None:
+        _check_positive("plants.spacing", self.spacing)
+        if not 0 <= self.spacing_jitter < 0.5 * self.spacing:
+            raise ValueError(f"plants.spacing_jitter: must be within [0, spacing/2), got {self.spacing_jitter}")
+        _check_fraction("plants.gap_probability", self.gap_probability)
+        _check_range("plants.height", self.height, strict=True)
+        _check_range("plants.trunk_height", self.trunk_height, strict=True)
+        _check_range("plants.trunk_radius", self.trunk_radius, strict=True)
+        _check_range("plants.canopy_bottom", self.canopy_bottom)
+        _check_range("plants.canopy_width", self.canopy_width, strict=True)
+        _check_range("plants.leaf_size", self.leaf_size, strict=True)
+        for name in ("clusters", "branches", "low_branches"):
+            a, b = getattr(self, name)
+            if a < 0 or a > b:
+                raise ValueError(f"plants.{name}: need 0 <= low <= high, got [{a}, {b}]")
+        if self.clusters[0] < 1:
+            raise ValueError(f"plants.clusters: at least one leaf cluster per plant, got {self.clusters}")
+        if self.low_branch_reach < 0:
+            raise ValueError(f"plants.low_branch_reach: must be >= 0, got {self.low_branch_reach}")
+        _check_fraction("plants.leaf_density", self.leaf_density)
+        if self.canopy_bottom[1] >= self.height[0]:
+            raise ValueError(
+                f"plants.canopy_bottom: {list(self.canopy_bottom)} must lie below plants.height {list(self.height)}"
+            )
+
+
+@dataclass
+class StructuresSpec:
+    """Supporting structures: they are obstacles but NOT vegetation in the mask."""
+
+    poles: bool = True
+    pole_spacing: float = 6.0
+    pole_height: float = 2.1
+    pole_radius: float = 0.04
+    wire_heights: list[float] = field(default_factory=lambda: [0.9, 1.3, 1.7])
+    pergola: bool = False
+    pergola_height: float = 2.6       # height of the overhead frame and vine canopy
+    free_band_width: float = 1.2      # free band over each gap (pergola only)
+    free_band_offset: float = 0.0     # band centre offset from the gap middle, + = left (asymmetry)
+
+    def __post_init__(self) -> None:
+        _check_positive("structures.pole_spacing", self.pole_spacing)
+        _check_positive("structures.pole_height", self.pole_height)
+        _check_positive("structures.pole_radius", self.pole_radius)
+        for i, h in enumerate(self.wire_heights):
+            if not 0 < h <= self.pole_height:
+                raise ValueError(f"structures.wire_heights[{i}]: {h} must be within (0, pole_height]")
+        if self.pergola:
+            _check_positive("structures.pergola_height", self.pergola_height)
+            _check_positive("structures.free_band_width", self.free_band_width)
+
+
+@dataclass
+class TerrainSpec:
+    """Uneven ground: a sum of smooth random waves (analytic height and normal)."""
+
+    roughness: float = 0.06           # standard deviation of the height (m)
+    wavelength: Range = (3.0, 12.0)
+    slope: tuple[float, float] = (0.0, 0.0)  # constant slope dz/dx, dz/dy
+    resolution: float = 1.0           # mesh grid step near the camera (m)
+    margin: float = 8.0               # ground beyond the outer rows and row ends (m)
+    grass_tufts: float = 0.6          # tufts per square metre (not vegetation)
+
+    def __post_init__(self) -> None:
+        if self.roughness < 0:
+            raise ValueError(f"terrain.roughness: must be >= 0, got {self.roughness}")
+        _check_range("terrain.wavelength", self.wavelength, strict=True)
+        _check_positive("terrain.resolution", self.resolution)
+        if self.margin < 0:
+            raise ValueError(f"terrain.margin: must be >= 0, got {self.margin}")
+        if self.grass_tufts < 0:
+            raise ValueError(f"terrain.grass_tufts: must be >= 0, got {self.grass_tufts}")
+
+
+@dataclass
+class AppearanceSpec:
+    """Colour, texture and season ranges sampled per texture variant and per episode."""
+
+    leaf_hue: Range = (70.0, 115.0)        # degrees (green ~ 100)
+    leaf_saturation: Range = (0.35, 0.75)
+    leaf_value: Range = (0.30, 0.65)
+    autumn_probability: float = 0.15       # chance a texture variant has autumn tones
+    bark_value: Range = (0.22, 0.45)
+    ground_green: Range = (0.2, 0.7)       # grass cover of the ground texture
+    texture_variants: int = 3
+
+    def __post_init__(self) -> None:
+        _check_range("appearance.leaf_hue", self.leaf_hue)
+        if self.leaf_hue[1] > 360:
+            raise ValueError(f"appearance.leaf_hue: degrees within [0, 360], got {list(self.leaf_hue)}")
+        for name in ("leaf_saturation", "leaf_value", "bark_value", "ground_green"):
+            value = getattr(self, name)
+            _check_range(f"appearance.{name}", value)
+            if value[1] > 1:
+                raise ValueError(f"appearance.{name}: values within [0, 1], got {list(value)}")
+        _check_fraction("appearance.autumn_probability", self.autumn_probability)
+        if self.texture_variants < 1:
+            raise ValueError(f"appearance.texture_variants: at least 1, got {self.texture_variants}")
+
+
+@dataclass
+class RenderSpec:
+    """Per-world rendering knobs: what to hide (alpha 0) and when to switch to coarse meshes."""
+
+    cull_distance: float = 35.0
+    lod_distance: float = 5.0
+    chunk_length: float = 3.0       # plants of one row within this length share one body
+
+    def __post_init__(self) -> None:
+        _check_positive("render.cull_distance", self.cull_distance)
+        if self.lod_distance < 0:
+            raise ValueError(f"render.lod_distance: must be >= 0, got {self.lod_distance}")
+        _check_positive("render.chunk_length", self.chunk_length)
+
+
+@dataclass
+class WorldSpec:
+    """A whole field. `family` groups training worlds like the paper's crop families."""
+
+    name: str
+    crop: Literal["vineyard", "pergola", "pear", "tree"]
+    family: Literal["vineyards", "trees"]
+    seed: int
+    domain: str = ""                # AgriSeg-style domain for the writer; default synth_<name>
+    rows: RowsSpec = field(default_factory=RowsSpec)
+    plants: PlantsSpec = field(default_factory=PlantsSpec)
+    structures: StructuresSpec = field(default_factory=StructuresSpec)
+    terrain: TerrainSpec = field(default_factory=TerrainSpec)
+    appearance: AppearanceSpec = field(default_factory=AppearanceSpec)
+    render: RenderSpec = field(default_factory=RenderSpec)
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
+            raise ValueError(f"name: must be a non-empty word (letters, digits, _ or -), got {self.name!r}")
+        if not self.domain:
+            base = self.name[len("train_"):] if self.name.startswith("train_") else self.name
+            self.domain = f"synth_{base}"
+        if not self.domain.replace("_", "").replace("-", "").isalnum():
+            raise ValueError(f"domain: must be a word usable as a folder name, got {self.domain!r}")
+        if self.seed < 0:
+            raise ValueError(f"seed: must be >= 0, got {self.seed}")
+        # Rows intersect when the trunk lines (plus jitter) of neighbouring rows can touch.
+        trunk_clearance = 2 * (self.plants.trunk_radius[1] + 3 * self.rows.lateral_jitter)
+        if self.rows.spacing <= trunk_clearance:
+            raise ValueError(
+                f"rows.spacing: {self.rows.spacing} m is too small, neighbouring rows would intersect "
+                f"(trunks and jitter need > {trunk_clearance:.2f} m)"
+            )
+        if self.structures.pergola and self.structures.free_band_width / 2 + abs(self.structures.free_band_offset) >= self.rows.spacing / 2:
+            raise ValueError(
+                "structures.free_band_width: the free band (with its offset) must fit between the rows "
+                f"({self.structures.free_band_width} + 2*{abs(self.structures.free_band_offset)} >= {self.rows.spacing})"
+            )
+
+    @property
+    def n_gaps(self) -> int:
+        return self.rows.count - 1
+
+    @property
+    def eval_gap(self) -> int:
+        """Index of the gap a closed-loop run drives through (the middle one by default)."""
+        return self.rows.eval_gap if self.rows.eval_gap >= 0 else (self.rows.count - 1) // 2
+
+
+def resolve_world_path(name_or_path: str | Path) -> Path:
+    """A bare name (no suffix, no slash) means `configs/worlds/<name>.yaml`."""
+    text = str(name_or_path)
+    if "/" not in text and not text.endswith((".yaml", ".yml")):
+        return CONFIG_DIR / f"{text}.yaml"
+    return Path(text)
+
+
+def load_world_spec(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> WorldSpec:
+    """Load and validate a world spec; errors name the file and the field."""
+    path = resolve_world_path(name_or_path)
+    if not path.is_file():
+        known = sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
+        raise ConfigError(f"{path}: world spec not found (known worlds: {', '.join(known)})")
+    raw = apply_overrides(read_yaml(path), list(overrides))
+    return from_dict(WorldSpec, raw, where=str(path))
+
+
+def spec_from_dict(raw: dict, overrides: list[str] | tuple[str, ...] = (), where: str = "world") -> WorldSpec:
+    """Build a spec from a mapping (tests, programmatic worlds)."""
+    return from_dict(WorldSpec, apply_overrides(raw, list(overrides)), where=where)
+
+
+def pergola_reach(spec: WorldSpec) -> tuple[float, float]:
+    """(right, left) reach of a pergola row's canopy towards the gaps on each side (m)."""
+    s = spec.structures
+    half = spec.rows.spacing / 2
+    left = half + s.free_band_offset - s.free_band_width / 2     # towards the gap on the left
+    right = half - s.free_band_offset - s.free_band_width / 2    # towards the gap on the right
+    return max(right, 0.0), max(left, 0.0)
+
+
+__all__ = [
+    "TEST_FIELDS",
+    "AppearanceSpec",
+    "PlantsSpec",
+    "RenderSpec",
+    "RowsSpec",
+    "StructuresSpec",
+    "TerrainSpec",
+    "WorldSpec",
+    "load_world_spec",
+    "pergola_reach",
+    "resolve_world_path",
+    "spec_from_dict",
+]

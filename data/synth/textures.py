@@ -1,0 +1,122 @@
+"""Procedural textures (numpy, deterministic per seed) loaded into pybullet.
+
+Plant atlas: left half bark, right half leaves (mottled greens with veins, or autumn tones).
+Ground: soil with grass patches. Structures: weathered grey/wood. Files go to a temporary
+folder only long enough for `loadTexture` to read them.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import shutil
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pybullet as p
+
+SIZE = 128
+
+
+def _noise(rng: np.random.Generator, size: int, scales: tuple[int, ...] = (4, 8, 16, 32)) -> np.ndarray:
+    """Multi-octave value noise in [0, 1]."""
+    out = np.zeros((size, size), np.float32)
+    weight = 1.0
+    total = 0.0
+    for s in scales:
+        small = rng.uniform(0, 1, size=(s, s)).astype(np.float32)
+        out += weight * cv2.resize(small, (size, size), interpolation=cv2.INTER_CUBIC)
+        total += weight
+        weight *= 0.6
+    out /= total
+    out -= out.min()
+    return out / max(float(out.max()), 1e-6)
+
+
+def _hsv(h_deg: float, s: float, v: float) -> np.ndarray:
+    return np.array(colorsys.hsv_to_rgb((h_deg % 360) / 360.0, float(np.clip(s, 0, 1)), float(np.clip(v, 0, 1))))
+
+
+def plant_atlas(rng: np.random.Generator, appearance, autumn: bool) -> np.ndarray:
+    """RGB uint8 atlas: bark on the left half, leaves on the right half."""
+    size = SIZE
+    img = np.zeros((size, size, 3), np.float32)
+    half = size // 2
+    # Bark: brown-grey with vertical streaks.
+    bark_v = rng.uniform(*appearance.bark_value)
+    bark = _hsv(rng.uniform(20, 38), rng.uniform(0.25, 0.5), bark_v)
+    streaks = cv2.resize(rng.uniform(0, 1, size=(half // 4, 4)).astype(np.float32), (half, size))
+    bark_noise = 0.7 + 0.5 * (0.5 * _noise(rng, size)[:, :half] + 0.5 * streaks)
+    img[:, :half] = bark[None, None, :] * bark_noise[..., None]
+    # Leaves: a base colour, mottling, lighter veins, a few yellow/brown spots.
+    if autumn:
+        hue = rng.uniform(15, 55)
+        sat = rng.uniform(0.55, 0.85)
+    else:
+        hue = rng.uniform(*appearance.leaf_hue)
+        sat = rng.uniform(*appearance.leaf_saturation)
+    val = rng.uniform(*appearance.leaf_value)
+    mottle = _noise(rng, size, (8, 16, 32, 64))[:, half:]
+    hue_field = hue + (mottle - 0.5) * (30 if autumn else 14)
+    hsv = np.stack([
+        (hue_field % 360) / 2.0,
+        np.full_like(mottle, sat) * 255 * (0.85 + 0.3 * mottle),
+        np.clip(val * (0.7 + 0.6 * mottle), 0, 1) * 255,
+    ], axis=-1).astype(np.float32)
+    hsv[..., 1] = np.clip(hsv[..., 1], 0, 255)
+    leaf = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB).astype(np.float32) / 255.0
+    ys, xs = np.mgrid[0:size, 0:half]
+    veins = (np.abs(((xs + ys * 0.6) % 16) - 8) < 0.7) | (np.abs(((xs - ys * 0.6) % 16) - 8) < 0.7)
+    leaf[veins] = np.clip(leaf[veins] * 1.25 + 0.03, 0, 1)
+    spots = _noise(rng, size, (16, 32))[:, :half] > 0.92
+    leaf[spots] = leaf[spots] * 0.6 + _hsv(35, 0.6, val * 0.9)[None, :] * 0.4
+    img[:, half:] = leaf
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
+def ground_texture(rng: np.random.Generator, appearance) -> np.ndarray:
+    size = SIZE
+    green = rng.uniform(*appearance.ground_green)
+    soil = _hsv(rng.uniform(22, 35), rng.uniform(0.3, 0.5), rng.uniform(0.35, 0.55))
+    grass = _hsv(rng.uniform(60, 100), rng.uniform(0.35, 0.6), rng.uniform(0.35, 0.55))
+    patches = _noise(rng, size, (4, 8, 16))
+    fine = _noise(rng, size, (32, 64, 128))
+    cover = np.clip((patches - (1 - green)) * 4 + 0.5, 0, 1) * (0.6 + 0.4 * fine)
+    img = soil[None, None] * (1 - cover[..., None]) + grass[None, None] * cover[..., None]
+    img *= (0.75 + 0.5 * fine)[..., None]
+    stones = _noise(rng, size, (64, 128)) > 0.93
+    img[stones] = img[stones] * 0.5 + 0.35
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
+def structure_texture(rng: np.random.Generator) -> np.ndarray:
+    size = SIZE
+    base = _hsv(rng.uniform(25, 40), rng.uniform(0.05, 0.25), rng.uniform(0.45, 0.7))
+    img = base[None, None] * (0.8 + 0.35 * _noise(rng, size))[..., None]
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
+class TextureSet:
+    """Texture ids loaded into one pybullet client: plant variants, ground variants, structures."""
+
+    def __init__(self, client_id: int, appearance, rng: np.random.Generator) -> None:
+        n = appearance.texture_variants
+        self.autumn = [bool(rng.uniform() < appearance.autumn_probability) for _ in range(n)]
+        # Keep at least one green variant: the default look of a world is summer.
+        self.autumn[0] = False
+        images = {f"plant{i}": plant_atlas(rng, appearance, self.autumn[i]) for i in range(n)}
+        images.update({f"ground{i}": ground_texture(rng, appearance) for i in range(n)})
+        images["structure"] = structure_texture(rng)
+        folder = Path(tempfile.mkdtemp(prefix="segmin_tex_"))
+        try:
+            ids = {}
+            for name, img in images.items():
+                path = folder / f"{name}.png"
+                cv2.imwrite(str(path), img[:, :, ::-1])
+                ids[name] = p.loadTexture(str(path), physicsClientId=client_id)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+        self.plant = [ids[f"plant{i}"] for i in range(n)]
+        self.ground = [ids[f"ground{i}"] for i in range(n)]
+        self.structure = ids["structure"]

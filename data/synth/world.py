@@ -1,0 +1,354 @@
+"""Build a field from a WorldSpec into a pybullet client, with its ground truth.
+
+World frame: z up, metres, rows run along +x from the entrance near x = `rows.start_x`. Row i
+(0 = rightmost, lowest y) lies at lateral offset `(i - (count-1)/2) * spacing` from a reference
+line; gap g lies between rows g and g+1. Curved rows are concentric offsets of a curved
+reference line, so they never intersect (the spec checks the radius).
+
+Geometry is grouped into chunks (plants and structures of one row within `render.chunk_length`,
+ground tiles) with a fine and a coarse body each; the renderer hides chunks the camera cannot
+see by setting their alpha to 0, which TinyRenderer skips.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pybullet as p
+
+from data.synth.mesh import Mesh, cylinders, grid_surface, leaves
+from data.synth.plants import Plant, make_plant
+from data.synth.spec import WorldSpec, pergola_reach
+from data.synth.textures import TextureSet
+
+CENTRELINE_STEP = 0.1  # metres between centreline points
+GROUND_TILE = 6.0
+
+
+class Terrain:
+    """Analytic uneven ground: a sum of random plane waves plus a constant slope."""
+
+    def __init__(self, spec: WorldSpec, rng: np.random.Generator, n_waves: int = 6) -> None:
+        ts = spec.terrain
+        lam = rng.uniform(*ts.wavelength, size=n_waves)
+        theta = rng.uniform(0, 2 * np.pi, size=n_waves)
+        self.k = np.stack([np.cos(theta), np.sin(theta)], axis=1) * (2 * np.pi / lam)[:, None]
+        self.phase = rng.uniform(0, 2 * np.pi, size=n_waves)
+        self.amp = np.full(n_waves, ts.roughness / np.sqrt(n_waves / 2))
+        self.slope = np.asarray(ts.slope, float)
+
+    def height(self, x, y):
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        arg = x[..., None] * self.k[:, 0] + y[..., None] * self.k[:, 1] + self.phase
+        return (self.amp * np.sin(arg)).sum(-1) + self.slope[0] * x + self.slope[1] * y
+
+    def gradient(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        arg = x[..., None] * self.k[:, 0] + y[..., None] * self.k[:, 1] + self.phase
+        c = self.amp * np.cos(arg)
+        return (c * self.k[:, 0]).sum(-1) + self.slope[0], (c * self.k[:, 1]).sum(-1) + self.slope[1]
+
+    def normal(self, x, y) -> np.ndarray:
+        gx, gy = self.gradient(x, y)
+        n = np.stack([-gx, -gy, np.ones_like(gx)], axis=-1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+class RowLayout:
+    """The reference line (dense polyline with arclength) and the lateral offsets of the rows."""
+
+    def __init__(self, spec: WorldSpec, extend: float) -> None:
+        rs = spec.rows
+        self.length = rs.length
+        self.offsets = (np.arange(rs.count) - (rs.count - 1) / 2) * rs.spacing
+        s = np.arange(-extend, rs.length + extend + 1e-9, CENTRELINE_STEP / 2)
+        if rs.polyline:
+            xy = self._resample(np.asarray(rs.polyline, float), s)
+        else:
+            heading = np.zeros_like(s)
+            if rs.curve_radius != 0:
+                bend = np.clip(s - rs.curve_start, 0, rs.length - rs.curve_start)
+                heading = bend / rs.curve_radius
+            ds = np.diff(s, prepend=s[0])
+            x = np.cumsum(np.cos(heading) * ds)
+            y = np.cumsum(np.sin(heading) * ds)
+            i0 = int(np.argmin(np.abs(s)))
+            xy = np.stack([x - x[i0] + rs.start_x, y - y[i0]], axis=1)
+        self.s = s
+        self.xy = xy
+        tangent = np.gradient(xy, s, axis=0)
+        self.tangent = tangent / np.linalg.norm(tangent, axis=1, keepdims=True)
+        self.left = np.stack([-self.tangent[:, 1], self.tangent[:, 0]], axis=1)
+
+    @staticmethod
+    def _resample(poly: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Polyline by arclength from its first point, extended straight at both ends."""
+        seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        t0 = (poly[1] - poly[0]) / seg[0]
+        t1 = (poly[-1] - poly[-2]) / seg[-1]
+        out = np.stack([np.interp(s, cum, poly[:, 0]), np.interp(s, cum, poly[:, 1])], axis=1)
+        before, after = s < 0, s > cum[-1]
+        out[before] = poly[0] + s[before, None] * t0
+        out[after] = poly[-1] + (s[after, None] - cum[-1]) * t1
+        return out
+
+    def at(self, s: np.ndarray, offset: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Points at arclength `s` of the reference line shifted left by `offset`, and tangents."""
+        s = np.atleast_1d(np.asarray(s, float))
+        x = np.interp(s, self.s, self.xy[:, 0])
+        y = np.interp(s, self.s, self.xy[:, 1])
+        tx = np.interp(s, self.s, self.tangent[:, 0])
+        ty = np.interp(s, self.s, self.tangent[:, 1])
+        t = np.stack([tx, ty], axis=1)
+        t /= np.linalg.norm(t, axis=1, keepdims=True)
+        left = np.stack([-t[:, 1], t[:, 0]], axis=1)
+        return np.stack([x, y], axis=1) + np.asarray(offset)[..., None] * left, t
+
+
+@dataclass
+class Chunk:
+    """One unit of culling: a bounding sphere and the bodies showing it at each level of detail."""
+
+    centre: np.ndarray
+    radius: float
+    fine: int
+    coarse: int          # -1 when the chunk has a single level
+    kind: str            # "plants", "structure", "ground"
+    texture: int = -1
+    triangles: tuple[int, int] = (0, 0)  # fine, coarse
+
+
+@dataclass
+class World:
+    """A built field in one pybullet client, plus the ground truth evaluation needs."""
+
+    spec: WorldSpec
+    client_id: int
+    seed: int
+    terrain: Terrain
+    layout: RowLayout
+    plant_circles: np.ndarray
+    obstacle_circles: np.ndarray
+    centrelines: list[np.ndarray]
+    gap_half_widths: list[float]
+    gap_offsets: list[float]
+    vegetation_ids: set[int]
+    chunks: list[Chunk]
+    textures: TextureSet
+    n_triangles: dict[str, int] = field(default_factory=dict)
+
+    def terrain_height(self, x, y):
+        """Ground height at (x, y); scalars give a float, arrays an array."""
+        h = self.terrain.height(x, y)
+        return float(h) if np.ndim(h) == 0 else h
+
+    def terrain_normal(self, x, y) -> np.ndarray:
+        """Unit ground normal at (x, y): shape (3,) for scalars, (..., 3) for arrays."""
+        return self.terrain.normal(x, y)
+
+    @property
+    def eval_gap(self) -> int:
+        """The gap a closed-loop run drives through (middle one unless the spec says otherwise)."""
+        return self.spec.eval_gap
+
+    def gap_pose(self, gap: int, s: float) -> tuple[float, float, float]:
+        """(x, y, yaw) on gap `gap`'s centreline at arclength `s` from the row entrance."""
+        xy, t = self.layout.at(np.array([s]), self.gap_offsets[gap])
+        return float(xy[0, 0]), float(xy[0, 1]), float(np.arctan2(t[0, 1], t[0, 0]))
+
+
+def _gap_geometry(spec: WorldSpec, offsets: np.ndarray) -> tuple[list[float], list[float]]:
+    """Lateral offset of each gap's centreline and half its free width at ground level."""
+    mids = [(offsets[g] + offsets[g + 1]) / 2 for g in range(spec.n_gaps)]
+    clearance = spec.plants.trunk_radius[1] + 2 * spec.rows.lateral_jitter
+    if spec.structures.pergola:
+        band = spec.structures.free_band_offset
+        centres = [m + band for m in mids]
+    else:
+        centres = mids
+    half = [min(c - offsets[g], offsets[g + 1] - c) - clearance for g, c in enumerate(centres)]
+    if spec.crop in ("vineyard", "pear"):  # the hedge, not the trunk line, bounds the free width
+        half = [h - 0.5 * spec.plants.canopy_width[0] + clearance for h in half]
+    return centres, [max(float(h), 0.1) for h in half]
+
+
+def _body(client: int, mesh: Mesh, rgba=(1, 1, 1, 1), texture: int = -1) -> int:
+    vs = p.createVisualShape(
+        p.GEOM_MESH, vertices=mesh.vertices.tolist(), indices=mesh.indices.astype(int).tolist(),
+        normals=mesh.normals.tolist(), uvs=mesh.uvs.tolist(), rgbaColor=list(rgba), physicsClientId=client,
+    )
+    if vs < 0:
+        raise RuntimeError("pybullet refused a visual mesh")
+    body = p.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vs,
+                             physicsClientId=client)
+    if texture >= 0:
+        p.changeVisualShape(body, -1, textureUniqueId=texture, physicsClientId=client)
+    return body
+
+
+def _chunk(client: int, fine: Mesh, coarse: Mesh | None, kind: str, texture: int, rgba=(1, 1, 1, 1)) -> Chunk:
+    centre, radius = fine.bounding_sphere()
+    f = _body(client, fine, rgba, texture)
+    c = _body(client, coarse, rgba, texture) if coarse is not None and coarse.n_triangles else -1
+    return Chunk(centre=centre, radius=radius, fine=f, coarse=c, kind=kind, texture=texture,
+                 triangles=(fine.n_triangles, coarse.n_triangles if coarse is not None else 0))
+
+
+def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> World:
+    """Build `spec` into the (DIRECT) pybullet client `client_id`; `seed` overrides `spec.seed`."""
+    seed = spec.seed if seed is None else int(seed)
+    rng_terrain, rng_plants, rng_struct, rng_tex, rng_ground = (
+        np.random.default_rng([seed, k]) for k in range(5)
+    )
+    terrain = Terrain(spec, rng_terrain)
+    margin = spec.terrain.margin
+    layout = RowLayout(spec, extend=margin + GROUND_TILE)
+    textures = TextureSet(client_id, spec.appearance, rng_tex)
+    rs, ps = spec.rows, spec.plants
+    chunk_len = spec.render.chunk_length
+    n_chunks = int(np.ceil(rs.length / chunk_len)) + 1
+
+    # Plants, row by row; chunk key = (row, index along the row).
+    plants: dict[tuple[int, int], list[Plant]] = {}
+    circles = []
+    for row, offset in enumerate(layout.offsets):
+        s = 0.25 * ps.spacing * rng_plants.uniform()
+        while s <= rs.length:
+            pos_s = s + rng_plants.uniform(-ps.spacing_jitter, ps.spacing_jitter)
+            present = rng_plants.uniform() >= ps.gap_probability
+            lateral = offset + rng_plants.normal(0, rs.lateral_jitter) if rs.lateral_jitter > 0 else offset
+            if present and 0 <= pos_s <= rs.length:
+                xy, t = layout.at(np.array([pos_s]), lateral)
+                base = np.array([xy[0, 0], xy[0, 1], terrain.height(xy[0, 0], xy[0, 1])])
+                plant = make_plant(spec, rng_plants, base, t[0], row)
+                plants.setdefault((row, int(pos_s // chunk_len)), []).append(plant)
+                circles.append((base[0], base[1], plant.trunk_radius))
+            s += ps.spacing
+
+    chunks: list[Chunk] = []
+    vegetation: set[int] = set()
+    tris = {"plants_fine": 0, "plants_coarse": 0, "structure": 0, "ground_fine": 0, "ground_coarse": 0}
+    for key in sorted(plants):
+        fine = Mesh.concat([pl.mesh("fine") for pl in plants[key]])
+        coarse = Mesh.concat([pl.mesh("coarse") for pl in plants[key]])
+        ch = _chunk(client_id, fine, coarse, "plants", textures.plant[0])
+        chunks.append(ch)
+        vegetation.update(b for b in (ch.fine, ch.coarse) if b >= 0)
+        tris["plants_fine"] += fine.n_triangles
+        tris["plants_coarse"] += coarse.n_triangles
+
+    obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
+    _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
+
+    centre_offsets, half_widths = _gap_geometry(spec, layout.offsets)
+    s_line = np.arange(0.0, rs.length + 1e-9, CENTRELINE_STEP)
+    centrelines = [layout.at(s_line, c)[0] for c in centre_offsets]
+    return World(
+        spec=spec, client_id=client_id, seed=seed, terrain=terrain, layout=layout,
+        plant_circles=np.array(circles, float).reshape(-1, 3),
+        obstacle_circles=np.array(obstacles, float).reshape(-1, 3),
+        centrelines=centrelines, gap_half_widths=half_widths, gap_offsets=list(map(float, centre_offsets)),
+        vegetation_ids=vegetation, chunks=chunks, textures=textures, n_triangles=tris,
+    )
+
+
+def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, tris) -> list:
+    """Poles and wires (vineyards), posts, beams and wires (pergola): obstacles, not vegetation."""
+    st, rs = spec.structures, spec.rows
+    chunk_len = spec.render.chunk_length
+    obstacles = []
+    parts: dict[int, list[Mesh]] = {}
+    if not (st.poles or st.pergola):
+        return obstacles
+    pole_s = np.arange(0.0, rs.length + 1e-6, st.pole_spacing)
+    if pole_s[-1] < rs.length - 0.5:
+        pole_s = np.append(pole_s, rs.length)
+    top_h = st.pergola_height if st.pergola else st.pole_height
+    for row, offset in enumerate(layout.offsets):
+        xy, _ = layout.at(pole_s, offset + 0.0)
+        z = terrain.height(xy[:, 0], xy[:, 1])
+        for k, s in enumerate(pole_s):
+            lean = rng.normal(0, 0.02, size=2)
+            p0 = np.array([xy[k, 0], xy[k, 1], z[k] - 0.2])
+            p1 = np.array([xy[k, 0] + lean[0], xy[k, 1] + lean[1], z[k] + top_h])
+            parts.setdefault(int(s // chunk_len), []).append(cylinders(p0, p1, st.pole_radius, st.pole_radius * 0.9, 5))
+            obstacles.append((xy[k, 0], xy[k, 1], st.pole_radius))
+        # Wires between consecutive poles (thin triangular prisms).
+        for h in ([] if st.pergola else st.wire_heights):
+            for k in range(len(pole_s) - 1):
+                ss = np.linspace(pole_s[k], pole_s[k + 1], 4)
+                wxy, _ = layout.at(ss, offset)
+                wz = terrain.height(wxy[:, 0], wxy[:, 1]) + h - 0.03 * np.sin(np.linspace(0, np.pi, 4))
+                pts = np.column_stack([wxy, wz])
+                parts.setdefault(int(pole_s[k] // chunk_len), []).append(cylinders(pts[:-1], pts[1:], 0.006, 0.006, 3))
+    if st.pergola:
+        # Cross beams over every gap at each pole station and wires along the rows overhead.
+        for g in range(len(layout.offsets) - 1):
+            for k, s in enumerate(pole_s):
+                a, _ = layout.at(np.array([s]), layout.offsets[g])
+                b, _ = layout.at(np.array([s]), layout.offsets[g + 1])
+                za = terrain.height(a[0, 0], a[0, 1]) + st.pergola_height
+                zb = terrain.height(b[0, 0], b[0, 1]) + st.pergola_height
+                parts.setdefault(int(s // chunk_len), []).append(
+                    cylinders(np.array([a[0, 0], a[0, 1], za]), np.array([b[0, 0], b[0, 1], zb]), 0.035, 0.035, 4))
+        wire_offsets = []
+        for off in layout.offsets:
+            wire_offsets += [off - 1.0, off, off + 1.0]
+        for off in wire_offsets:
+            for k in range(len(pole_s) - 1):
+                ss = np.linspace(pole_s[k], pole_s[k + 1], 3)
+                wxy, _ = layout.at(ss, off)
+                wz = terrain.height(wxy[:, 0], wxy[:, 1]) + st.pergola_height + 0.03
+                pts = np.column_stack([wxy, wz])
+                parts.setdefault(int(pole_s[k] // chunk_len), []).append(cylinders(pts[:-1], pts[1:], 0.006, 0.006, 3))
+    for key in sorted(parts):
+        mesh = Mesh.concat(parts[key])
+        tint = (0.9, 0.9, 0.9, 1.0)
+        chunks.append(_chunk(client, mesh, None, "structure", textures.structure, tint))
+        tris["structure"] += mesh.n_triangles
+    return obstacles
+
+
+def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
+    """Ground tiles (fine grid + grass tufts near, coarse grid far) and a far skirt plane."""
+    ts = spec.terrain
+    pts = np.concatenate([layout.at(layout.s, off)[0] for off in (layout.offsets[0], layout.offsets[-1])])
+    lo = pts.min(axis=0) - ts.margin
+    hi = pts.max(axis=0) + ts.margin
+    nx = int(np.ceil((hi[0] - lo[0]) / GROUND_TILE))
+    ny = int(np.ceil((hi[1] - lo[1]) / GROUND_TILE))
+    uv_scale = 0.25
+    for i in range(nx):
+        for j in range(ny):
+            x0, y0 = lo[0] + i * GROUND_TILE, lo[1] + j * GROUND_TILE
+            steps = max(2, int(round(GROUND_TILE / ts.resolution)) + 1)
+            xs = np.linspace(x0, x0 + GROUND_TILE, steps)
+            ys = np.linspace(y0, y0 + GROUND_TILE, steps)
+            fine = grid_surface(xs, ys, terrain.height, terrain.normal, uv_scale)
+            n_tufts = rng.poisson(ts.grass_tufts * GROUND_TILE ** 2)
+            if n_tufts:
+                tx = rng.uniform(x0, x0 + GROUND_TILE, n_tufts)
+                ty = rng.uniform(y0, y0 + GROUND_TILE, n_tufts)
+                th = rng.uniform(0.05, 0.2, n_tufts)
+                centres = np.column_stack([tx, ty, terrain.height(tx, ty) + th * 0.5])
+                # Blades: small near-vertical triangles textured with the ground's grass.
+                blades = leaves(centres, th * 1.3, rng, uv_region=(0.0, 0.0, 1.0, 1.0), up_bias=-0.25)
+                fine = Mesh.concat([fine, blades])
+            coarse = grid_surface(np.linspace(x0, x0 + GROUND_TILE, 3), np.linspace(y0, y0 + GROUND_TILE, 3),
+                                  terrain.height, terrain.normal, uv_scale)
+            chunks.append(_chunk(client, fine, coarse, "ground", textures.ground[0]))
+            tris["ground_fine"] += fine.n_triangles
+            tris["ground_coarse"] += coarse.n_triangles
+    # Skirt: a big plane slightly below the lowest ground, so the horizon is not sky everywhere.
+    zmin = float(terrain.height(pts[:, 0], pts[:, 1]).min()) - 3 * max(ts.roughness, 0.01) - 0.05
+    big = 400.0
+    cx, cy = (lo + hi) / 2
+    xs = np.array([cx - big, cx + big])
+    ys = np.array([cy - big, cy + big])
+    skirt = grid_surface(xs, ys, lambda x, y: np.full_like(x, zmin),
+                         lambda x, y: np.tile([0.0, 0.0, 1.0], (len(x), 1)), uv_scale)
+    body = _body(client, skirt, (0.8, 0.8, 0.8, 1.0), textures.ground[0])
+    chunks.append(Chunk(centre=np.array([cx, cy, zmin]), radius=np.inf, fine=body, coarse=-1, kind="skirt",
+                        texture=textures.ground[0]))
