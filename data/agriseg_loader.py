@@ -173,8 +173,8 @@ def _per_frame_dirs(parent: Path, exts: tuple[str, ...], result: ScanResult) -> 
             continue
         n = int(match.group(1))
         files = sorted(p for p in sub.iterdir() if p.is_file() and p.suffix.lower() in exts)
-        if not files:
-            result.problems.append(f"{sub}: no {'/'.join(exts)} file in frame folder")
+        if not files:  # an empty frame folder is a missing file: counts as unpaired
+            result.unpaired.append(f"{sub}: no {'/'.join(exts)} file in frame folder")
             continue
         if len(files) > 1:
             result.problems.append(f"{sub}: {len(files)} files in one frame folder, expected one")

@@ -86,7 +86,7 @@ def eval_transform(image_size: int | Sequence[int]) -> SegTransform:
 
     h, w = _size(image_size)
     return SegTransform([
-        A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST),
+        A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST_EXACT),
         A.Normalize(mean=IMAGENET_MEAN, std=IMAGENET_STD),
     ])
 
@@ -101,9 +101,9 @@ def train_transform(image_size: int | Sequence[int], config: AugmentConfig | Non
         return eval_transform(image_size)
     h, w = _size(image_size)
     steps: list[object] = [
-        A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST),
+        A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST_EXACT),
         A.RandomResizedCrop(size=(h, w), scale=tuple(config.crop_scale), ratio=tuple(config.crop_ratio),
-                            interpolation=cv2.INTER_LINEAR, mask_interpolation=cv2.INTER_NEAREST, p=1.0),
+                            interpolation=cv2.INTER_LINEAR, mask_interpolation=cv2.INTER_NEAREST_EXACT, p=1.0),
     ]
     if config.hflip_p > 0:
         steps.append(A.HorizontalFlip(p=config.hflip_p))

@@ -82,7 +82,7 @@ def _with_imagenet_backbone(allow_download: bool) -> nn.Module:
         )
     try:
         return lraspp_mobilenet_v3_large(weights=None, weights_backbone=IMAGENET_WEIGHTS, num_classes=1)
-    except (OSError, RuntimeError) as exc:  # URLError is an OSError; corrupt files raise RuntimeError
+    except Exception as exc:  # URLError (OSError); corrupt files raise RuntimeError or UnpicklingError
         raise WeightsUnavailableError(
             f"could not load ImageNet backbone weights ({exc}). Place the file at {cached} "
             f"(sha256 starts with {digest}) or use backbone_weights=none."

@@ -1,0 +1,155 @@
+"""Model factory (offline ImageNet resolution, state-dict paths) and the checkpoint format."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torchvision.models import mobilenet_v3_large
+
+from models import WeightsUnavailableError, build_model
+from models.checkpoint import FORMAT, load_model, model_info, read_checkpoint, save_checkpoint
+from models.lraspp import imagenet_weights_path
+
+WEIGHTS_FILE = "mobilenet_v3_large-8738ca79.pth"
+
+
+@pytest.fixture()
+def torch_home(tmp_path, monkeypatch):
+    """An empty TORCH_HOME, so the test never sees (or writes) the user's cache."""
+    home = tmp_path / "torch_home"
+    monkeypatch.setenv("TORCH_HOME", str(home))
+    monkeypatch.setattr(torch.hub, "_hub_dir", None)  # in case something called torch.hub.set_dir
+    return home
+
+
+def _random_classifier_state(seed: int = 1) -> dict[str, torch.Tensor]:
+    """torchvision MobileNetV3-Large classification state dict (its key layout), random values."""
+    torch.manual_seed(seed)
+    state = mobilenet_v3_large(weights=None).state_dict()
+    return {k: (torch.randn_like(v) if v.is_floating_point() else v) for k, v in state.items()}
+
+
+def test_forward_gives_one_logit_channel_at_input_size():
+    model = build_model("none").eval()
+    with torch.no_grad():
+        out = model(torch.zeros(2, 3, 64, 96))
+    assert out.shape == (2, 1, 64, 96)
+
+
+def test_imagenet_weights_read_from_the_cache_without_network(torch_home):
+    state = _random_classifier_state()
+    path = torch_home / "hub" / "checkpoints" / WEIGHTS_FILE
+    path.parent.mkdir(parents=True)
+    torch.save(state, path)
+    assert imagenet_weights_path() == path
+    model = build_model("imagenet")
+    own = model.state_dict()
+    # the backbone holds the file's feature weights, the head stays freshly initialised
+    assert torch.equal(own["net.backbone.0.0.weight"], state["features.0.0.weight"])
+    assert torch.equal(own["net.backbone.16.0.weight"], state["features.16.0.weight"])
+    assert own["net.classifier.low_classifier.weight"].shape[0] == 1
+
+
+def test_imagenet_weights_missing_names_the_file(torch_home):
+    with pytest.raises(WeightsUnavailableError) as info:
+        build_model("imagenet")
+    message = str(info.value)
+    assert WEIGHTS_FILE in message and "8738ca79" in message
+    assert str(torch_home / "hub" / "checkpoints") in message and "none" in message
+
+
+def test_corrupt_imagenet_file_is_reported(torch_home):
+    path = torch_home / "hub" / "checkpoints" / WEIGHTS_FILE
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"not a torch file")
+    with pytest.raises(WeightsUnavailableError, match="could not load"):
+        build_model("imagenet")
+
+
+def test_state_dict_paths_whole_model_and_backbone_only(tmp_path):
+    torch.manual_seed(3)
+    source = build_model("none")
+    whole = tmp_path / "whole.pt"
+    torch.save(source.state_dict(), whole)
+    rebuilt = build_model(whole)
+    for key, value in source.state_dict().items():
+        assert torch.equal(rebuilt.state_dict()[key], value), key
+
+    backbone_only = tmp_path / "classifier.pth"
+    state = _random_classifier_state(seed=5)
+    torch.save(state, backbone_only)
+    model = build_model(str(backbone_only))
+    assert torch.equal(model.state_dict()["net.backbone.3.block.0.0.weight"], state["features.3.block.0.0.weight"])
+
+
+def test_bad_state_dict_paths(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        build_model(tmp_path / "missing.pt")
+    unrelated = tmp_path / "unrelated.pt"
+    torch.save({"foo.weight": torch.zeros(3)}, unrelated)
+    with pytest.raises(ValueError, match="no tensor matches"):
+        build_model(unrelated)
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"\x00" * 64)
+    with pytest.raises(ValueError, match="garbage.pt: not a readable"):
+        build_model(garbage)
+
+
+def _payload(model: torch.nn.Module) -> dict:
+    return {
+        "model": model.state_dict(),
+        "model_info": model_info(backbone_weights="none", input_size=(64, 64), family="vineyards",
+                                 train_data="test"),
+        "epoch": 3,
+        "metrics": {"val_iou": 0.5},
+    }
+
+
+def test_checkpoint_round_trip_loads_with_weights_only(tmp_path):
+    torch.manual_seed(0)
+    model = build_model("none").eval()
+    path = tmp_path / "ckpt" / "best.pt"
+    save_checkpoint(path, _payload(model))
+    raw = torch.load(path, map_location="cpu", weights_only=True)
+    assert raw["format"] == FORMAT and raw["epoch"] == 3
+    loaded, info = load_model(path)
+    assert info["input_size"] == [64, 64] and info["backbone_weights"] == "none" and info["family"] == "vineyards"
+    x = torch.randn(1, 3, 64, 64)
+    with torch.no_grad():
+        assert torch.equal(loaded(x), model(x))
+    assert not any(p.name.endswith(".tmp") for p in path.parent.iterdir())
+
+
+def test_corrupt_or_foreign_checkpoints_give_clear_errors(tmp_path):
+    model = build_model("none")
+    good = tmp_path / "good.pt"
+    save_checkpoint(good, _payload(model))
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(ValueError, match="truncated.pt: not a readable segmin checkpoint"):
+        read_checkpoint(truncated)
+    foreign = tmp_path / "foreign.pt"
+    torch.save(model.state_dict(), foreign)
+    with pytest.raises(ValueError, match="foreign.pt: not a segmin checkpoint"):
+        read_checkpoint(foreign)
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        read_checkpoint(tmp_path / "missing.pt")
+    wrong_shape = tmp_path / "wrong.pt"
+    payload = _payload(model)
+    payload["model"] = {k: v[:1] if v.ndim else v for k, v in payload["model"].items()}
+    save_checkpoint(wrong_shape, payload)
+    with pytest.raises(ValueError, match="wrong.pt: weights do not fit"):
+        load_model(wrong_shape)
+
+
+def test_pickled_code_is_refused(tmp_path):
+    """A checkpoint that needs arbitrary unpickling is refused (weights_only=True)."""
+
+    path = tmp_path / "evil.pt"
+    torch.save({"format": FORMAT, "model": {}, "model_info": {"x": _Opaque()}}, path)
+    with pytest.raises(ValueError, match="evil.pt: not a readable"):
+        read_checkpoint(path)
+
+
+class _Opaque:
+    pass
