@@ -204,6 +204,11 @@ class Worker:
             self._segmenter = make_segmenter(self.model, self.threads)
         return self._segmenter
 
+    def close(self) -> None:
+        for ctx in self._fields.values():
+            ctx.close()
+        self._fields.clear()
+
     def run(self, job: Job) -> RunResult:
         """One run; never raises (an exception becomes a failure row)."""
         from nav_eval.sim import RowEnv, run_episode
@@ -278,6 +283,8 @@ def run_evaluation(
     workers <= 1 runs in this process; more uses spawned processes.
     """
     config = config or load_nav_config()
+    if str(model) != "oracle" and not Path(model).is_file():
+        raise FileNotFoundError(f"--model: {model} not found (give an exported .onnx file or 'oracle')")
     field_list = resolve_fields(fields)
     method_list = parse_methods(methods)
     if runs < 1:
@@ -306,9 +313,12 @@ def run_evaluation(
     try:
         if workers <= 1:
             worker = Worker(str(model), config, threads=max(1, os.cpu_count() or 1))
-            for job in jobs:
-                done(worker.run(job))
-                bar.update(1)
+            try:
+                for job in jobs:
+                    done(worker.run(job))
+                    bar.update(1)
+            finally:
+                worker.close()
         else:
             _run_pool(jobs, str(model), config, workers, done, bar)
     finally:

@@ -111,38 +111,47 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
 
 
 def make_field_figures(out: Path, results: list[Any], fields: list[str], config: Any, model: str) -> list[str]:
-    """Both figures for every field; returns their paths relative to `out`."""
-    from nav_eval.evaluate import FieldContext, field_label, make_segmenter
-    from nav_eval.oracle import segment_frame
-    from nav_eval.sim import RowEnv, point_on_polyline
+    """Both figures for every field; returns their paths relative to `out`. Never raises."""
+    from nav_eval.evaluate import FieldContext, field_label
+    from nav_eval.sim import RowEnv
 
     written: list[str] = []
-    segmenter = None
+    segmenters: dict[str, Any] = {}
     for field in fields:
         label = field_label(field)
         try:
             ctx = FieldContext(field, config)
         except Exception as exc:  # the field could not even be built: the rows already say so
-            print(f"nav-eval: no figures for {label}: {exc}")
+            print(f"nav-eval: no figures for {label}: {type(exc).__name__}: {exc}")
             continue
         try:
             env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
             rel = f"{label}_trajectories.png"
             trajectory_figure(out / rel, label, env, [r for r in results if r.field == label])
             written.append(rel)
-            if segmenter is None:
-                segmenter = make_segmenter(model)
-            s = config.run.start_s + min(4.0, 0.5 * config.run.length_m)
-            x, y, yaw = point_on_polyline(env.centreline, s)
-            frame = ctx.renderer.render(x, y, yaw, rng=np.random.default_rng(0),
-                                        noisy_depth=config.perception.depth_noise)
-            mask = segment_frame(segmenter, frame)
             rel = f"{label}_histograms.png"
-            histogram_figure(out / rel, label, frame, mask, ctx.depth_threshold)
+            histogram_for_field(out / rel, label, ctx, env, config, segmenters, model)
             written.append(rel)
+        except Exception as exc:  # a figure never sinks the evaluation
+            print(f"nav-eval: figures for {label} failed: {type(exc).__name__}: {exc}")
         finally:
             ctx.close()
     return written
+
+
+def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any, segmenters: dict[str, Any],
+                        model: str) -> None:
+    """Render the centreline view a few metres into the row and draw the histogram figure."""
+    from nav_eval.evaluate import make_segmenter
+    from nav_eval.oracle import segment_frame
+    from nav_eval.sim import point_on_polyline
+
+    if model not in segmenters:
+        segmenters[model] = make_segmenter(model)
+    s = config.run.start_s + min(4.0, 0.5 * config.run.length_m)
+    x, y, yaw = point_on_polyline(env.centreline, s)
+    frame = ctx.renderer.render(x, y, yaw, rng=np.random.default_rng(0), noisy_depth=config.perception.depth_noise)
+    histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
 
 
 def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> None:

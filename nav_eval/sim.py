@@ -97,8 +97,11 @@ class RowEnv:
         self._frames: dict[int, Any] = {}
 
     # ---- Gymnasium-like API -------------------------------------------------------------
-    def reset(self, seed: int) -> tuple[Observation, dict[str, Any]]:
-        """Start a run: seeded start noise and depth-noise stream; returns the first frames."""
+    def reset(self, seed: int, pose: tuple[float, float, float] | None = None) -> tuple[Observation, dict[str, Any]]:
+        """Start a run: seeded start noise and depth-noise stream; returns the first frames.
+
+        `pose` (x, y, yaw) replaces the seeded start pose (tests, scripted scenarios).
+        """
         run = self.config.run
         seeds = np.random.SeedSequence(int(seed)).spawn(2)
         start_rng = np.random.default_rng(seeds[0])
@@ -113,6 +116,8 @@ class RowEnv:
         x = x0 - math.sin(tangent) * offset
         y = y0 + math.cos(tangent) * offset
         yaw = tangent + heading
+        if pose is not None:
+            x, y, yaw = (float(v) for v in pose)
         self.start_pose = (x, y, yaw)
         self.robot.reset(x, y, yaw)
         self.reason, self.clearance_time = None, None
@@ -217,10 +222,11 @@ class Episode:
     video: list[np.ndarray]
 
 
-def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video: bool = False) -> Episode:
+def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video: bool = False,
+                pose: tuple[float, float, float] | None = None) -> Episode:
     """Drive one run to its end. The navigator must not fuse again (its fuse_frames = 1)."""
     navigator.reset()
-    obs, info = env.reset(seed)
+    obs, info = env.reset(seed, pose)
     masks: dict[int, np.ndarray] = {}
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
