@@ -43,6 +43,21 @@ class Mesh:
             indices=np.concatenate([m.indices + o for m, o in zip(meshes, offsets)]),
         )
 
+    def bounding_capsule(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Segment (a, b) along the main horizontal axis and the radius around it."""
+        v = self.vertices
+        centre = v.mean(axis=0)
+        xy = v[:, :2] - centre[:2]
+        cov = xy.T @ xy
+        w, vec = np.linalg.eigh(cov)
+        axis = np.array([vec[0, -1], vec[1, -1], 0.0])
+        t = (v - centre) @ axis
+        a, b = centre + t.min() * axis, centre + t.max() * axis
+        d = v - a
+        along = np.clip(d @ axis, 0, t.max() - t.min())
+        radius = float(np.linalg.norm(d - along[:, None] * axis[None, :], axis=1).max())
+        return a, b, radius
+
     def bounding_sphere(self) -> tuple[np.ndarray, float]:
         lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
         centre = (lo + hi) / 2

@@ -16,9 +16,10 @@ import numpy as np
 from data.synth.mesh import Mesh, cylinders, ellipsoid_area, ellipsoid_shell_points, leaves
 from data.synth.spec import WorldSpec, pergola_reach
 
-# Leaves per plant at the fine level (TinyRenderer pays ~1.5 us per visible triangle).
-LEAF_BUDGET = {"vineyard": 200, "pear": 240, "pergola": 300, "tree": 700}
-COARSE_FACTOR = 6
+# Leaves per plant at the finest level (TinyRenderer pays ~1.5 us per visible triangle), and
+# how many times fewer (bigger) leaves each coarser level of detail has.
+LEAF_BUDGET = {"vineyard": 170, "pear": 200, "pergola": 420, "tree": 900}
+LOD_FACTORS = (1, 4, 16)
 
 
 @dataclass
@@ -42,9 +43,10 @@ class Plant:
         local = np.atleast_2d(local)
         return self.base[None, :] + local[:, :1] * t + local[:, 1:2] * left + local[:, 2:3] * np.array([0, 0, 1.0])
 
-    def mesh(self, lod: str) -> Mesh:
-        fine = lod == "fine"
-        rng = np.random.default_rng([self.seed, 0 if fine else 1])
+    def mesh(self, level: int) -> Mesh:
+        """Triangles at level of detail `level` (0 = finest, see LOD_FACTORS)."""
+        fine = level == 0
+        rng = np.random.default_rng([self.seed, level])
         parts = []
         if self.segments:
             p0 = self.to_world(np.array([s[0] for s in self.segments]))
@@ -52,26 +54,36 @@ class Plant:
             r0 = np.array([s[2] for s in self.segments])
             r1 = np.array([s[3] for s in self.segments])
             trunk = r0 >= 0.6 * self.trunk_radius
-            if fine:
-                parts.append(cylinders(p0[trunk], p1[trunk], r0[trunk], r1[trunk], 6))
-                parts.append(cylinders(p0[~trunk], p1[~trunk], r0[~trunk], r1[~trunk], 4))
+            if level <= 1:
+                parts.append(cylinders(p0[trunk], p1[trunk], r0[trunk], r1[trunk], 6 if fine else 4))
+                parts.append(cylinders(p0[~trunk], p1[~trunk], r0[~trunk], r1[~trunk], 4 if fine else 3))
             else:
                 keep = r0 >= 0.012
                 parts.append(cylinders(p0[keep], p1[keep], r0[keep], r1[keep], 3))
+        # Candidate leaf positions on every cluster's shell; drop those buried inside another
+        # cluster, so leaves go where they can be seen (the union's outer surface).
         areas = np.array([ellipsoid_area(r) for _, r in self.clusters])
-        leaf_area = 0.43 * self.leaf_size ** 2
-        wanted = self.density * areas / leaf_area * 0.5
-        budget = LEAF_BUDGET[self.kind]
-        scale = max(1.0, wanted.sum() / budget)
-        if not fine:
-            scale *= COARSE_FACTOR
-        counts = np.maximum(1, np.round(wanted / scale)).astype(int)
-        size = self.leaf_size * np.sqrt(scale)
-        for (centre, radii), n in zip(self.clusters, counts):
+        n_cand = np.maximum(8, (areas / areas.sum() * 4 * LEAF_BUDGET[self.kind])).astype(int)
+        pts, out = [], []
+        for k, ((centre, radii), n) in enumerate(zip(self.clusters, n_cand)):
             local, outward = ellipsoid_shell_points(centre, radii, int(n), rng)
-            sizes = size * rng.uniform(0.7, 1.3, size=len(local))
-            facing = self.to_world(outward) - self.base[None, :]
-            parts.append(leaves(self.to_world(local), sizes, rng, facing=facing))
+            buried = np.zeros(len(local), bool)
+            for j, (c2, r2) in enumerate(self.clusters):
+                if j != k:
+                    buried |= (((local - c2) / r2) ** 2).sum(axis=1) < 0.85
+            pts.append(local[~buried])
+            out.append(outward[~buried])
+        local, outward = np.concatenate(pts), np.concatenate(out)
+        visible_area = float((areas * np.array([len(q) for q in pts]) / n_cand).sum())
+        # Leaf count and size so that about `density` of the surface is covered (Poisson overlap).
+        budget = LEAF_BUDGET[self.kind] // LOD_FACTORS[level]
+        cover = -np.log(max(1.0 - self.density, 0.02))
+        n = int(min(budget, len(local), max(4, 2.0 * cover * visible_area / self.leaf_size ** 2)))
+        size = max(self.leaf_size, float(np.sqrt(2.0 * cover * visible_area / max(n, 1))))
+        pick = rng.choice(len(local), size=n, replace=False) if n < len(local) else np.arange(len(local))
+        sizes = size * rng.uniform(0.75, 1.25, size=len(pick))
+        facing = self.to_world(outward[pick]) - self.base[None, :]
+        parts.append(leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0))
         return Mesh.concat(parts)
 
 

@@ -92,28 +92,35 @@ class Renderer:
         self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
         self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
         rays = cam.pixel_rays()
-        self.rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+        self.rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
         chunks = world.chunks
         self.centres = np.array([c.centre for c in chunks])
         self.radii = np.array([c.radius for c in chunks])
-        self.fine = np.array([c.fine for c in chunks])
-        self.coarse = np.array([c.coarse for c in chunks])
         self.always = np.isinf(self.radii)
-        self.tris = np.array([c.triangles for c in chunks]).reshape(-1, 2)
-        max_id = max([c.fine for c in chunks] + [c.coarse for c in chunks] + [0])
-        self.veg_lut = np.zeros(max_id + 2, bool)
+        caps = [c.capsule if c.capsule is not None else (c.centre, c.centre, c.radius) for c in chunks]
+        self.cap_a = np.array([c[0] for c in caps])
+        self.cap_ab = np.array([c[1] - c[0] for c in caps])
+        self.cap_r = np.array([c[2] for c in caps])
+        n_levels = max(len(c.bodies) for c in chunks)
+        self.bodies = np.full((len(chunks), n_levels), -1, np.int64)
+        self.tris = np.zeros((len(chunks), n_levels), np.int64)
+        for i, c in enumerate(chunks):
+            self.bodies[i, : len(c.bodies)] = c.bodies
+            self.tris[i, : len(c.triangles)] = c.triangles
+        self.n_levels = np.array([len(c.bodies) for c in chunks])
+        self.veg_lut = np.zeros(int(self.bodies.max()) + 2, bool)
         for b in world.vegetation_ids:
             self.veg_lut[b + 1] = True
         self.rgba: dict[int, list[float]] = {}
         self.texture: dict[int, int] = {}
         self.shown: dict[int, bool] = {}
         for c in chunks:
-            for b in (c.fine, c.coarse):
-                if b >= 0:
-                    self.rgba[b] = [1.0, 1.0, 1.0] if c.kind != "structure" else [0.9, 0.9, 0.9]
-                    self.texture[b] = c.texture
-                    self.shown[b] = True
+            for b in c.bodies:
+                self.rgba[b] = [1.0, 1.0, 1.0] if c.kind != "structure" else [0.9, 0.9, 0.9]
+                self.texture[b] = c.texture
+                self.shown[b] = True
         self._noise_rng = np.random.default_rng([world.seed, 7])
+        self.far_ground = np.array([0.42, 0.42, 0.3], np.float32)
 
     # ----------------------------------------------------------------- appearance
     def randomize_appearance(self, rng: np.random.Generator) -> None:
@@ -122,19 +129,18 @@ class Renderer:
         main_plant = int(rng.integers(len(tex.plant)))
         ground = int(rng.integers(len(tex.ground)))
         ground_tint = rng.uniform(0.75, 1.0) * (1 + rng.uniform(-0.06, 0.06, 3))
+        self.far_ground = (np.clip(ground_tint, 0, 1) * tex.ground_mean[ground]).astype(np.float32)
         struct_tint = rng.uniform(0.55, 1.0) * (1 + rng.uniform(-0.05, 0.05, 3))
         for c in self.world.chunks:
             if c.kind == "plants":
                 variant = main_plant if rng.uniform() > 0.2 else int(rng.integers(len(tex.plant)))
                 texture = tex.plant[variant]
                 tint = rng.uniform(0.78, 1.0) * (1 + rng.uniform(-0.07, 0.07, 3))
-            elif c.kind in ("ground", "skirt"):
-                texture, tint = tex.ground[ground], ground_tint * (0.85 if c.kind == "skirt" else 1.0)
+            elif c.kind == "ground":
+                texture, tint = tex.ground[ground], ground_tint
             else:
                 texture, tint = tex.structure, struct_tint
-            for b in (c.fine, c.coarse):
-                if b < 0:
-                    continue
+            for b in c.bodies:
                 self.rgba[b] = [float(v) for v in np.clip(tint, 0, 1)]
                 self.texture[b] = texture
                 alpha = 1.0 if self.shown[b] else 0.0
@@ -150,48 +156,60 @@ class Renderer:
         with np.errstate(invalid="ignore"):
             visible = (
                 (rel[:, 2] > -r)
-                & (rel[:, 2] - r < spec.cull_distance)
                 & (np.abs(rel[:, 0]) <= rel[:, 2] * self.tan_h + r * math.sqrt(1 + self.tan_h ** 2))
                 & (np.abs(rel[:, 1]) <= rel[:, 2] * self.tan_v + r * math.sqrt(1 + self.tan_v ** 2))
             )
         visible |= self.always
-        dist = np.linalg.norm(self.centres - pos, axis=1) - r
-        near = dist < spec.lod_distance
-        has_coarse = self.coarse >= 0
-        want_fine = visible & (near | ~has_coarse)
-        want_coarse = visible & ~near & has_coarse
+        # Distance to each chunk's capsule (rows are long and thin: a sphere is too loose).
+        ab2 = np.maximum((self.cap_ab ** 2).sum(axis=1), 1e-9)
+        t = np.clip(((pos - self.cap_a) * self.cap_ab).sum(axis=1) / ab2, 0, 1)
+        closest = self.cap_a + t[:, None] * self.cap_ab
+        dist = np.linalg.norm(closest - pos, axis=1) - np.where(self.always, 0.0, self.cap_r)
+        visible &= self.always | (dist < spec.cull_distance)
+        level = np.searchsorted(np.asarray(spec.lod_distances), dist)
+        level = np.minimum(level, self.n_levels - 1)
         changes = 0
-        for bodies, wanted in ((self.fine, want_fine), (self.coarse, want_coarse)):
-            for b, w in zip(bodies.tolist(), wanted.tolist()):
-                if b < 0 or self.shown[b] == w:
-                    continue
-                self.shown[b] = w
-                p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0], physicsClientId=self.client)
-                changes += 1
-        triangles = int(self.tris[want_fine, 0].sum() + self.tris[want_coarse, 1].sum())
-        return {"visible_chunks": int(visible.sum()), "fine_chunks": int(want_fine.sum()), "changes": changes,
-                "triangles": triangles}
+        triangles = 0
+        for i in range(len(self.bodies)):
+            for lv, b in enumerate(self.bodies[i].tolist()):
+                if b < 0:
+                    break
+                w = bool(visible[i]) and lv == level[i]
+                if w:
+                    triangles += int(self.tris[i, lv])
+                if self.shown[b] != w:
+                    self.shown[b] = w
+                    p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0],
+                                        physicsClientId=self.client)
+                    changes += 1
+        return {"visible_chunks": int(visible.sum()), "fine_chunks": int((visible & (level == 0)).sum()),
+                "changes": changes, "triangles": triangles}
 
     # ----------------------------------------------------------------- sky
     def _sky(self, pose: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         cam = self.camera
-        elev = self.rays @ pose[2, :3]  # world z of each pixel's ray
+        elev = self.rays @ pose[2, :3].astype(np.float32)  # world z of each pixel's ray
         if rng is None:
-            horizon, zenith, clouds, cover = np.array([0.80, 0.85, 0.90]), np.array([0.35, 0.55, 0.85]), None, 0.0
+            horizon, zenith, cover = np.array([0.80, 0.85, 0.90]), np.array([0.35, 0.55, 0.85]), 0.0
         else:
             horizon = np.clip(np.array([0.78, 0.83, 0.88]) + rng.uniform(-0.1, 0.1, 3), 0, 1)
             zenith = np.clip(np.array([0.3, 0.5, 0.85]) + rng.uniform(-0.15, 0.12, 3), 0, 1)
             cover = rng.uniform(0.0, 0.8)
+        t = np.clip(elev * (1 / 0.6), 0, 1)
+        t = t * (2 - t)
+        sky = horizon.astype(np.float32) + t[..., None] * (zenith - horizon).astype(np.float32)
+        below = elev < 0
+        if below.any():  # distant ground beyond the tiles, fading into haze at the horizon
+            haze = np.clip(-elev[below] * 12, 0, 1)[:, None]
+            sky[below] = horizon * (1 - haze) + self.far_ground * haze
+        if cover > 0:
             small = rng.uniform(0, 1, size=(5, 7)).astype(np.float32)
             fine = rng.uniform(0, 1, size=(14, 14)).astype(np.float32)
             clouds = (0.75 * cv2.resize(small, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
                       + 0.25 * cv2.resize(fine, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC))
-        t = np.clip(elev / 0.6, 0, 1) ** 0.7
-        sky = horizon[None, None] * (1 - t[..., None]) + zenith[None, None] * t[..., None]
-        if clouds is not None and cover > 0:
             amount = np.clip((clouds - (1 - cover)) * 3, 0, 1) * np.clip(elev * 8 + 0.3, 0, 1)
-            grey = rng.uniform(0.75, 1.0)
-            sky = sky * (1 - amount[..., None]) + grey * amount[..., None]
+            grey = np.float32(rng.uniform(0.75, 1.0))
+            sky += amount[..., None] * (grey - sky)
         return (np.clip(sky, 0, 1) * 255).astype(np.uint8)
 
     # ----------------------------------------------------------------- render

@@ -204,13 +204,12 @@ class RenderSpec:
     """Per-world rendering knobs: what to hide (alpha 0) and when to switch to coarse meshes."""
 
     cull_distance: float = 35.0
-    lod_distance: float = 5.0
+    lod_distances: tuple[float, float] = (4.0, 10.0)  # switch to the next coarser level beyond these
     chunk_length: float = 3.0       # plants of one row within this length share one body
 
     def __post_init__(self) -> None:
         _check_positive("render.cull_distance", self.cull_distance)
-        if self.lod_distance < 0:
-            raise ValueError(f"render.lod_distance: must be >= 0, got {self.lod_distance}")
+        _check_range("render.lod_distances", self.lod_distances)
         _check_positive("render.chunk_length", self.chunk_length)
 
 

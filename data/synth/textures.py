@@ -120,3 +120,5 @@ class TextureSet:
         self.plant = [ids[f"plant{i}"] for i in range(n)]
         self.ground = [ids[f"ground{i}"] for i in range(n)]
         self.structure = ids["structure"]
+        # Mean colour of each ground texture (0..1), used to paint ground beyond the tiles.
+        self.ground_mean = [images[f"ground{i}"].reshape(-1, 3).mean(axis=0) / 255.0 * 0.8 for i in range(n)]

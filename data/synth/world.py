@@ -6,7 +6,7 @@ line; gap g lies between rows g and g+1. Curved rows are concentric offsets of a
 reference line, so they never intersect (the spec checks the radius).
 
 Geometry is grouped into chunks (plants and structures of one row within `render.chunk_length`,
-ground tiles) with a fine and a coarse body each; the renderer hides chunks the camera cannot
+ground tiles) with one body per level of detail; the renderer hides chunks the camera cannot
 see by setting their alpha to 0, which TinyRenderer skips.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 import pybullet as p
 
 from data.synth.mesh import Mesh, cylinders, grid_surface, leaves
-from data.synth.plants import Plant, make_plant
+from data.synth.plants import LOD_FACTORS, Plant, make_plant
 from data.synth.spec import WorldSpec, pergola_reach
 from data.synth.textures import TextureSet
 
@@ -113,11 +113,11 @@ class Chunk:
 
     centre: np.ndarray
     radius: float
-    fine: int
-    coarse: int          # -1 when the chunk has a single level
-    kind: str            # "plants", "structure", "ground"
+    bodies: list[int]    # one pybullet body per level of detail, finest first
+    kind: str            # "plants", "structure", "ground", "skirt"
     texture: int = -1
-    triangles: tuple[int, int] = (0, 0)  # fine, coarse
+    triangles: list[int] = field(default_factory=list)  # per level
+    capsule: tuple[np.ndarray, np.ndarray, float] | None = None  # tighter bound for distances
 
 
 @dataclass
@@ -137,7 +137,7 @@ class World:
     vegetation_ids: set[int]
     chunks: list[Chunk]
     textures: TextureSet
-    n_triangles: dict[str, int] = field(default_factory=dict)
+    n_triangles: dict[str, list[int]] = field(default_factory=dict)  # per chunk kind and level
 
     def terrain_height(self, x, y):
         """Ground height at (x, y); scalars give a float, arrays an array."""
@@ -188,12 +188,12 @@ def _body(client: int, mesh: Mesh, rgba=(1, 1, 1, 1), texture: int = -1) -> int:
     return body
 
 
-def _chunk(client: int, fine: Mesh, coarse: Mesh | None, kind: str, texture: int, rgba=(1, 1, 1, 1)) -> Chunk:
-    centre, radius = fine.bounding_sphere()
-    f = _body(client, fine, rgba, texture)
-    c = _body(client, coarse, rgba, texture) if coarse is not None and coarse.n_triangles else -1
-    return Chunk(centre=centre, radius=radius, fine=f, coarse=c, kind=kind, texture=texture,
-                 triangles=(fine.n_triangles, coarse.n_triangles if coarse is not None else 0))
+def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1, 1, 1)) -> Chunk:
+    levels = [m for m in levels if m.n_triangles]
+    centre, radius = levels[0].bounding_sphere()
+    bodies = [_body(client, m, rgba, texture) for m in levels]
+    return Chunk(centre=centre, radius=radius, bodies=bodies, kind=kind, texture=texture,
+                 triangles=[m.n_triangles for m in levels], capsule=levels[0].bounding_capsule())
 
 
 def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> World:
@@ -229,15 +229,13 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
 
     chunks: list[Chunk] = []
     vegetation: set[int] = set()
-    tris = {"plants_fine": 0, "plants_coarse": 0, "structure": 0, "ground_fine": 0, "ground_coarse": 0}
+    tris = {"plants": [0] * len(LOD_FACTORS), "structure": [0], "ground": [0, 0]}
     for key in sorted(plants):
-        fine = Mesh.concat([pl.mesh("fine") for pl in plants[key]])
-        coarse = Mesh.concat([pl.mesh("coarse") for pl in plants[key]])
-        ch = _chunk(client_id, fine, coarse, "plants", textures.plant[0])
+        levels = [Mesh.concat([pl.mesh(level) for pl in plants[key]]) for level in range(len(LOD_FACTORS))]
+        ch = _chunk(client_id, levels, "plants", textures.plant[0])
         chunks.append(ch)
-        vegetation.update(b for b in (ch.fine, ch.coarse) if b >= 0)
-        tris["plants_fine"] += fine.n_triangles
-        tris["plants_coarse"] += coarse.n_triangles
+        vegetation.update(ch.bodies)
+        tris["plants"] = [a + b for a, b in zip(tris["plants"], ch.triangles)]
 
     obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
     _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
@@ -252,6 +250,12 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
         centrelines=centrelines, gap_half_widths=half_widths, gap_offsets=list(map(float, centre_offsets)),
         vegetation_ids=vegetation, chunks=chunks, textures=textures, n_triangles=tris,
     )
+
+
+def _wire_stations(s0: float, s1: float, step: float = 1.0) -> np.ndarray:
+    """Short wire pieces: TinyRenderer scans each triangle's screen bounding box, so one long
+    diagonal wire costs as much as a full-screen quad; short pieces keep the boxes small."""
+    return np.linspace(s0, s1, max(2, int(np.ceil((s1 - s0) / step)) + 1))
 
 
 def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, tris) -> list:
@@ -278,9 +282,9 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
         # Wires between consecutive poles (thin triangular prisms).
         for h in ([] if st.pergola else st.wire_heights):
             for k in range(len(pole_s) - 1):
-                ss = np.linspace(pole_s[k], pole_s[k + 1], 4)
+                ss = _wire_stations(pole_s[k], pole_s[k + 1])
                 wxy, _ = layout.at(ss, offset)
-                wz = terrain.height(wxy[:, 0], wxy[:, 1]) + h - 0.03 * np.sin(np.linspace(0, np.pi, 4))
+                wz = terrain.height(wxy[:, 0], wxy[:, 1]) + h
                 pts = np.column_stack([wxy, wz])
                 parts.setdefault(int(pole_s[k] // chunk_len), []).append(cylinders(pts[:-1], pts[1:], 0.006, 0.006, 3))
     if st.pergola:
@@ -298,7 +302,7 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
             wire_offsets += [off - 1.0, off, off + 1.0]
         for off in wire_offsets:
             for k in range(len(pole_s) - 1):
-                ss = np.linspace(pole_s[k], pole_s[k + 1], 3)
+                ss = _wire_stations(pole_s[k], pole_s[k + 1])
                 wxy, _ = layout.at(ss, off)
                 wz = terrain.height(wxy[:, 0], wxy[:, 1]) + st.pergola_height + 0.03
                 pts = np.column_stack([wxy, wz])
@@ -306,13 +310,17 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
     for key in sorted(parts):
         mesh = Mesh.concat(parts[key])
         tint = (0.9, 0.9, 0.9, 1.0)
-        chunks.append(_chunk(client, mesh, None, "structure", textures.structure, tint))
-        tris["structure"] += mesh.n_triangles
+        chunks.append(_chunk(client, [mesh], "structure", textures.structure, tint))
+        tris["structure"][0] += mesh.n_triangles
     return obstacles
 
 
 def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
-    """Ground tiles (fine grid + grass tufts near, coarse grid far) and a far skirt plane."""
+    """Ground tiles (fine grid + grass tufts near, coarse grid far).
+
+    Beyond the tiles the renderer paints distant ground where a ray points below the horizon
+    (cheaper than a huge plane: TinyRenderer scans every triangle's whole bounding box).
+    """
     ts = spec.terrain
     pts = np.concatenate([layout.at(layout.s, off)[0] for off in (layout.offsets[0], layout.offsets[-1])])
     lo = pts.min(axis=0) - ts.margin
@@ -338,17 +346,6 @@ def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
                 fine = Mesh.concat([fine, blades])
             coarse = grid_surface(np.linspace(x0, x0 + GROUND_TILE, 3), np.linspace(y0, y0 + GROUND_TILE, 3),
                                   terrain.height, terrain.normal, uv_scale)
-            chunks.append(_chunk(client, fine, coarse, "ground", textures.ground[0]))
-            tris["ground_fine"] += fine.n_triangles
-            tris["ground_coarse"] += coarse.n_triangles
-    # Skirt: a big plane slightly below the lowest ground, so the horizon is not sky everywhere.
-    zmin = float(terrain.height(pts[:, 0], pts[:, 1]).min()) - 3 * max(ts.roughness, 0.01) - 0.05
-    big = 400.0
-    cx, cy = (lo + hi) / 2
-    xs = np.array([cx - big, cx + big])
-    ys = np.array([cy - big, cy + big])
-    skirt = grid_surface(xs, ys, lambda x, y: np.full_like(x, zmin),
-                         lambda x, y: np.tile([0.0, 0.0, 1.0], (len(x), 1)), uv_scale)
-    body = _body(client, skirt, (0.8, 0.8, 0.8, 1.0), textures.ground[0])
-    chunks.append(Chunk(centre=np.array([cx, cy, zmin]), radius=np.inf, fine=body, coarse=-1, kind="skirt",
-                        texture=textures.ground[0]))
+            chunks.append(_chunk(client, [fine, coarse], "ground", textures.ground[0]))
+            tris["ground"][0] += fine.n_triangles
+            tris["ground"][1] += coarse.n_triangles
