@@ -150,7 +150,9 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
         segmenters[model] = make_segmenter(model)
     s = config.run.start_s + min(4.0, 0.5 * config.run.length_m)
     x, y, yaw = point_on_polyline(env.centreline, s)
-    frame = ctx.renderer.render(x, y, yaw, rng=np.random.default_rng(0), noisy_depth=config.perception.depth_noise)
+    frame = ctx.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
+    if config.perception.depth_noise:
+        frame.depth = ctx.camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
 
 

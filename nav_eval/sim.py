@@ -200,10 +200,18 @@ class RowEnv:
         return Observation(self.t, frames, cam_ticks)
 
     def _frame(self, tick: int) -> Any:
+        """Render the camera at the pose of camera tick `tick` (fixed light and sky: no flicker).
+
+        Depth noise is applied here with the run's own generator, not inside the renderer, so a
+        run's noise depends on its seed only (not on the runs a worker did before it).
+        """
         if tick not in self._frames:
             _, x, y, yaw = self._rows[tick][:4]
-            self._frames[tick] = self.renderer.render(
-                x, y, yaw, rng=self._noise_rng, noisy_depth=self.config.perception.depth_noise)
+            frame = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
+            camera = getattr(self.renderer, "camera", None)
+            if self.config.perception.depth_noise and camera is not None and hasattr(camera, "apply_depth_noise"):
+                frame = dataclasses.replace(frame, depth=camera.apply_depth_noise(frame.depth, self._noise_rng))
+            self._frames[tick] = frame
         return self._frames[tick]
 
 
