@@ -13,6 +13,14 @@ from models.lraspp import imagenet_weights_path
 WEIGHTS_FILE = "mobilenet_v3_large-8738ca79.pth"
 
 
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture()
 def torch_home(tmp_path, monkeypatch):
     """An empty TORCH_HOME, so the test never sees (or writes) the user's cache."""

@@ -1,0 +1,268 @@
+"""Training: metrics, loss decreases, run folder contents, exact resume (also after Ctrl-C), configs."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from models.checkpoint import load_model
+from segmin.config import ConfigError
+from train.config import TrainConfig, load_train_config
+from train.loop import SegLoss, StepContext, train_step
+from train.metrics import SegMetrics
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "train"
+
+
+def write_blob_dataset(root: Path, domain: str = "synth_vineyard_a", frames: int = 10, size: int = 64,
+                       seed: int = 0) -> Path:
+    """Formatted-layout frames: green blobs (crop) on brown soil under a blue sky."""
+    rng = np.random.default_rng(seed)
+    for n in range(1, frames + 1):
+        mask = np.zeros((size, size), np.uint8)
+        for _ in range(3):
+            centre = (int(rng.integers(0, size)), int(rng.integers(size // 4, size)))
+            cv2.circle(mask, centre, int(rng.integers(5, 14)), 255, -1)
+        image = np.zeros((size, size, 3), np.uint8)  # BGR
+        image[: size // 3] = (200, 150, 90)
+        image[size // 3:] = (40, 70, 110)
+        image[mask > 0] = (40, 170, 50)
+        image = np.clip(image.astype(int) + rng.integers(-15, 15, image.shape), 0, 255).astype(np.uint8)
+        sub = root / domain / f"{domain}_1"
+        for kind, name, data in (("images", f"Image{n}.png", image), ("masks", f"Segmentation{n}.png", mask)):
+            path = sub / kind / f"Image{n}" / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(path), data)
+    return root
+
+
+def tiny_config(root: Path, **overrides) -> TrainConfig:
+    raw = {
+        "family": "vineyards",
+        "data": {"root": str(root), "domains": ["synth_vineyards"], "val_fraction": 0.3},
+        "backbone_weights": "none", "image_size": 64, "epochs": 2, "batch_size": 3, "lr": 1e-3,
+        "num_workers": 0, "threads": 1, "progress": False, "preview_images": 2, "device": "cpu",
+    }
+    for key, value in overrides.items():
+        raw[key] = value
+    from segmin.config import from_dict
+
+    return from_dict(TrainConfig, raw)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """One torch thread: the 2 shared cores are oversubscribed otherwise (and results must not depend on it)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def dataset_root(tmp_path_factory) -> Path:
+    return write_blob_dataset(tmp_path_factory.mktemp("blobs"))
+
+
+# ----------------------------------------------------------------------------- metrics and loss
+
+
+def test_iou_is_summed_over_the_whole_set_not_averaged_over_batches():
+    metrics = SegMetrics(threshold=0.5)
+    big = 10.0
+    # batch 1: one sample, 4 pixels, prediction = truth on 2 crop pixels -> IoU 1
+    logits1 = torch.tensor([big, big, -big, -big]).view(1, 1, 2, 2)
+    target1 = torch.tensor([1.0, 1.0, 0.0, 0.0]).view(1, 1, 2, 2)
+    # batch 2: predicted 4 crop pixels, 1 true -> inter 1, union 4
+    logits2 = torch.full((1, 1, 2, 2), big)
+    target2 = torch.tensor([1.0, 0.0, 0.0, 0.0]).view(1, 1, 2, 2)
+    metrics.update(logits1, target1, loss_sum=1.0)
+    metrics.update(logits2, target2, loss_sum=3.0)
+    result = metrics.compute()
+    assert result["iou"] == pytest.approx(3 / 6)  # a mean of batch IoUs would say (1 + 0.25) / 2
+    assert result["pixel_acc"] == pytest.approx(5 / 8)
+    assert result["loss"] == pytest.approx(2.0)
+    empty = SegMetrics()
+    empty.update(torch.full((1, 1, 2, 2), -big), torch.zeros(1, 1, 2, 2))
+    assert empty.compute()["iou"] == 1.0
+
+
+def test_dice_term_adds_to_bce():
+    logits = torch.zeros(2, 1, 4, 4)
+    target = torch.ones(2, 1, 4, 4)
+    bce = SegLoss()(logits, target)
+    assert bce.item() == pytest.approx(np.log(2), rel=1e-5)
+    assert SegLoss(dice_weight=1.0)(logits, target).item() > bce.item() + 0.3
+
+
+def test_loss_decreases_on_a_tiny_overfit_set(dataset_root):
+    from data.agriseg_loader import AgriSegDataset
+
+    torch.manual_seed(0)
+    ds = AgriSegDataset(dataset_root, split="all", image_size=64)
+    images = torch.stack([ds[i][0] for i in range(4)])
+    masks = torch.stack([ds[i][1] for i in range(4)])
+    from models import build_model
+
+    model = build_model("none")
+    ctx = StepContext(model, torch.optim.Adam(model.parameters(), lr=1e-3), SegLoss(), torch.device("cpu"))
+    losses = [train_step(ctx, images, masks).mean().item() for _ in range(25)]
+    assert losses[-1] < 0.5 * losses[0], losses
+
+
+# ----------------------------------------------------------------------------- the run folder
+
+
+def test_fit_writes_checkpoints_logs_and_previews(dataset_root, tmp_path):
+    from train.run import train_model
+
+    out = tmp_path / "run"
+    best = train_model(tiny_config(dataset_root), out)
+    assert best == out / "best.pt"
+    for name in ("best.pt", "last.pt", "metrics.csv", "split.json", "config.yaml"):
+        assert (out / name).is_file(), name
+    assert sorted(p.name for p in (out / "previews").iterdir()) == ["epoch_001.png", "epoch_002.png"]
+    assert any((out / "tensorboard").iterdir())
+    rows = list(csv.DictReader((out / "metrics.csv").open()))
+    assert [r["epoch"] for r in rows] == ["1", "2"]
+    assert all(0.0 <= float(r["val_iou"]) <= 1.0 for r in rows)
+    for name in ("best.pt", "last.pt"):  # nothing but tensors and plain data inside
+        payload = torch.load(out / name, map_location="cpu", weights_only=True)
+        assert payload["model_info"]["backbone_weights"] == "none"
+    last = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
+    assert last["training_state"]["epoch"] == 2 and last["training_state"]["step"] == 0
+    assert isinstance(last["training_state"]["rng"]["torch"], torch.Tensor)
+    model, info = load_model(out / "best.pt")
+    assert info["input_size"] == [64, 64] and info["family"] == "vineyards"
+    preview = cv2.imread(str(out / "previews" / "epoch_002.png"))
+    assert preview.shape == (2 * 64, 4 * 64, 3)
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=True)["model"]
+
+
+def _assert_same_weights(a: Path, b: Path) -> None:
+    wa, wb = _weights(a), _weights(b)
+    assert wa.keys() == wb.keys()
+    different = [k for k in wa if not torch.equal(wa[k], wb[k])]
+    assert not different, f"{len(different)} tensors differ, e.g. {different[:3]}"
+
+
+def test_resume_gives_the_same_weights_as_an_uninterrupted_run(dataset_root, tmp_path):
+    from train.run import fit
+
+    config = tiny_config(dataset_root, epochs=3, schedule="step", step_size=1, gamma=0.5)
+    fit(config, tmp_path / "straight")
+    fit(tiny_config(dataset_root, epochs=1, schedule="step", step_size=1, gamma=0.5), tmp_path / "resumed")
+    result = fit(config, tmp_path / "resumed", resume=True)
+    assert [r["epoch"] for r in result.history] == [1, 2, 3]
+    _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "resumed" / "last.pt")
+    straight = (tmp_path / "straight" / "metrics.csv").read_text().splitlines()
+    resumed = (tmp_path / "resumed" / "metrics.csv").read_text().splitlines()
+    strip = [lambda lines: [",".join(line.split(",")[:-1]) for line in lines]][0]  # drop the seconds column
+    assert strip(straight) == strip(resumed)
+
+
+def test_ctrl_c_saves_a_checkpoint_and_resume_is_exact(dataset_root, tmp_path, monkeypatch):
+    import train.loop
+    from train.run import fit
+
+    config = tiny_config(dataset_root, epochs=2)
+    fit(config, tmp_path / "straight")
+
+    real_step = train.loop.train_step
+    calls = {"n": 0}
+
+    def interrupting_step(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3:  # the first step of epoch 2 (2 steps per epoch)
+            raise KeyboardInterrupt
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(train.loop, "train_step", interrupting_step)
+    result = fit(config, tmp_path / "cut")
+    assert result.interrupted
+    state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
+    assert (state["epoch"], state["step"]) == (1, 0)
+    monkeypatch.setattr(train.loop, "train_step", real_step)
+    calls["n"] = 0
+
+    def interrupting_after_one(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(train.loop, "train_step", interrupting_after_one)
+    assert fit(config, tmp_path / "cut", resume=True).interrupted
+    state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
+    assert (state["epoch"], state["step"]) == (1, 1)  # mid-epoch: one step of epoch 2 done
+    monkeypatch.setattr(train.loop, "train_step", real_step)
+    assert not fit(config, tmp_path / "cut", resume=True).interrupted
+    _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
+
+
+def test_held_out_validation_domains(tmp_path):
+    train_root = write_blob_dataset(tmp_path / "train", "synth_vineyard_a", frames=6)
+    val_root = write_blob_dataset(tmp_path / "val", "synth_straight_vineyard", frames=3, seed=1)
+    config = tiny_config(train_root, epochs=1)
+    config.data.val_root = val_root
+    config.data.val_domains = ["synth_vineyards"]
+    from train.run import select_frames
+
+    train_frames, val_frames = select_frames(config)
+    assert len(train_frames) == 6 and {f.domain for f in val_frames} == {"synth_straight_vineyard"}
+
+
+# ----------------------------------------------------------------------------- configs and CLI
+
+
+@pytest.mark.parametrize("name", ["trees", "vineyards", "synth_trees", "synth_vineyards", "quick"])
+def test_shipped_configs_load(name):
+    config = load_train_config(CONFIGS / f"{name}.yaml")
+    assert config.data.domains
+    if name in ("trees", "vineyards"):
+        assert (config.lr, config.epochs, config.image_size, config.batch_size) == (3e-4, 50, 224, 64)
+        assert config.backbone_weights == "imagenet" and config.dice_weight == 0 and config.schedule == "none"
+    if name == "quick":
+        assert config.image_size <= 160 and config.epochs <= 15
+
+
+def test_config_is_strict_and_takes_overrides():
+    config = load_train_config(CONFIGS / "trees.yaml", ["epochs=3", "data.val_fraction=0.2", "augment.gray_p=0"])
+    assert config.epochs == 3 and config.data.val_fraction == 0.2 and config.augment.gray_p == 0
+    with pytest.raises(ConfigError, match="epochz"):
+        load_train_config(CONFIGS / "trees.yaml", ["epochz=3"])
+    with pytest.raises(ConfigError, match="image_size"):
+        load_train_config(CONFIGS / "trees.yaml", ["image_size=100"])
+
+
+def test_train_cli_runs_and_resumes(dataset_root, tmp_path, capsys):
+    from segmin.cli import main
+
+    config = tmp_path / "tiny.yaml"
+    import yaml
+
+    from segmin.config import to_dict
+
+    config.write_text(yaml.safe_dump(to_dict(tiny_config(dataset_root, epochs=1))))
+    out = tmp_path / "cli_run"
+    assert main(["train", "--config", str(config), "--out", str(out), "tensorboard=false"]) == 0
+    assert "best val IoU" in capsys.readouterr().out
+    assert main(["train", "--config", str(config), "--out", str(out), "epochs=2", "--resume"]) == 0
+    assert len((out / "metrics.csv").read_text().splitlines()) == 3
+    assert main(["train", "--config", str(config), "--out", str(tmp_path / "none"), "--resume"]) == 2
+
+
+def test_bench_runs_and_reports_both_rates():
+    from train.bench import bench_train
+
+    result = bench_train(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
+    assert result["model_step_ips"] > 0 and result["full_pipeline_ips"] > 0
+    assert result["ratio"] == pytest.approx(result["full_pipeline_ips"] / result["model_step_ips"])
