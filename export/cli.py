@@ -1,0 +1,106 @@
+"""`segmin export` and `segmin bench export`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(commands, bench) -> None:
+    parser = commands.add_parser(
+        "export",
+        help="export a checkpoint to a verified ONNX file (uint8 RGB NHWC in, probability out)",
+        description=(
+            "Export a segmin checkpoint to ONNX. The graph takes uint8 RGB frames N x H x W x 3 and "
+            "returns vegetation probability N x 1 x H x W; it is verified against PyTorch on real "
+            "frames (max |dp| <= 1e-4, mask agreement >= 99.9 %%) and not written if it fails."
+        ),
+    )
+    parser.add_argument("--checkpoint", required=True, type=Path, help="checkpoint (best.pt / last.pt)")
+    parser.add_argument("--out", required=True, type=Path, help="output .onnx file")
+    parser.add_argument(
+        "--calib-data",
+        type=Path,
+        default=None,
+        help="folder of real frames (PNG/JPG images or an AgriSeg root) for verification and INT8 "
+        "calibration; default: the checkpoint's training data folder",
+    )
+    parser.add_argument("--fp16", action="store_true", help="also write <out>.fp16.onnx (GPU / Jetson targets)")
+    parser.add_argument("--int8", action="store_true", help="also write <out>.int8.onnx (static QDQ, calibrated)")
+    parser.add_argument("--force", action="store_true", help="overwrite existing output files")
+    parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default 18 dynamo, 17 legacy)")
+    parser.add_argument(
+        "--exporter", choices=("dynamo", "legacy"), default="dynamo", help="torch.onnx exporter (default dynamo)"
+    )
+    parser.add_argument("--verify-frames", type=int, default=32, help="frames compared with PyTorch (default 32)")
+    parser.add_argument("--calib-frames", type=int, default=32, help="frames for INT8 calibration (default 32)")
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime threads for checks (default 2)")
+    parser.set_defaults(func=run_export)
+
+    bench_parser = bench.add_parser(
+        "export",
+        help="per-frame latency: PyTorch eager vs onnxruntime fp32 / INT8, and one full SegMinD step",
+    )
+    bench_parser.add_argument("--checkpoint", type=Path, default=None, help="checkpoint (default: random weights)")
+    bench_parser.add_argument("--onnx", type=Path, default=None, help="an exported fp32 file to time instead")
+    bench_parser.add_argument("--size", type=int, default=224, help="square input size (default 224)")
+    bench_parser.add_argument("--threads", type=int, default=2, help="threads for torch and onnxruntime (default 2)")
+    bench_parser.add_argument("--runs", type=int, default=200, help="timed frames per model (default 200)")
+    bench_parser.add_argument("--no-int8", action="store_true", help="skip building and timing INT8")
+    bench_parser.add_argument(
+        "--compare-exporters", action="store_true", help="also time the legacy TorchScript exporter's graph"
+    )
+    bench_parser.add_argument("--calib-data", type=Path, default=None, help="frames for INT8 calibration")
+    bench_parser.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    bench_parser.set_defaults(func=run_bench)
+
+
+def run_export(args: argparse.Namespace) -> int:
+    import logging
+
+    from export.pipeline import ExportOptions, export_checkpoint
+
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    options = ExportOptions(
+        checkpoint=args.checkpoint,
+        out=args.out,
+        calib_data=args.calib_data,
+        fp16=args.fp16,
+        int8=args.int8,
+        force=args.force,
+        opset=args.opset,
+        exporter=args.exporter,
+        verify_frames=args.verify_frames,
+        calib_frames=args.calib_frames,
+        threads=args.threads,
+    )
+    report = export_checkpoint(options)
+    verification = report["fp32"]["verification_vs_torch"]
+    print(
+        f"{report['fp32']['path']}: verified on {verification['frames']} frames, "
+        f"max |p_onnx - p_torch| {verification['max_abs_diff']:.2e}, "
+        f"mask agreement {100 * verification['mask_agreement']:.3f} %"
+    )
+    if "fp16" in report:
+        vs = report["fp16"]["vs_fp32"]
+        print(f"{report['fp16']['path']}: max |dp| vs fp32 {vs['max_abs_diff']:.2e}, mask IoU {vs['mask_iou']:.4f}")
+    if "int8" in report:
+        print(f"{report['int8']['path']}: {report['int8']['recommendation']}")
+    return 0
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    from export.bench import run_benchmark
+
+    run_benchmark(
+        checkpoint=args.checkpoint,
+        onnx_path=args.onnx,
+        size=args.size,
+        threads=args.threads,
+        runs=args.runs,
+        int8=not args.no_int8,
+        compare_exporters=args.compare_exporters,
+        calib_data=args.calib_data,
+        json_path=args.json,
+    )
+    return 0

@@ -1,0 +1,73 @@
+"""The metadata contract of a segmin ONNX file, shared by the writer (export) and readers (nav_eval).
+
+Torch-free on purpose: `nav_eval.segmenter` imports this module to read a model file on a robot
+computer that has only onnxruntime, numpy and OpenCV. Every value in ONNX `metadata_props` is a
+string; the helpers here format and parse the few structured ones.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+FORMAT = "segmin-onnx-v1"
+
+# Keys written into `metadata_props` (the names a consumer reads; keep them stable).
+KEY_FORMAT = "segmin_format"
+KEY_INPUT_SIZE = "input_size"  # "H,W" the graph expects (frames are resized to it)
+KEY_INPUT_LAYOUT = "input_layout"  # "NHWC"
+KEY_INPUT_DTYPE = "input_dtype"  # "uint8"
+KEY_CHANNEL_ORDER = "channel_order"  # "RGB"
+KEY_NORMALISATION = "normalisation"
+KEY_OUTPUT = "output"
+KEY_THRESHOLD = "threshold"
+KEY_FAMILY = "crop_family"
+KEY_TRAIN_DATA = "training_data"
+KEY_BACKBONE = "backbone_weights"
+KEY_ARCHITECTURE = "architecture"
+KEY_VERSION = "segmin_version"
+KEY_GIT_COMMIT = "git_commit"
+KEY_PRECISION = "precision"  # fp32 | fp16 | int8
+KEY_EXPORTER = "exporter"
+KEY_OPSET = "opset"
+KEY_CHECKPOINT = "source_checkpoint"
+
+REQUIRED_KEYS = (KEY_FORMAT, KEY_INPUT_SIZE, KEY_INPUT_LAYOUT, KEY_CHANNEL_ORDER, KEY_THRESHOLD)
+
+INPUT_NAME = "rgb"
+OUTPUT_NAME = "vegetation_probability"
+
+
+def format_input_size(size: tuple[int, int] | list[int]) -> str:
+    """(H, W) -> "H,W"."""
+    height, width = (int(v) for v in size)
+    return f"{height},{width}"
+
+
+def parse_input_size(text: str) -> tuple[int, int]:
+    """"H,W" -> (H, W); ValueError naming the bad value."""
+    parts = str(text).replace("x", ",").split(",")
+    try:
+        height, width = (int(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"metadata {KEY_INPUT_SIZE}={text!r}: expected 'H,W' with two integers") from None
+    if height <= 0 or width <= 0:
+        raise ValueError(f"metadata {KEY_INPUT_SIZE}={text!r}: sizes must be positive")
+    return height, width
+
+
+def check_metadata(meta: Mapping[str, str], source: str) -> None:
+    """Raise ValueError naming `source` when `meta` is not a segmin model's metadata."""
+    missing = [key for key in REQUIRED_KEYS if key not in meta]
+    if missing:
+        raise ValueError(f"{source}: not a segmin ONNX model (metadata lacks {', '.join(missing)})")
+    if meta[KEY_FORMAT] != FORMAT:
+        raise ValueError(f"{source}: unsupported model format {meta[KEY_FORMAT]!r} (expected {FORMAT!r})")
+    if meta[KEY_INPUT_LAYOUT] != "NHWC" or meta[KEY_CHANNEL_ORDER] != "RGB":
+        raise ValueError(
+            f"{source}: input layout {meta[KEY_INPUT_LAYOUT]!r} / channel order {meta[KEY_CHANNEL_ORDER]!r} "
+            "not supported (expected NHWC / RGB)"
+        )
+    parse_input_size(meta[KEY_INPUT_SIZE])
+    threshold = float(meta[KEY_THRESHOLD])
+    if not 0.0 < threshold < 1.0:
+        raise ValueError(f"{source}: metadata threshold {threshold} is not in (0, 1)")

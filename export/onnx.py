@@ -1,0 +1,198 @@
+"""Export a SegmentationNet to an ONNX graph that takes what a robot camera gives.
+
+The graph input is uint8 RGB, N x H x W x 3 (N dynamic, H x W the training input size), and the
+graph does the rest itself: NHWC -> NCHW, /255 and ImageNet normalisation (folded into one Mul and
+one Add), the network, and a sigmoid. So an embedded consumer (onnxruntime on the robot computer,
+TensorRT on a Jetson) needs no preprocessing code beyond a resize to the model size, and cannot
+get the normalisation subtly wrong. Output: vegetation probability N x 1 x H x W, float32.
+
+Exporter choice: torch 2.14's dynamo exporter (`torch.export` + onnxscript, opset 18) is the
+default. On this model it gives a smaller graph (no Identity/Constant clutter, no dynamic
+Shape->Gather chains around the pooling) that runs as fast or faster in onnxruntime than the legacy
+TorchScript exporter, and the legacy exporter is deprecated. `exporter="legacy"` (opset 17) stays
+available for old consumers; `segmin bench export --compare-exporters` measures both.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import warnings
+from pathlib import Path
+from typing import Any, Mapping
+
+import onnx
+import torch
+from torch import nn
+
+import segmin
+from export import metadata as md
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+EXPORTERS = ("dynamo", "legacy")
+DEFAULT_OPSET = {"dynamo": 18, "legacy": 17}
+
+
+class DeployWrapper(nn.Module):
+    """uint8 RGB NHWC frames in, vegetation probability N x 1 x H x W out (float32)."""
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+        mean = torch.tensor(IMAGENET_MEAN, dtype=torch.float32)
+        std = torch.tensor(IMAGENET_STD, dtype=torch.float32)
+        # (x / 255 - mean) / std == x * scale + bias: one Mul and one Add in the graph.
+        self.register_buffer("scale", (1.0 / (255.0 * std)).view(1, 3, 1, 1))
+        self.register_buffer("bias", (-mean / std).view(1, 3, 1, 1))
+
+    def forward(self, rgb: torch.Tensor) -> torch.Tensor:
+        images = rgb.permute(0, 3, 1, 2).to(torch.float32) * self.scale + self.bias
+        return torch.sigmoid(self.model(images))
+
+
+def git_commit() -> str:
+    """The project's git commit (best effort; "unknown" outside a checkout or without git)."""
+    try:
+        result = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=False,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    commit = result.stdout.strip()
+    return commit if result.returncode == 0 and commit else "unknown"
+
+
+def file_sha256(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def build_metadata(
+    model_info: Mapping[str, Any],
+    *,
+    input_size: tuple[int, int],
+    exporter: str,
+    opset: int,
+    precision: str = "fp32",
+    checkpoint: str | Path | None = None,
+) -> dict[str, str]:
+    """The `metadata_props` of an exported file (all values strings, see export.metadata)."""
+    meta = {
+        md.KEY_FORMAT: md.FORMAT,
+        md.KEY_INPUT_SIZE: md.format_input_size(input_size),
+        md.KEY_INPUT_LAYOUT: "NHWC",
+        md.KEY_INPUT_DTYPE: "uint8",
+        md.KEY_CHANNEL_ORDER: "RGB",
+        md.KEY_NORMALISATION: "in graph: x/255 then ImageNet mean/std "
+        f"(mean {list(IMAGENET_MEAN)}, std {list(IMAGENET_STD)})",
+        md.KEY_OUTPUT: "vegetation probability, N x 1 x H x W, float32 (sigmoid applied)",
+        md.KEY_THRESHOLD: repr(float(model_info.get("threshold", 0.5))),
+        md.KEY_FAMILY: str(model_info.get("family", "unknown")),
+        md.KEY_TRAIN_DATA: str(model_info.get("train_data", "unknown")),
+        md.KEY_BACKBONE: str(model_info.get("backbone_weights", "unknown")),
+        md.KEY_ARCHITECTURE: str(model_info.get("architecture", "unknown")),
+        md.KEY_VERSION: segmin.__version__,
+        md.KEY_GIT_COMMIT: git_commit(),
+        md.KEY_PRECISION: precision,
+        md.KEY_EXPORTER: exporter,
+        md.KEY_OPSET: str(opset),
+    }
+    if checkpoint is not None:
+        meta[md.KEY_CHECKPOINT] = f"{Path(checkpoint).name} sha256:{file_sha256(checkpoint)}"
+    return meta
+
+
+def set_metadata(model: onnx.ModelProto, meta: Mapping[str, str]) -> None:
+    """Replace the model's metadata_props with `meta` (keys not in `meta` are kept)."""
+    current = {prop.key: prop.value for prop in model.metadata_props}
+    current.update({str(k): str(v) for k, v in meta.items()})
+    del model.metadata_props[:]
+    onnx.helper.set_model_props(model, current)
+    model.producer_name = "segmin"
+    model.producer_version = segmin.__version__
+    model.doc_string = "segmin crop-row vegetation segmentation: uint8 RGB NHWC in, vegetation probability out"
+
+
+def read_metadata(path: str | Path) -> dict[str, str]:
+    """metadata_props of an ONNX file as a dict (weights are not loaded)."""
+    model = onnx.load(str(path), load_external_data=False)
+    return {prop.key: prop.value for prop in model.metadata_props}
+
+
+def export_graph(
+    model: nn.Module,
+    path: str | Path,
+    *,
+    input_size: tuple[int, int],
+    exporter: str = "dynamo",
+    opset: int | None = None,
+) -> int:
+    """Write the wrapped model as ONNX (one file, no metadata yet) to `path`; returns the opset used.
+
+    Writes `path` directly: callers wrap it in `segmin.atomic.atomic_path`.
+    """
+    if exporter not in EXPORTERS:
+        raise ValueError(f"exporter={exporter!r}: expected one of {EXPORTERS}")
+    opset = int(opset if opset is not None else DEFAULT_OPSET[exporter])
+    if exporter == "dynamo" and opset < 18:
+        raise ValueError(f"opset {opset}: the dynamo exporter needs opset >= 18 (use --exporter legacy for older)")
+    if opset < 14:
+        raise ValueError(f"opset {opset}: HardSwish/HardSigmoid of MobileNetV3 need opset >= 14")
+    height, width = (int(v) for v in input_size)
+    wrapper = DeployWrapper(model).eval()
+    # Batch 2 in the example: torch.export specialises a size-1 dimension to a constant.
+    example = torch.zeros(2, height, width, 3, dtype=torch.uint8)
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if exporter == "dynamo":
+            batch = torch.export.Dim("batch", min=1, max=4096)
+            program = torch.onnx.export(
+                wrapper,
+                (example,),
+                None,
+                dynamo=True,
+                opset_version=opset,
+                input_names=[md.INPUT_NAME],
+                output_names=[md.OUTPUT_NAME],
+                dynamic_shapes={"rgb": {0: batch}},
+                external_data=False,
+                optimize=True,
+                verbose=False,
+            )
+            program.save(str(path), external_data=False)
+        else:
+            torch.onnx.export(
+                wrapper,
+                (example,),
+                str(path),
+                dynamo=False,
+                opset_version=opset,
+                input_names=[md.INPUT_NAME],
+                output_names=[md.OUTPUT_NAME],
+                dynamic_axes={md.INPUT_NAME: {0: "batch"}, md.OUTPUT_NAME: {0: "batch"}},
+                do_constant_folding=True,
+            )
+    return opset
+
+
+def check_graph_io(model: onnx.ModelProto, input_size: tuple[int, int], source: str) -> None:
+    """The exported graph must take uint8 N x H x W x 3 and give N x 1 x H x W."""
+    inputs = [i for i in model.graph.input if i.name not in {init.name for init in model.graph.initializer}]
+    if len(inputs) != 1 or len(model.graph.output) != 1:
+        raise ValueError(f"{source}: expected one input and one output, got {len(inputs)} and {len(model.graph.output)}")
+    tensor = inputs[0].type.tensor_type
+    if tensor.elem_type != onnx.TensorProto.UINT8:
+        raise ValueError(f"{source}: input {inputs[0].name!r} is not uint8")
+    dims = [d.dim_value if d.HasField("dim_value") else None for d in tensor.shape.dim]
+    expected = [None, int(input_size[0]), int(input_size[1]), 3]
+    if dims != expected:
+        raise ValueError(f"{source}: input shape {dims} is not {expected} (dynamic batch, H, W, 3)")

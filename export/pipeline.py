@@ -1,0 +1,229 @@
+"""checkpoint -> verified ONNX file (+ optional fp16 and INT8 variants) and a JSON export report.
+
+Every file is written through `segmin.atomic.atomic_path`: the graph is exported, stamped with
+metadata and verified inside the temporary file, and only a file that passed is renamed to its
+final name. A failed check therefore leaves no new file behind (with `force`, a previous file of
+the same name stays as it was: a failed export never destroys the last good model). Existing
+outputs are never overwritten without `force`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from export import metadata as md
+from export import quantize as quant
+from export.onnx import (
+    DEFAULT_OPSET,
+    EXPORTERS,
+    DeployWrapper,
+    build_metadata,
+    check_graph_io,
+    export_graph,
+    set_metadata,
+)
+from export.verify import (
+    MAX_ABS_DIFF,
+    MIN_MASK_AGREEMENT,
+    VerificationError,
+    check_bounds,
+    load_frames,
+    make_session,
+    run_session,
+    torch_reference,
+    verify_against_torch,
+)
+from segmin.atomic import atomic_path, write_json
+
+log = logging.getLogger(__name__)
+
+# INT8 is recommended only when it is measurably faster AND its masks stay close to fp32.
+INT8_MIN_SPEEDUP = 1.05
+INT8_MIN_IOU = 0.95
+
+
+class OutputExistsError(ValueError):
+    """An output file exists and `force` was not given."""
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """Everything `segmin export` takes (see export/cli.py for the user-facing help)."""
+
+    checkpoint: Path
+    out: Path
+    calib_data: Path | None = None
+    fp16: bool = False
+    int8: bool = False
+    force: bool = False
+    opset: int | None = None
+    exporter: str = "dynamo"
+    verify_frames: int = 32
+    calib_frames: int = 32
+    threads: int = 2
+    max_abs_diff: float = MAX_ABS_DIFF
+    min_agreement: float = MIN_MASK_AGREEMENT
+
+    def __post_init__(self) -> None:
+        if self.exporter not in EXPORTERS:
+            raise ValueError(f"exporter={self.exporter!r}: expected one of {', '.join(EXPORTERS)}")
+        for name in ("verify_frames", "calib_frames", "threads"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if Path(self.out).suffix.lower() != ".onnx":
+            raise ValueError(f"--out {self.out}: the output file name must end in .onnx")
+
+
+def variant_path(out: str | Path, tag: str) -> Path:
+    """model.onnx -> model.fp16.onnx / model.int8.onnx."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.{tag}{out.suffix}")
+
+
+def report_path(out: str | Path) -> Path:
+    """model.onnx -> model.export.json."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.export.json")
+
+
+def planned_outputs(options: ExportOptions) -> list[Path]:
+    outputs = [Path(options.out), report_path(options.out)]
+    if options.fp16:
+        outputs.append(variant_path(options.out, "fp16"))
+    if options.int8:
+        outputs.append(variant_path(options.out, "int8"))
+    return outputs
+
+
+def _frame_source(options: ExportOptions, model_info: dict[str, Any]) -> Path:
+    if options.calib_data is not None:
+        return Path(options.calib_data)
+    train_data = model_info.get("train_data")
+    if train_data and Path(str(train_data)).is_dir():
+        return Path(str(train_data))
+    raise ValueError(
+        f"{options.checkpoint}: no real frames to verify the export on: its training data "
+        f"{train_data!r} is not a folder here; pass --calib-data DIR (images or an AgriSeg root)"
+    )
+
+
+def _stamp(path: Path, meta: dict[str, str]) -> None:
+    import onnx
+
+    model = onnx.load(str(path))
+    set_metadata(model, meta)
+    onnx.save(model, str(path))
+
+
+def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
+    """Run the whole export; returns the report (also written to model.export.json)."""
+    import onnx
+
+    from models.checkpoint import load_model
+
+    existing = [str(p) for p in planned_outputs(options) if p.exists()]
+    if existing and not options.force:
+        raise OutputExistsError(f"{', '.join(existing)}: already exists; pass --force to overwrite")
+
+    model, info = load_model(options.checkpoint)
+    input_size = tuple(int(v) for v in info["input_size"])
+    threshold = float(info.get("threshold", 0.5))
+    source = _frame_source(options, info)
+    frames = load_frames(source, input_size, limit=max(options.verify_frames, options.calib_frames if options.int8 else 1))
+    verify_set = frames[np.linspace(0, len(frames) - 1, min(len(frames), options.verify_frames)).round().astype(int)]
+    opset = int(options.opset if options.opset is not None else DEFAULT_OPSET[options.exporter])
+    meta = build_metadata(
+        info, input_size=input_size, exporter=options.exporter, opset=opset, checkpoint=options.checkpoint
+    )
+    report: dict[str, Any] = {
+        "checkpoint": str(options.checkpoint),
+        "frames_from": str(source),
+        "input_size": list(input_size),
+        "threshold": threshold,
+        "metadata": meta,
+        "bounds": {"max_abs_diff": options.max_abs_diff, "min_mask_agreement": options.min_agreement},
+    }
+
+    out = Path(options.out)
+    wrapper = DeployWrapper(model).eval()
+    with atomic_path(out) as tmp:
+        export_graph(model, tmp, input_size=input_size, exporter=options.exporter, opset=opset)
+        graph = onnx.load(str(tmp))
+        check_graph_io(graph, input_size, str(out))
+        set_metadata(graph, meta)
+        onnx.save(graph, str(tmp))
+        del graph
+        try:
+            agreement = verify_against_torch(
+                tmp,
+                torch_reference(wrapper),
+                verify_set,
+                threshold,
+                max_abs_diff=options.max_abs_diff,
+                min_agreement=options.min_agreement,
+                threads=options.threads,
+            )
+        except VerificationError as exc:
+            kept = " (the existing file was left unchanged)" if out.exists() else ""
+            raise VerificationError(f"{out}: export failed verification, no file written{kept}: {exc}") from exc
+        _stamp(tmp, {"verification": _summary(agreement)})
+    report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
+    log.info("wrote %s (verified: %s)", out, _summary(agreement))
+
+    fp32_probs = run_session(make_session(out, threads=options.threads), verify_set)
+    if options.fp16:
+        report["fp16"] = _export_fp16(out, meta, fp32_probs, verify_set, threshold)
+    if options.int8:
+        report["int8"] = _export_int8(out, meta, fp32_probs, frames, verify_set, threshold, options.threads)
+    write_json(report_path(out), report)
+    return report
+
+
+def _summary(agreement) -> str:
+    return (
+        f"{agreement.frames} frames, max|dp| {agreement.max_abs_diff:.2e}, "
+        f"mask agreement {100 * agreement.mask_agreement:.3f} %, IoU {agreement.mask_iou:.4f}"
+    )
+
+
+def _export_fp16(out: Path, meta: dict[str, str], fp32_probs, frames, threshold: float) -> dict[str, Any]:
+    path = variant_path(out, "fp16")
+    with atomic_path(path) as tmp:
+        quant.convert_fp16(out, tmp)
+        agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
+        check_bounds(
+            agreement, str(path), max_abs_diff=quant.FP16_MAX_ABS_DIFF, min_agreement=quant.FP16_MIN_AGREEMENT
+        )
+        _stamp(tmp, {**meta, md.KEY_PRECISION: "fp16", "verification": "vs fp32: " + _summary(agreement)})
+    return {"path": str(path), "vs_fp32": agreement.as_dict()}
+
+
+def _export_int8(
+    out: Path, meta: dict[str, str], fp32_probs, calib, frames, threshold: float, threads: int
+) -> dict[str, Any]:
+    path = variant_path(out, "int8")
+    with atomic_path(path) as tmp:
+        quant.quantize_int8(out, tmp, calib)
+        agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
+        _stamp(tmp, {**meta, md.KEY_PRECISION: "int8", "verification": "vs fp32: " + _summary(agreement)})
+        latency = quant.interleaved_latency({"fp32": out, "int8": tmp}, frames[:1], threads=threads, runs=30)
+    speedup = latency["fp32"].median_ms / latency["int8"].median_ms
+    recommended = speedup >= INT8_MIN_SPEEDUP and agreement.mask_iou >= INT8_MIN_IOU
+    reason = (
+        f"INT8 median {latency['int8'].median_ms:.2f} ms vs fp32 {latency['fp32'].median_ms:.2f} ms "
+        f"({speedup:.2f}x), mask IoU vs fp32 {agreement.mask_iou:.4f}: "
+        + ("recommended" if recommended else "not recommended, deploy the fp32 file")
+    )
+    return {
+        "path": str(path),
+        "vs_fp32": agreement.as_dict(),
+        "latency_ms": {name: lat.as_dict() for name, lat in latency.items()},
+        "speedup_vs_fp32": speedup,
+        "recommended": recommended,
+        "recommendation": reason,
+    }

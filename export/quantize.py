@@ -1,0 +1,143 @@
+"""Reduced-precision variants of a verified fp32 export: fp16 (GPU / Jetson) and INT8 static QDQ.
+
+fp16 uses onnxruntime's own converter (`onnxruntime.transformers.float16`, shipped with the
+installed onnxruntime, so no extra dependency) with `keep_io_types=True`: the graph still takes
+uint8 frames and returns float32 probabilities, so consumers do not change.
+
+INT8 is static QDQ quantisation (`onnxruntime.quantization.quantize_static`) calibrated on real
+frames: activations uint8, weights int8, per-tensor. Per-channel is off on purpose: per-channel
+static quantisation of MobileNetV3 has a known accuracy problem (onnxruntime issue 11415). On a
+2-core x86 CPU the INT8 graph was not faster than fp32 in our measurements (the depthwise convs and
+HardSwish/HardSigmoid activations stay float between Q/DQ pairs), so it is built and reported with
+its mask IoU and latency, and recommended only when the measured latency is lower.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from export.verify import Agreement, compare, make_session, run_session
+
+# fp16 is compared with the fp32 export, not with PyTorch: half precision cannot meet 1e-4.
+FP16_MAX_ABS_DIFF = 1e-2
+FP16_MIN_AGREEMENT = 0.995
+
+
+def convert_fp16(src: str | Path, dst: str | Path) -> None:
+    """Write an fp16 copy of `src` to `dst`; inputs (uint8) and outputs (float32) keep their types."""
+    import onnx
+    from onnxruntime.transformers.float16 import convert_float_to_float16
+
+    model = onnx.load(str(src))
+    # Resize computes sampling coordinates from float scales/sizes; keep it in float32 so the
+    # upsampled output lines up exactly with the fp32 graph.
+    half = convert_float_to_float16(model, keep_io_types=True, op_block_list=["Resize"])
+    onnx.save(half, str(dst))
+
+
+class FrameReader:
+    """onnxruntime CalibrationDataReader over uint8 frames (one frame per calibration batch)."""
+
+    def __init__(self, frames: np.ndarray, input_name: str) -> None:
+        self.frames = frames
+        self.input_name = input_name
+        self.index = 0
+
+    def get_next(self) -> dict[str, np.ndarray] | None:
+        if self.index >= len(self.frames):
+            return None
+        batch = self.frames[self.index : self.index + 1]
+        self.index += 1
+        return {self.input_name: batch}
+
+    def rewind(self) -> None:
+        self.index = 0
+
+
+def quantize_int8(src: str | Path, dst: str | Path, frames: np.ndarray) -> None:
+    """Static QDQ INT8 quantisation of `src`, calibrated on `frames` (uint8 N x H x W x 3)."""
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    if len(frames) == 0:
+        raise ValueError("INT8 calibration needs at least one frame")
+
+    class _Reader(FrameReader, CalibrationDataReader):
+        pass
+
+    with tempfile.TemporaryDirectory(prefix="segmin-int8-") as tmp:
+        prepared = Path(tmp) / "prepared.onnx"
+        quant_pre_process(str(src), str(prepared), skip_symbolic_shape=False)
+        name = make_session(prepared, threads=1).get_inputs()[0].name
+        quantize_static(
+            str(prepared),
+            str(dst),
+            _Reader(frames, name),
+            quant_format=QuantFormat.QDQ,
+            per_channel=False,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+        )
+
+
+@dataclass(frozen=True)
+class Latency:
+    """Per-frame latency of one model, milliseconds."""
+
+    median_ms: float
+    p95_ms: float
+    runs: int
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def time_calls(call, runs: int = 50, warmup: int = 5) -> Latency:
+    """Median and 95th percentile wall time of `call()`."""
+    for _ in range(warmup):
+        call()
+    times = np.empty(runs)
+    for i in range(runs):
+        start = time.perf_counter()
+        call()
+        times[i] = time.perf_counter() - start
+    return Latency(float(np.median(times) * 1e3), float(np.percentile(times, 95) * 1e3), int(runs))
+
+
+def session_latency(path: str | Path, frame: np.ndarray, threads: int = 2, runs: int = 50) -> Latency:
+    """Latency of one uint8 1 x H x W x 3 frame through an onnxruntime session."""
+    session = make_session(path, threads=threads)
+    feed = {session.get_inputs()[0].name: frame}
+    return time_calls(lambda: session.run(None, feed), runs=runs)
+
+
+def compare_with_fp32(path: str | Path, fp32_probs: np.ndarray, frames: np.ndarray, threshold: float) -> Agreement:
+    """Agreement of a reduced-precision file with the fp32 export's probabilities."""
+    return compare(run_session(make_session(path), frames), fp32_probs, threshold)
+
+
+def interleaved_latency(
+    paths: dict[str, Path], frame: np.ndarray, threads: int = 2, runs: int = 50, rounds: int = 3
+) -> dict[str, Latency]:
+    """Latency of several files measured in alternating rounds, so load from others hits all alike."""
+    sessions = {name: make_session(path, threads=threads) for name, path in paths.items()}
+    samples: dict[str, list[float]] = {name: [] for name in paths}
+    per_round = max(1, runs // rounds)
+    for _ in range(rounds):
+        for name, session in sessions.items():
+            feed = {session.get_inputs()[0].name: frame}
+            for _ in range(3):
+                session.run(None, feed)
+            for _ in range(per_round):
+                start = time.perf_counter()
+                session.run(None, feed)
+                samples[name].append(time.perf_counter() - start)
+    return {
+        name: Latency(float(np.median(s) * 1e3), float(np.percentile(s, 95) * 1e3), len(s))
+        for name, s in samples.items()
+    }

@@ -1,0 +1,148 @@
+"""Segmenters the navigator loads: camera RGB in, vegetation mask out.
+
+`OnnxSegmenter` runs a file written by `segmin export` with onnxruntime only (no torch, no
+training code: this module is what runs on the robot computer). The file's metadata says the
+input size and threshold; the graph itself does the /255 and ImageNet normalisation, so the only
+preprocessing here is a resize to the model size (INTER_AREA when shrinking, INTER_LINEAR when
+enlarging). The mask is computed at the model size and resized back to the frame size with
+nearest neighbour, so it stays boolean and its edges do not move by more than one model pixel;
+`probabilities` is resized back bilinearly.
+
+The simulator's exact-mask oracle lives in `nav_eval.oracle` (it needs the whole rendered frame,
+see `nav_eval.oracle.segment_frame`).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from export import metadata as md
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """What the navigator needs from perception."""
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        """uint8 H x W x 3 RGB frame -> bool H x W vegetation mask."""
+        ...
+
+    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """uint8 H x W x 3 RGB frame -> float32 H x W vegetation probability in [0, 1]."""
+        ...
+
+
+def check_rgb(rgb: np.ndarray) -> np.ndarray:
+    """The frame as a C-contiguous uint8 H x W x 3 array; ValueError naming the problem."""
+    if not isinstance(rgb, np.ndarray):
+        raise ValueError(f"frame must be a numpy array (uint8 H x W x 3 RGB), got {type(rgb).__name__}")
+    if rgb.dtype != np.uint8:
+        raise ValueError(f"frame dtype is {rgb.dtype}, expected uint8 RGB (0..255)")
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"frame shape is {rgb.shape}, expected H x W x 3 (RGB, 3 channels)")
+    if rgb.shape[0] < 1 or rgb.shape[1] < 1:
+        raise ValueError(f"frame shape is {rgb.shape}: empty image")
+    return np.ascontiguousarray(rgb)
+
+
+class OnnxSegmenter:
+    """A `segmin export` ONNX file run by onnxruntime on the CPU (or a given provider list).
+
+    `threads`: onnxruntime intra-op threads (the paper's robot computer budget: 2).
+    `threshold`: probability above which a pixel is vegetation; None = the file's metadata value.
+    """
+
+    name = "onnx"
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        threads: int = 2,
+        threshold: float | None = None,
+        providers: list[str] | None = None,
+    ) -> None:
+        import onnxruntime as ort
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: ONNX model not found")
+        if int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads!r}")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(threads)
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(
+                str(self.path), options, providers=providers or ["CPUExecutionProvider"]
+            )
+        except Exception as exc:  # onnxruntime raises its own types for unparsable files
+            raise ValueError(f"{self.path}: not a loadable ONNX model ({str(exc).splitlines()[0][:300]})") from exc
+
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
+        md.check_metadata(self.metadata, str(self.path))
+        self.input_size = md.parse_input_size(self.metadata[md.KEY_INPUT_SIZE])
+        self.threshold = float(self.metadata[md.KEY_THRESHOLD]) if threshold is None else float(threshold)
+        if not 0.0 < self.threshold < 1.0:
+            raise ValueError(f"threshold must be in (0, 1), got {self.threshold!r}")
+        self._check_graph()
+        self._input_name = self.session.get_inputs()[0].name
+
+    def _check_graph(self) -> None:
+        """The graph's input/output must be what the metadata promises."""
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        if len(inputs) != 1 or len(outputs) != 1:
+            raise ValueError(f"{self.path}: expected one input and one output, got {len(inputs)} and {len(outputs)}")
+        graph_input = inputs[0]
+        if graph_input.type != "tensor(uint8)":
+            raise ValueError(f"{self.path}: model input {graph_input.name!r} is {graph_input.type}, metadata says uint8")
+        shape = list(graph_input.shape)
+        height, width = self.input_size
+        if len(shape) != 4 or shape[1:] != [height, width, 3]:
+            raise ValueError(
+                f"{self.path}: model input shape {shape} does not match metadata "
+                f"{md.KEY_INPUT_SIZE}={height},{width} (expected [N, {height}, {width}, 3])"
+            )
+        if outputs[0].type != "tensor(float)":
+            raise ValueError(f"{self.path}: model output is {outputs[0].type}, expected float32 probabilities")
+
+    def _model_probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """Probabilities at the model input size (float32 h x w) of a checked frame."""
+        import cv2
+
+        height, width = self.input_size
+        if rgb.shape[:2] != (height, width):
+            shrinking = rgb.shape[0] >= height and rgb.shape[1] >= width
+            rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+        output = self.session.run(None, {self._input_name: rgb[None]})[0]
+        return output[0, 0]
+
+    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """float32 H x W vegetation probability at the frame size (bilinear resize back)."""
+        import cv2
+
+        rgb = check_rgb(rgb)
+        probs = self._model_probabilities(rgb)
+        if probs.shape != rgb.shape[:2]:
+            probs = cv2.resize(probs, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
+        return np.clip(probs, 0.0, 1.0).astype(np.float32, copy=False)
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        """bool H x W vegetation mask at the frame size (thresholded at the model size, nearest resize)."""
+        import cv2
+
+        rgb = check_rgb(rgb)
+        mask = (self._model_probabilities(rgb) >= self.threshold).astype(np.uint8)
+        if mask.shape != rgb.shape[:2]:
+            mask = cv2.resize(mask, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST)
+        return mask.astype(bool)
+
+    def __repr__(self) -> str:
+        height, width = self.input_size
+        return f"OnnxSegmenter({str(self.path)!r}, input {height}x{width}, threshold {self.threshold:g})"

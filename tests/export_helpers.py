@@ -1,0 +1,114 @@
+"""Shared by tests/test_export*.py and tests/test_segmenter*.py: a tiny trained checkpoint and frames.
+
+The checkpoint is LR-ASPP MobileNetV3 with random init trained for a few Adam steps on synthetic
+64 x 64 "field" images (green row bands on soil under a sky), so its probabilities are spread out
+and depend on the image content: a round trip that broke the normalisation or the channel order
+would show up as large differences, which a constant-output random model could hide.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+SIZE = 64
+
+
+def field_image(rng: np.random.Generator, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB uint8 H x W x 3, mask bool H x W) of a toy crop-row frame."""
+    image = np.zeros((height, width, 3), np.float32)
+    horizon = int(height * rng.uniform(0.2, 0.4))
+    image[:horizon] = (150, 190, 235)
+    image[horizon:] = (120, 95, 70)
+    mask = np.zeros((height, width), bool)
+    cols = np.arange(width)
+    for centre in (width * rng.uniform(0.1, 0.35), width * rng.uniform(0.65, 0.9)):
+        band = np.abs(cols - centre) < width * rng.uniform(0.08, 0.18)
+        mask[horizon // 2 :, band] = True
+    image[mask] = (40, 140, 35)
+    image += rng.normal(0, 10, image.shape)
+    return np.clip(image, 0, 255).astype(np.uint8), mask
+
+
+def make_checkpoint(path: Path, steps: int = 8, size: int = SIZE, threshold: float = 0.5) -> Path:
+    """A few Adam steps of build_model("none") on toy frames, saved with models.checkpoint.
+
+    BatchNorm stays in eval mode while training: with a handful of steps its running statistics
+    would not settle, and the eval-mode output would then be nearly constant.
+    """
+    import torch
+
+    from models import build_model
+    from models.checkpoint import model_info, save_checkpoint
+
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    model = build_model("none")
+    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    model.eval()
+    for _ in range(steps):
+        pairs = [field_image(rng, size, size) for _ in range(4)]
+        images = torch.from_numpy(np.stack([p[0] for p in pairs])).permute(0, 3, 1, 2).float() / 255.0
+        masks = torch.from_numpy(np.stack([p[1] for p in pairs])).float()[:, None]
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(model((images - mean) / std), masks)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    model.eval()
+    info = model_info(
+        backbone_weights="none", input_size=(size, size), family="vineyards", train_data="toy", threshold=threshold
+    )
+    save_checkpoint(path, {"model": model.state_dict(), "model_info": info, "epoch": 0, "metrics": {}})
+    return path
+
+
+def write_frames(folder: Path, count: int = 6, height: int = 72, width: int = 96, seed: int = 1) -> Path:
+    """`count` toy frames as PNG/JPG files (sizes differ from the model size, so they get resized)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    for i in range(count):
+        image, _ = field_image(rng, height, width)
+        suffix = ".jpg" if i % 3 == 2 else ".png"
+        cv2.imwrite(str(folder / f"frame{i}{suffix}"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    return folder
+
+
+# One tiny checkpoint and one full export per test session, shared by the export and segmenter
+# test modules (each takes seconds on 2 cores; building them once keeps the suite short).
+_SESSION_CACHE: dict[str, object] = {}
+
+
+def shared_checkpoint(tmp_path_factory) -> Path:
+    if "checkpoint" not in _SESSION_CACHE:
+        folder = tmp_path_factory.mktemp("tiny_checkpoint")
+        _SESSION_CACHE["checkpoint"] = make_checkpoint(folder / "tiny.pt")
+        _SESSION_CACHE["frames"] = write_frames(folder / "frames", count=6)
+    return _SESSION_CACHE["checkpoint"]  # type: ignore[return-value]
+
+
+def shared_frames(tmp_path_factory) -> Path:
+    shared_checkpoint(tmp_path_factory)
+    return _SESSION_CACHE["frames"]  # type: ignore[return-value]
+
+
+def shared_export(tmp_path_factory) -> tuple[Path, dict]:
+    """model.onnx (default dynamo exporter) with fp16 and int8 variants, and its report."""
+    if "export" not in _SESSION_CACHE:
+        from export.pipeline import ExportOptions, export_checkpoint
+
+        out = tmp_path_factory.mktemp("tiny_export") / "model.onnx"
+        report = export_checkpoint(
+            ExportOptions(
+                checkpoint=shared_checkpoint(tmp_path_factory),
+                out=out,
+                calib_data=shared_frames(tmp_path_factory),
+                fp16=True,
+                int8=True,
+            )
+        )
+        _SESSION_CACHE["export"] = (out, report)
+    return _SESSION_CACHE["export"]  # type: ignore[return-value]

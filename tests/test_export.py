@@ -1,0 +1,229 @@
+"""Export round trip on a tiny trained checkpoint: verified graph, metadata, variants, errors."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from export import metadata as md
+from export.onnx import DeployWrapper, read_metadata
+from export.pipeline import ExportOptions, OutputExistsError, export_checkpoint, report_path, variant_path
+from export.verify import (
+    MAX_ABS_DIFF,
+    MIN_MASK_AGREEMENT,
+    VerificationError,
+    compare,
+    load_frames,
+    make_session,
+    run_session,
+)
+from export_helpers import SIZE, shared_checkpoint, shared_export, shared_frames, write_frames
+from models.checkpoint import load_model
+from segmin.cli import main as segmin_main
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("export")
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    return shared_checkpoint(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def frames_dir(tmp_path_factory) -> Path:
+    return shared_frames(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory) -> tuple[Path, dict]:
+    """One full export with both variants (dynamo exporter, the default), shared by the tests."""
+    return shared_export(tmp_path_factory)
+
+
+def _torch_probs(checkpoint: Path, frames: np.ndarray) -> np.ndarray:
+    model, _ = load_model(checkpoint)
+    with torch.inference_mode():
+        return DeployWrapper(model).eval()(torch.from_numpy(frames)).numpy()
+
+
+def test_round_trip_matches_pytorch_within_bounds(exported, checkpoint, workdir) -> None:
+    out, report = exported
+    assert out.is_file()
+    # Fresh frames the export never saw, different size from the model: resized like the robot does.
+    frames = load_frames(write_frames(workdir / "fresh", count=4, height=50, width=120, seed=7), (SIZE, SIZE))
+    onnx_probs = run_session(make_session(out), frames)
+    torch_probs = _torch_probs(checkpoint, frames)
+    agreement = compare(onnx_probs, torch_probs, threshold=0.5)
+    assert agreement.max_abs_diff <= MAX_ABS_DIFF
+    assert agreement.mask_agreement >= MIN_MASK_AGREEMENT
+    # The tiny model's output must depend on the image, or the comparison above proves little.
+    assert onnx_probs.std() > 0.01
+    assert 0.02 < (onnx_probs >= 0.5).mean() < 0.98
+    verification = report["fp32"]["verification_vs_torch"]
+    assert verification["frames"] == 6
+    assert verification["max_abs_diff"] <= MAX_ABS_DIFF
+
+
+def test_graph_takes_uint8_nhwc_with_dynamic_batch(exported) -> None:
+    out, _ = exported
+    session = make_session(out)
+    (graph_input,) = session.get_inputs()
+    assert graph_input.name == md.INPUT_NAME and graph_input.type == "tensor(uint8)"
+    assert graph_input.shape[1:] == [SIZE, SIZE, 3] and isinstance(graph_input.shape[0], str)
+    rng = np.random.default_rng(3)
+    batch = rng.integers(0, 256, (5, SIZE, SIZE, 3), dtype=np.uint8)
+    (probs,) = session.run(None, {graph_input.name: batch})
+    assert probs.shape == (5, 1, SIZE, SIZE) and probs.dtype == np.float32
+    assert np.all((probs >= 0) & (probs <= 1))
+    (single,) = session.run(None, {graph_input.name: batch[2:3]})
+    np.testing.assert_allclose(single[0], probs[2], atol=1e-5)
+
+
+def test_metadata_present(exported) -> None:
+    out, _ = exported
+    meta = read_metadata(out)
+    md.check_metadata(meta, str(out))
+    assert meta[md.KEY_INPUT_SIZE] == f"{SIZE},{SIZE}"
+    assert meta[md.KEY_CHANNEL_ORDER] == "RGB" and meta[md.KEY_INPUT_LAYOUT] == "NHWC"
+    assert float(meta[md.KEY_THRESHOLD]) == 0.5
+    assert meta[md.KEY_FAMILY] == "vineyards"
+    assert meta[md.KEY_TRAIN_DATA] == "toy"
+    assert meta[md.KEY_BACKBONE] == "none"
+    import segmin
+
+    assert meta[md.KEY_VERSION] == segmin.__version__
+    commit = meta[md.KEY_GIT_COMMIT]
+    assert commit == "unknown" or (len(commit) == 40 and all(c in "0123456789abcdef" for c in commit))
+    assert meta[md.KEY_PRECISION] == "fp32" and meta[md.KEY_OPSET] == "18"
+    assert "sha256:" in meta[md.KEY_CHECKPOINT]
+    assert "verification" in meta
+    onnx.checker.check_model(str(out), full_check=True)
+
+
+def test_fp16_and_int8_variants_run_and_are_reported(exported, frames_dir) -> None:
+    out, report = exported
+    fp16, int8 = variant_path(out, "fp16"), variant_path(out, "int8")
+    frame = load_frames(frames_dir, (SIZE, SIZE), limit=2)
+    fp32_probs = run_session(make_session(out), frame)
+    for path, precision in ((fp16, "fp16"), (int8, "int8")):
+        assert path.is_file()
+        assert read_metadata(path)[md.KEY_PRECISION] == precision
+        session = make_session(path)
+        assert session.get_inputs()[0].type == "tensor(uint8)"
+        assert session.get_outputs()[0].type == "tensor(float)"
+        probs = run_session(session, frame)
+        assert probs.shape == fp32_probs.shape
+        assert np.abs(probs - fp32_probs).max() < 0.1
+    fp16_graph = onnx.load(str(fp16))
+    assert any(init.data_type == onnx.TensorProto.FLOAT16 for init in fp16_graph.graph.initializer)
+    int8_graph = onnx.load(str(int8))
+    assert any(node.op_type == "QuantizeLinear" for node in int8_graph.graph.node)
+    assert report["fp16"]["vs_fp32"]["max_abs_diff"] < 1e-2
+    assert 0.0 <= report["int8"]["vs_fp32"]["mask_iou"] <= 1.0
+    assert report["int8"]["latency_ms"]["int8"]["median_ms"] > 0
+    assert isinstance(report["int8"]["recommended"], bool)
+    on_disk = json.loads(report_path(out).read_text())
+    assert on_disk["int8"]["recommendation"] == report["int8"]["recommendation"]
+
+
+def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> None:
+    out, _ = exported
+    before = out.read_bytes()
+    with pytest.raises(OutputExistsError, match="--force"):
+        export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir))
+    assert out.read_bytes() == before
+    # Through the CLI: exit code 2 and a one-line message, file untouched.
+    code = segmin_main(
+        ["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(frames_dir)]
+    )
+    assert code == 2 and out.read_bytes() == before
+
+
+def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, capsys) -> None:
+    out = workdir / "legacy.onnx"
+    out.write_bytes(b"old")
+    code = segmin_main(
+        ["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(frames_dir),
+         "--exporter", "legacy", "--force", "--verify-frames", "3"]
+    )
+    assert code == 0
+    assert "verified on 3 frames" in capsys.readouterr().out
+    meta = read_metadata(out)
+    assert meta[md.KEY_EXPORTER] == "legacy" and meta[md.KEY_OPSET] == "17"
+    assert not [p for p in workdir.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_failed_verification_leaves_no_file(workdir, checkpoint, frames_dir, monkeypatch) -> None:
+    import export.pipeline as pipeline
+
+    def shifted_reference(wrapper):
+        def probabilities(frames):
+            return _torch_probs(checkpoint, frames) + 1e-3  # a PyTorch/ONNX mismatch of 1e-3
+
+        return probabilities
+
+    monkeypatch.setattr(pipeline, "torch_reference", shifted_reference)
+    out = workdir / "bad.onnx"
+    with pytest.raises(VerificationError, match="max \\|p_onnx - p_torch\\|"):
+        export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir, exporter="legacy"))
+    assert not out.exists()
+    assert not report_path(out).exists()
+    assert not [p for p in workdir.iterdir() if p.name.startswith(".bad.onnx")]
+
+
+def test_corrupt_checkpoint_gives_clear_error(workdir, frames_dir, capsys) -> None:
+    bad = workdir / "corrupt.pt"
+    bad.write_bytes(os.urandom(256))
+    out = workdir / "never.onnx"
+    with pytest.raises(ValueError, match="corrupt.pt"):
+        export_checkpoint(ExportOptions(checkpoint=bad, out=out, calib_data=frames_dir))
+    code = segmin_main(["export", "--checkpoint", str(bad), "--out", str(out), "--calib-data", str(frames_dir)])
+    assert code == 2
+    assert "corrupt.pt" in capsys.readouterr().err
+    assert not out.exists()
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        export_checkpoint(ExportOptions(checkpoint=workdir / "missing.pt", out=out, calib_data=frames_dir))
+
+
+def test_bad_options_and_frame_sources(workdir, checkpoint, frames_dir) -> None:
+    out = workdir / "never.onnx"
+    with pytest.raises(FileNotFoundError, match="no_such_dir"):
+        export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=workdir / "no_such_dir"))
+    empty = workdir / "empty"
+    empty.mkdir()
+    with pytest.raises(ValueError, match="no images"):
+        export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=empty))
+    # Without --calib-data the checkpoint's training data ("toy") must be a folder: it is not.
+    with pytest.raises(ValueError, match="--calib-data"):
+        export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out))
+    with pytest.raises(ValueError, match="opset"):
+        export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir, opset=16))
+    with pytest.raises(ValueError, match=".onnx"):
+        ExportOptions(checkpoint=checkpoint, out=workdir / "model.bin")
+    with pytest.raises(ValueError, match="exporter"):
+        ExportOptions(checkpoint=checkpoint, out=out, exporter="tflite")
+    assert not out.exists()
+
+
+def test_verification_bounds_reject_disagreement() -> None:
+    rng = np.random.default_rng(0)
+    reference = rng.random((2, 1, 8, 8)).astype(np.float32)
+    good = compare(reference + 5e-5, reference, 0.5)
+    assert good.max_abs_diff <= MAX_ABS_DIFF
+    flipped = reference.copy()
+    flipped[0, 0, 0, :4] = 1.0 - flipped[0, 0, 0, :4]
+    bad = compare(flipped, reference, 0.5)
+    assert bad.max_abs_diff > MAX_ABS_DIFF and bad.mask_agreement < 1.0
+    with pytest.raises(VerificationError, match="shape"):
+        compare(reference[:1], reference, 0.5)
+    with pytest.raises(VerificationError, match="NaN"):
+        compare(np.full_like(reference, np.nan), reference, 0.5)
