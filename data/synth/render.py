@@ -49,6 +49,7 @@ class RenderedFrame:
     mask: np.ndarray          # bool H x W, exact vegetation (trunks, branches, leaves)
     camera_pose: np.ndarray   # float64 4 x 4
     robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    body_ids: np.ndarray | None = None   # int32 H x W pybullet body id per pixel, -1 = nothing hit
     stats: dict = field(default_factory=dict)
 
 
@@ -257,4 +258,5 @@ class Renderer:
         if noisy_depth and cam.depth_noise_enabled:
             depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
         return RenderedFrame(rgb=rgb, depth=depth, mask=mask, camera_pose=pose,
-                             robot_pose=(float(x), float(y), float(yaw)), stats=stats)
+                             robot_pose=(float(x), float(y), float(yaw)), body_ids=ids.astype(np.int32),
+                             stats=stats)

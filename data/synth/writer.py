@@ -1,0 +1,400 @@
+"""Render a world into a dataset in the AgriSeg formatted layout: atomic, resumable, sharded.
+
+Layout (read unchanged by the AgriSeg loader; N is the global frame id, k = 1 + N // per_subset):
+
+    DIR/<domain>/<domain>_<k>/images/ImageN/ImageN.png          RGB
+    DIR/<domain>/<domain>_<k>/masks/ImageN/SegmentationN.png    uint8, 0 / 255
+    DIR/<domain>/<domain>_<k>/depths/ImageN/DepthN.png          uint16 millimetres, 0 = invalid
+    DIR/<domain>/<domain>_<k>/meta.json                         spec, camera, seeds, poses
+
+Every frame is a pure function of (world spec, dataset seed, frame id): its pose, light, sky,
+depth noise and its appearance block (texture variants and tints, re-drawn every
+`appearance_every` frames) come from generators seeded with those numbers only. So the
+bytes do not depend on the number of workers, on shards, or on what was rendered before.
+Each file is written atomically into a hidden staging folder which is then renamed to
+`ImageN/`, so a reader never sees a half-written frame folder; a frame counts as done when
+all three folders exist, which is what a rerun checks to continue after a kill.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import multiprocessing as mp
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from data.synth.camera import CameraModel
+from data.synth.spec import WorldSpec
+from segmin.atomic import write_bytes, write_json
+from segmin.config import to_dict
+
+FORMAT = "segmin-synth/1"
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """Where the camera is for one frame, drawn from (seed, frame) only."""
+
+    frame: int
+    gap: int
+    s: float
+    reverse: bool
+    robot_pose: tuple[float, float, float]
+    pose_offset: tuple[float, float, float, float]   # lateral, yaw, pitch, roll
+    block: int                                        # appearance block
+
+
+@dataclass
+class RenderJob:
+    spec: WorldSpec
+    out: Path
+    frames: int
+    camera: CameraModel = dataclasses.field(default_factory=CameraModel)
+    seed: int | None = None              # dataset seed; default: the spec's seed
+    frames_per_subset: int = 1000
+    appearance_every: int = 10
+    noisy_depth: bool = True
+    workers: int = 1
+    shard: tuple[int, int] = (0, 1)
+    overwrite: bool = False
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        self.out = Path(self.out)
+        if self.frames < 1:
+            raise ValueError(f"--frames: must be >= 1, got {self.frames}")
+        if self.frames_per_subset < 1:
+            raise ValueError(f"--frames-per-subset: must be >= 1, got {self.frames_per_subset}")
+        if self.appearance_every < 1:
+            raise ValueError(f"appearance_every: must be >= 1, got {self.appearance_every}")
+        if self.workers < 1:
+            raise ValueError(f"--workers: must be >= 1, got {self.workers}")
+        i, n = self.shard
+        if not (n >= 1 and 0 <= i < n):
+            raise ValueError(f"--shard: expected I/N with 0 <= I < N, got {i}/{n}")
+
+    @property
+    def dataset_seed(self) -> int:
+        return self.spec.seed if self.seed is None else int(self.seed)
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """'I/N' -> (I, N)."""
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError as exc:
+        raise ValueError(f"--shard: expected I/N (e.g. 0/4), got {text!r}") from exc
+    if not (n >= 1 and 0 <= i < n):
+        raise ValueError(f"--shard: expected I/N with 0 <= I < N, got {text!r}")
+    return i, n
+
+
+# --------------------------------------------------------------------------------- paths
+def subset_dir(out: Path, domain: str, frame: int, per_subset: int) -> Path:
+    k = frame // per_subset + 1
+    return Path(out) / domain / f"{domain}_{k}"
+
+
+def frame_paths(out: Path, domain: str, frame: int, per_subset: int) -> dict[str, Path]:
+    sub = subset_dir(out, domain, frame, per_subset)
+    n = frame
+    return {
+        "images": sub / "images" / f"Image{n}" / f"Image{n}.png",
+        "masks": sub / "masks" / f"Image{n}" / f"Segmentation{n}.png",
+        "depths": sub / "depths" / f"Image{n}" / f"Depth{n}.png",
+    }
+
+
+def frame_done(paths: dict[str, Path]) -> bool:
+    return all(p.is_file() for p in paths.values())
+
+
+def check_writable(out: Path) -> None:
+    """Fail before any rendering when `out` cannot be created or written."""
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".segmin_probe_", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ValueError(f"--out {out}: not writable ({exc.strerror or exc})") from exc
+
+
+# --------------------------------------------------------------------------------- planning
+def plan_frame(world, job_seed: int, frame: int, appearance_every: int) -> FramePlan:
+    """The pose of frame `frame`: a random gap, position, direction and camera perturbation."""
+    rng = np.random.default_rng([job_seed, 1, frame])
+    spec = world.spec
+    gap = int(rng.integers(spec.n_gaps))
+    reverse = bool(rng.uniform() < 0.25)
+    length = spec.rows.length
+    s = float(rng.uniform(-1.5, length - 1.0)) if not reverse else float(rng.uniform(1.0, length + 1.5))
+    x, y, yaw = world.gap_pose(gap, s)
+    if reverse:
+        yaw += math.pi
+    half = world.gap_half_widths[gap]
+    offset = (
+        float(rng.uniform(-0.6, 0.6) * half),
+        float(np.clip(rng.normal(0, math.radians(8)), -math.radians(20), math.radians(20))),
+        float(np.clip(rng.normal(0, math.radians(2)), -math.radians(5), math.radians(5))),
+        float(np.clip(rng.normal(0, math.radians(2)), -math.radians(5), math.radians(5))),
+    )
+    return FramePlan(frame=frame, gap=gap, s=s, reverse=reverse, robot_pose=(x, y, float(yaw)),
+                     pose_offset=offset, block=frame // appearance_every)
+
+
+# --------------------------------------------------------------------------------- encoding
+def encode_frame(frame) -> dict[str, bytes]:
+    import cv2
+
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+    ok1, rgb = cv2.imencode(".png", np.ascontiguousarray(frame.rgb[:, :, ::-1]), params)
+    ok2, mask = cv2.imencode(".png", frame.mask.astype(np.uint8) * 255, params)
+    mm = np.clip(np.round(frame.depth.astype(np.float64) * 1000.0), 0, 65535).astype(np.uint16)
+    ok3, depth = cv2.imencode(".png", mm, params)
+    if not (ok1 and ok2 and ok3):
+        raise RuntimeError("PNG encoding failed")
+    return {"images": rgb.tobytes(), "masks": mask.tobytes(), "depths": depth.tobytes()}
+
+
+def write_frame(paths: dict[str, Path], data: dict[str, bytes]) -> None:
+    """Each file goes atomically into a hidden staging folder, renamed to `ImageN/` when whole.
+    Depth and mask first, the RGB image last."""
+    for kind in ("depths", "masks", "images"):
+        final = paths[kind]
+        folder = final.parent
+        if folder.is_dir():  # a previous run (or --overwrite): replace the file in place
+            write_bytes(final, data[kind])
+            continue
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".staging", dir=folder.parent))
+        try:
+            write_bytes(staging / final.name, data[kind])
+            os.rename(staging, folder)
+        except OSError:
+            if folder.is_dir():  # lost a race with another writer of the same frame: same bytes
+                shutil.rmtree(staging, ignore_errors=True)
+            else:
+                raise
+
+
+def clean_stale(out: Path, domain: str, owns) -> int:
+    """Remove staging folders and temporary files left by a killed run (own frames only)."""
+    removed = 0
+    root = Path(out) / domain
+    if not root.is_dir():
+        return 0
+    for kind_dir in root.glob(f"{domain}_*/*"):
+        if not kind_dir.is_dir():
+            continue
+        for entry in kind_dir.iterdir():
+            name = entry.name
+            frame = _frame_of(name)
+            if frame is None or not owns(frame):
+                continue
+            if name.startswith(".") and name.endswith(".staging"):
+                shutil.rmtree(entry, ignore_errors=True)
+                removed += 1
+            elif entry.is_dir():
+                for tmp in entry.glob(".*.tmp"):
+                    tmp.unlink(missing_ok=True)
+                    removed += 1
+    return removed
+
+
+def _frame_of(name: str) -> int | None:
+    core = name.lstrip(".")
+    if not core.startswith("Image"):
+        return None
+    digits = ""
+    for ch in core[5:]:
+        if not ch.isdigit():
+            break
+        digits += ch
+    return int(digits) if digits else None
+
+
+# --------------------------------------------------------------------------------- worker
+class FrameRenderer:
+    """A world built in a private pybullet client, rendering planned frames to bytes."""
+
+    def __init__(self, spec: WorldSpec, camera: CameraModel, job_seed: int, appearance_every: int,
+                 noisy_depth: bool) -> None:
+        import pybullet as p
+
+        from data.synth.render import Renderer
+        from data.synth.world import build_world
+
+        self.client = p.connect(p.DIRECT)
+        self.world = build_world(spec, self.client)
+        self.renderer = Renderer(self.world, camera)
+        self.job_seed = job_seed
+        self.appearance_every = appearance_every
+        self.noisy_depth = noisy_depth
+        self._block: int | None = None
+
+    def render(self, frame: int):
+        plan = plan_frame(self.world, self.job_seed, frame, self.appearance_every)
+        if plan.block != self._block:
+            self.renderer.randomize_appearance(np.random.default_rng([self.job_seed, 4, plan.block]))
+            self._block = plan.block
+        x, y, yaw = plan.robot_pose
+        out = self.renderer.render(x, y, yaw, rng=np.random.default_rng([self.job_seed, 2, frame]),
+                                   noisy_depth=False, pose_offset=plan.pose_offset)
+        if self.noisy_depth:
+            out.depth = self.renderer.camera.apply_depth_noise(out.depth, np.random.default_rng([self.job_seed, 3, frame]))
+        return out
+
+    def close(self) -> None:
+        import pybullet as p
+
+        p.disconnect(self.client)
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(job: RenderJob) -> None:
+    _WORKER["job"] = job
+    _WORKER["renderer"] = FrameRenderer(job.spec, job.camera, job.dataset_seed, job.appearance_every,
+                                        job.noisy_depth)
+
+
+def _worker_run(frames: list[int]) -> int:
+    job, fr = _WORKER["job"], _WORKER["renderer"]
+    for f in frames:
+        paths = frame_paths(job.out, job.spec.domain, f, job.frames_per_subset)
+        write_frame(paths, encode_frame(fr.render(f)))
+    return len(frames)
+
+
+# --------------------------------------------------------------------------------- meta
+def _fingerprint(job: RenderJob) -> dict:
+    return {
+        "format": FORMAT,
+        "world": to_dict(job.spec),
+        "camera": to_dict(job.camera),
+        "dataset_seed": job.dataset_seed,
+        "frames_per_subset": job.frames_per_subset,
+        "appearance_every": job.appearance_every,
+        "noisy_depth": job.noisy_depth,
+    }
+
+
+def write_meta(job: RenderJob, world) -> list[Path]:
+    """One meta.json per subset: the spec, camera intrinsics, seeds and every frame's poses.
+    Its content depends only on the job, so shards writing it concurrently agree byte for byte."""
+    from data.synth.render import camera_pose
+
+    fp = _fingerprint(job)
+    written = []
+    n_subsets = (job.frames - 1) // job.frames_per_subset + 1
+    for k in range(n_subsets):
+        first = k * job.frames_per_subset
+        last = min(job.frames, first + job.frames_per_subset)
+        sub = subset_dir(job.out, job.spec.domain, first, job.frames_per_subset)
+        meta_path = sub / "meta.json"
+        if meta_path.is_file() and not job.overwrite:
+            old = json.loads(meta_path.read_text())
+            old_fp = {key: old.get(key) for key in fp}
+            if json.loads(json.dumps(old_fp)) != json.loads(json.dumps(fp)):
+                changed = sorted(key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True))
+                raise ValueError(
+                    f"{meta_path}: was rendered with different settings ({', '.join(changed)}); "
+                    "use another --out or --overwrite"
+                )
+        frames = {}
+        for f in range(first, last):
+            plan = plan_frame(world, job.dataset_seed, f, job.appearance_every)
+            pose = camera_pose(world, job.camera, *plan.robot_pose, pose_offset=plan.pose_offset)
+            frames[str(f)] = {
+                "gap": plan.gap, "s": round(plan.s, 6), "reverse": plan.reverse,
+                "robot_pose": [round(v, 6) for v in plan.robot_pose],
+                "pose_offset": [round(v, 6) for v in plan.pose_offset],
+                "camera_pose": np.round(pose, 6).tolist(), "appearance_block": plan.block,
+                "files": {kind: str(p.relative_to(sub)) for kind, p in
+                          frame_paths(job.out, job.spec.domain, f, job.frames_per_subset).items()},
+            }
+        meta = dict(fp)
+        meta.update({
+            "domain": job.spec.domain, "subset": sub.name, "intrinsics": job.camera.intrinsics(),
+            "world_seed": job.spec.seed, "depth_units": "millimetre (uint16 PNG), 0 = invalid",
+            "mask_values": "0 = background, 255 = vegetation", "frames": frames,
+        })
+        write_json(meta_path, meta)
+        written.append(meta_path)
+    return written
+
+
+# --------------------------------------------------------------------------------- run
+def render_dataset(job: RenderJob) -> dict:
+    """Render the job's frames (this shard's part), skipping finished ones; returns a summary."""
+    check_writable(job.out)
+    domain = job.spec.domain
+    shard, n_shards = job.shard
+    if job.overwrite and n_shards == 1 and (job.out / domain).exists():
+        shutil.rmtree(job.out / domain)
+
+    def owns(frame: int) -> bool:
+        return frame % n_shards == shard
+
+    clean_stale(job.out, domain, owns)
+    # Ground truth for the meta files, from a world built in a private client of this process.
+    import pybullet as p
+
+    from data.synth.world import build_world
+
+    client = p.connect(p.DIRECT)
+    try:
+        world = build_world(job.spec, client)
+        write_meta(job, world)
+    finally:
+        p.disconnect(client)
+
+    mine = [f for f in range(job.frames) if owns(f)]
+    todo = [f for f in mine if job.overwrite or not frame_done(frame_paths(job.out, domain, f, job.frames_per_subset))]
+    skipped = len(mine) - len(todo)
+    # Tasks follow appearance blocks, so a worker re-draws the look once per task at most.
+    tasks: list[list[int]] = []
+    for f in todo:
+        if tasks and tasks[-1][-1] // job.appearance_every == f // job.appearance_every and len(tasks[-1]) < 16:
+            tasks[-1].append(f)
+        else:
+            tasks.append([f])
+    bar = _progress(len(todo), job.progress)
+    start = time.perf_counter()
+    done = 0
+    if todo:
+        if job.workers == 1:
+            _worker_init(job)
+            try:
+                for task in tasks:
+                    done += _worker_run(task)
+                    bar.update(len(task))
+            finally:
+                _WORKER.pop("renderer").close()
+        else:
+            ctx = mp.get_context("fork")
+            with ctx.Pool(min(job.workers, len(tasks)), initializer=_worker_init, initargs=(job,)) as pool:
+                for n in pool.imap_unordered(_worker_run, tasks):
+                    done += n
+                    bar.update(n)
+    bar.close()
+    seconds = time.perf_counter() - start
+    return {"written": done, "skipped": skipped, "seconds": seconds,
+            "fps": done / seconds if seconds > 0 and done else 0.0, "out": str(job.out / domain)}
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="frame", disable=not enabled or total == 0, dynamic_ncols=True)
