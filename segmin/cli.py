@@ -19,6 +19,7 @@ from segmin.config import ConfigError
 # Packages that contribute commands, in the order of the data flow.
 COMMAND_MODULES: tuple[str, ...] = (
     "data.cli",
+    "data.synth.cli",
     "train.cli",
     "export.cli",
     "nav_eval.navigator_cli",
