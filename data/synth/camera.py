@@ -72,10 +72,10 @@ class CameraModel:
 
     def apply_depth_noise(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """RealSense-like depth: Gaussian noise ~ k z^2, dropouts and far returns reported as 0."""
-        out = depth.astype(np.float32).copy()
-        valid = out > 0
-        noise = rng.standard_normal(out.shape).astype(np.float32) * (self.depth_noise_k * out * out)
-        out = np.where(valid, out + noise, 0.0).astype(np.float32)
+        true = depth.astype(np.float32)
+        valid = (true > 0) & (true <= self.max_range)  # no return beyond the maximum range
+        noise = rng.standard_normal(true.shape).astype(np.float32) * (self.depth_noise_k * true * true)
+        out = np.where(valid, true + noise, 0.0).astype(np.float32)
         drop = rng.uniform(size=out.shape) < self.depth_invalid_fraction
-        out[drop | (out > self.max_range) | (out <= 0)] = 0.0
+        out[drop | (out <= 0)] = 0.0
         return out

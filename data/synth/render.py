@@ -80,7 +80,11 @@ def camera_pose(world: World, camera: CameraModel, x: float, y: float, yaw: floa
 
 
 class Renderer:
-    """Renders frames of one world with one camera model; keeps the per-body visibility state."""
+    """Renders frames of one world with one camera model; keeps the per-body visibility state.
+
+    Use one Renderer per world at a time: it tracks which bodies it has hidden, so a second
+    renderer changing the same bodies would leave the first one's bookkeeping stale.
+    """
 
     def __init__(self, world: World, camera: CameraModel | None = None) -> None:
         self.world = world
@@ -115,11 +119,15 @@ class Renderer:
         self.rgba: dict[int, list[float]] = {}
         self.texture: dict[int, int] = {}
         self.shown: dict[int, bool] = {}
+        self.hidden: set[int] = set()  # bodies kept hidden whatever the culling says (tests, ablations)
+        # Put every body in a known state: another renderer may have used this world before.
         for c in chunks:
             for b in c.bodies:
                 self.rgba[b] = [1.0, 1.0, 1.0] if c.kind != "structure" else [0.9, 0.9, 0.9]
                 self.texture[b] = c.texture
                 self.shown[b] = True
+                p.changeVisualShape(b, -1, textureUniqueId=c.texture, rgbaColor=self.rgba[b] + [1.0],
+                                    physicsClientId=self.client)
         self._noise_rng = np.random.default_rng([world.seed, 7])
         self.far_ground = np.array([0.42, 0.42, 0.3], np.float32)
 
@@ -175,7 +183,7 @@ class Renderer:
             for lv, b in enumerate(self.bodies[i].tolist()):
                 if b < 0:
                     break
-                w = bool(visible[i]) and lv == level[i]
+                w = bool(visible[i]) and lv == level[i] and b not in self.hidden
                 if w:
                     triangles += int(self.tris[i, lv])
                 if self.shown[b] != w:

@@ -1,0 +1,149 @@
+"""Renderer: exact vegetation masks, planar depth against an analytic ground plane, camera mount."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from data.synth.camera import CameraModel
+from data.synth.render import Renderer, camera_pose
+from data.synth.spec import spec_from_dict
+from data.synth.world import build_world
+from synth_helpers import tiny
+
+SMALL = CameraModel(width=48, height=48)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    client = p.connect(p.DIRECT)
+    world = build_world(spec_from_dict(tiny()), client)
+    yield world, Renderer(world, SMALL)
+    p.disconnect(client)
+
+
+def test_mask_is_exactly_the_plant_bodies(scene):
+    world, renderer = scene
+    x, y, yaw = world.gap_pose(world.eval_gap, 1.0)
+    frame = renderer.render(x, y, yaw)
+    assert frame.rgb.shape == (48, 48, 3) and frame.rgb.dtype == np.uint8
+    assert frame.depth.dtype == np.float32 and frame.mask.dtype == bool
+    assert 0.05 < frame.mask.mean() < 0.95, "both rows and free space should be in view"
+    assert np.array_equal(frame.mask, np.isin(frame.body_ids, list(world.vegetation_ids)))
+    # Hide every vegetation body: exactly the mask pixels must change depth (they were plants).
+    renderer.hidden = set(world.vegetation_ids)
+    try:
+        without = renderer.render(x, y, yaw)
+    finally:
+        renderer.hidden = set()
+    changed = (frame.depth != without.depth)
+    assert not without.mask.any()
+    assert np.array_equal(changed, frame.mask)
+    rgb_changed = np.any(frame.rgb != without.rgb, axis=-1)
+    assert np.all(frame.mask[rgb_changed]), "RGB changed outside the mask"
+    assert rgb_changed[frame.mask].mean() > 0.97, "mask pixels whose colour did not change"
+
+
+def test_depth_matches_an_analytic_ground_plane():
+    raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0], "grass_tufts": 0.0},
+               structures={"poles": False})
+    client = p.connect(p.DIRECT)
+    try:
+        world = build_world(spec_from_dict(raw), client)
+        camera = CameraModel(width=64, height=48)
+        renderer = Renderer(world, camera)
+        x, y, yaw = world.gap_pose(world.eval_gap, 1.0)
+        frame = renderer.render(x, y, yaw, pose_offset=(0.0, 0.0, -0.7, 0.05))  # look down, slight roll
+        ground = {b for c in world.chunks if c.kind == "ground" for b in c.bodies}
+        is_ground = np.isin(frame.body_ids, list(ground))
+        assert is_ground.mean() > 0.3
+        k = camera.intrinsics()
+        v, u = np.mgrid[0:48, 0:64]
+        rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"], np.ones_like(u, float)], -1)
+        pose = frame.camera_pose
+        world_dirs = rays @ pose[:3, :3].T
+        expect = -pose[2, 3] / world_dirs[..., 2]  # planar depth: rays have z = 1 in camera frame
+        rel = np.abs(frame.depth[is_ground] - expect[is_ground]) / expect[is_ground]
+        assert rel.max() <= 1e-3, f"max relative depth error {rel.max():.2e}"
+        assert np.all(frame.depth[frame.body_ids < 0] == 0)
+    finally:
+        p.disconnect(client)
+
+
+def test_camera_mount_follows_the_paper():
+    raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0]})
+    client = p.connect(p.DIRECT)
+    try:
+        world = build_world(spec_from_dict(raw), client)
+        cam = CameraModel()
+        pose = camera_pose(world, cam, 1.0, 0.0, 0.0)
+        assert np.allclose(pose[:3, 3], [1.0 + cam.mount_forward, 0.0, cam.mount_height], atol=1e-9)
+        forward = pose[:3, 2]
+        assert math.isclose(math.degrees(math.asin(forward[2])), cam.tilt_deg, abs_tol=1e-6)
+        assert np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-9)
+        assert pose[1, 0] < -0.99  # image x (right) points to -y when driving along +x
+    finally:
+        p.disconnect(client)
+    # On a slope the camera tilts with the ground.
+    raw = tiny(terrain={"roughness": 0.0, "slope": [0.1, 0.0]})
+    client = p.connect(p.DIRECT)
+    try:
+        world = build_world(spec_from_dict(raw), client)
+        pose = camera_pose(world, CameraModel(), 1.0, 0.0, 0.0)
+        pitch = math.degrees(math.asin(pose[2, 2]))
+        assert math.isclose(pitch, 15.0 + math.degrees(math.atan(0.1)), abs_tol=1e-6)
+    finally:
+        p.disconnect(client)
+
+
+def test_render_is_deterministic_whatever_was_rendered_before(scene):
+    world, renderer = scene
+    a = world.gap_pose(0, 2.0)
+    b = world.gap_pose(1, 4.5)
+    first = renderer.render(*a, rng=np.random.default_rng(3))
+    renderer.render(*b, rng=np.random.default_rng(4))
+    renderer.randomize_appearance(np.random.default_rng(1))
+    renderer.randomize_appearance(np.random.default_rng(0))
+    renderer.render(*b)
+    x1 = renderer.render(*a, rng=np.random.default_rng(3))
+    client = p.connect(p.DIRECT)  # a fresh copy of the world, in its own client
+    try:
+        again = Renderer(build_world(world.spec, client), SMALL)
+        again.randomize_appearance(np.random.default_rng(0))
+        x2 = again.render(*a, rng=np.random.default_rng(3))
+    finally:
+        p.disconnect(client)
+    assert np.array_equal(x1.rgb, x2.rgb) and np.array_equal(x1.depth, x2.depth)
+    assert np.array_equal(first.mask, x1.mask)  # appearance changes colours, never geometry
+
+
+def test_depth_noise_model():
+    cam = CameraModel(width=32, height=32, depth_noise_k=0.01, depth_invalid_fraction=0.1, max_range=8.0)
+    depth = np.full((32, 32), 4.0, np.float32)
+    depth[:, :8] = 10.0  # beyond max range
+    depth[:4] = 0.0      # no return
+    noisy = cam.apply_depth_noise(depth, np.random.default_rng(0))
+    assert np.all(noisy[:4] == 0) and np.all(noisy[:, :8] == 0)
+    valid = noisy[4:, 8:]
+    dropped = (valid == 0).mean()
+    assert 0.03 < dropped < 0.2
+    kept = valid[valid > 0]
+    assert 0.1 < kept.std() < 0.22  # sigma = k z^2 = 0.16 m at 4 m
+    assert abs(kept.mean() - 4.0) < 0.05
+
+
+def test_preview_contact_sheet(tmp_path):
+    import cv2
+
+    from segmin.cli import main as segmin_main
+    from synth_helpers import write_spec
+
+    spec_path = write_spec(tmp_path / "tiny.yaml", tiny())
+    out = tmp_path / "sheet.png"
+    assert segmin_main(["synth", "preview", "--world", spec_path, "--out", str(out), "--frames", "2",
+                        "--size", "40"]) == 0
+    sheet = cv2.imread(str(out))
+    assert sheet.shape == (2 * 40, 3 * 40, 3)  # rows of RGB | mask overlay | depth
