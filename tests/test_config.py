@@ -77,3 +77,16 @@ def test_atomic_write_leaves_nothing_behind_on_error(tmp_path) -> None:
             raise RuntimeError("crash while writing")
     assert target.read_text().strip().startswith("{") and '"a": 1' in target.read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+def test_atomic_writes_get_the_usual_file_mode(tmp_path) -> None:
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        reference = tmp_path / "plain.txt"
+        reference.write_text("x")
+        write_json(tmp_path / "atomic.json", {})
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "atomic.json").stat().st_mode & 0o777 == reference.stat().st_mode & 0o777
