@@ -74,8 +74,8 @@ class CameraModel:
         """RealSense-like depth: Gaussian noise ~ k z^2, dropouts and far returns reported as 0."""
         true = depth.astype(np.float32)
         valid = (true > 0) & (true <= self.max_range)  # no return beyond the maximum range
-        noise = rng.standard_normal(true.shape).astype(np.float32) * (self.depth_noise_k * true * true)
-        out = np.where(valid, true + noise, 0.0).astype(np.float32)
-        drop = rng.uniform(size=out.shape) < self.depth_invalid_fraction
+        noise = rng.standard_normal(true.shape, dtype=np.float32) * (np.float32(self.depth_noise_k) * true * true)
+        out = np.where(valid, true + noise, np.float32(0.0))
+        drop = rng.random(out.shape, dtype=np.float32) < self.depth_invalid_fraction
         out[drop | (out <= 0)] = 0.0
         return out

@@ -97,7 +97,9 @@ class Renderer:
         self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
         self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
         rays = cam.pixel_rays()
-        self.rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
+        rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
+        small = (max(2, cam.width // 4), max(2, cam.height // 4))
+        self.rays_small = cv2.resize(rays, small, interpolation=cv2.INTER_AREA)
         chunks = world.chunks
         self.centres = np.array([c.centre for c in chunks])
         self.radii = np.array([c.radius for c in chunks])
@@ -120,6 +122,7 @@ class Renderer:
         self.texture: dict[int, int] = {}
         self.shown: dict[int, bool] = {}
         self.hidden: set[int] = set()  # bodies kept hidden whatever the culling says (tests, ablations)
+        self.state = self.bodies >= 0   # shown flag per (chunk, level), mirrors `shown`
         # Put every body in a known state: another renderer may have used this world before.
         for c in chunks:
             for b in c.bodies:
@@ -177,27 +180,25 @@ class Renderer:
         visible &= self.always | (dist < spec.cull_distance)
         level = np.searchsorted(np.asarray(spec.lod_distances), dist)
         level = np.minimum(level, self.n_levels - 1)
-        changes = 0
-        triangles = 0
-        for i in range(len(self.bodies)):
-            for lv, b in enumerate(self.bodies[i].tolist()):
-                if b < 0:
-                    break
-                w = bool(visible[i]) and lv == level[i] and b not in self.hidden
-                if w:
-                    triangles += int(self.tris[i, lv])
-                if self.shown[b] != w:
-                    self.shown[b] = w
-                    p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0],
-                                        physicsClientId=self.client)
-                    changes += 1
+        want = visible[:, None] & (np.arange(self.bodies.shape[1])[None, :] == level[:, None]) & (self.bodies >= 0)
+        if self.hidden:
+            want &= ~np.isin(self.bodies, list(self.hidden))
+        changed = np.nonzero(want != self.state)
+        for i, lv in zip(*changed):
+            b = int(self.bodies[i, lv])
+            w = bool(want[i, lv])
+            self.shown[b] = w
+            p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0], physicsClientId=self.client)
+        self.state = want
         return {"visible_chunks": int(visible.sum()), "fine_chunks": int((visible & (level == 0)).sum()),
-                "changes": changes, "triangles": triangles}
+                "changes": len(changed[0]), "triangles": int(self.tris[want].sum())}
 
     # ----------------------------------------------------------------- sky
     def _sky(self, pose: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+        """Sky (and distant ground below the horizon), computed at 1/4 resolution and upsampled:
+        it is smooth, and this keeps it under a millisecond."""
         cam = self.camera
-        elev = self.rays @ pose[2, :3].astype(np.float32)  # world z of each pixel's ray
+        elev = self.rays_small @ pose[2, :3].astype(np.float32)  # world z of each pixel's ray
         if rng is None:
             horizon, zenith, cover = np.array([0.80, 0.85, 0.90]), np.array([0.35, 0.55, 0.85]), 0.0
         else:
@@ -212,13 +213,15 @@ class Renderer:
             haze = np.clip(-elev[below] * 12, 0, 1)[:, None]
             sky[below] = horizon * (1 - haze) + self.far_ground * haze
         if cover > 0:
+            h, w = elev.shape
             small = rng.uniform(0, 1, size=(5, 7)).astype(np.float32)
             fine = rng.uniform(0, 1, size=(14, 14)).astype(np.float32)
-            clouds = (0.75 * cv2.resize(small, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
-                      + 0.25 * cv2.resize(fine, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC))
+            clouds = (0.75 * cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+                      + 0.25 * cv2.resize(fine, (w, h), interpolation=cv2.INTER_CUBIC))
             amount = np.clip((clouds - (1 - cover)) * 3, 0, 1) * np.clip(elev * 8 + 0.3, 0, 1)
             grey = np.float32(rng.uniform(0.75, 1.0))
             sky += amount[..., None] * (grey - sky)
+        sky = cv2.resize(sky, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
         return (np.clip(sky, 0, 1) * 255).astype(np.uint8)
 
     # ----------------------------------------------------------------- render
@@ -254,7 +257,7 @@ class Renderer:
         ids = np.where(hit, seg & 0xFFFFFF, -1)
         mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)] & hit
         near, far = cam.near, cam.far
-        depth = (far * near / (far - (far - near) * zbuf.astype(np.float64))).astype(np.float32)
+        depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
         depth[~hit] = 0.0
         rgb = rgba[..., :3].copy()
         if not hit.all():

@@ -156,7 +156,7 @@ def plan_frame(world, job_seed: int, frame: int, appearance_every: int) -> Frame
 def encode_frame(frame) -> dict[str, bytes]:
     import cv2
 
-    params = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
     ok1, rgb = cv2.imencode(".png", np.ascontiguousarray(frame.rgb[:, :, ::-1]), params)
     ok2, mask = cv2.imencode(".png", frame.mask.astype(np.uint8) * 255, params)
     mm = np.clip(np.round(frame.depth.astype(np.float64) * 1000.0), 0, 65535).astype(np.uint16)
@@ -167,8 +167,15 @@ def encode_frame(frame) -> dict[str, bytes]:
 
 
 def write_frame(paths: dict[str, Path], data: dict[str, bytes]) -> None:
-    """Each file goes atomically into a hidden staging folder, renamed to `ImageN/` when whole.
-    Depth and mask first, the RGB image last."""
+    """Write one frame so that no reader ever sees part of it.
+
+    Each file is written into a hidden staging folder beside its `ImageN/` folder, which is
+    then renamed into place (a rename is atomic): `ImageN/` appears complete or not at all.
+    Depth and mask go first, the RGB image last. Unlike `segmin.atomic`, the files are not
+    fsync'ed one by one: three fsyncs per frame cost more than rendering it, and what they
+    protect against (power loss, not a killed process) a rerun repairs by re-rendering frames
+    whose files fail to decode. Files replaced in an existing folder go through `segmin.atomic`.
+    """
     for kind in ("depths", "masks", "images"):
         final = paths[kind]
         folder = final.parent
@@ -178,7 +185,8 @@ def write_frame(paths: dict[str, Path], data: dict[str, bytes]) -> None:
         folder.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".staging", dir=folder.parent))
         try:
-            write_bytes(staging / final.name, data[kind])
+            with open(staging / final.name, "wb") as handle:
+                handle.write(data[kind])
             os.rename(staging, folder)
         except OSError:
             if folder.is_dir():  # lost a race with another writer of the same frame: same bytes
@@ -373,25 +381,36 @@ def render_dataset(job: RenderJob) -> dict:
     bar = _progress(len(todo), job.progress)
     start = time.perf_counter()
     done = 0
+    first: tuple[float, int] | None = None  # (time, frames) when the first task came back
+
+    def tick(n: int) -> None:
+        nonlocal done, first
+        done += n
+        bar.update(n)
+        if first is None:
+            first = (time.perf_counter(), done)
+
     if todo:
         if job.workers == 1:
             _worker_init(job)
             try:
                 for task in tasks:
-                    done += _worker_run(task)
-                    bar.update(len(task))
+                    tick(_worker_run(task))
             finally:
                 _WORKER.pop("renderer").close()
         else:
             ctx = mp.get_context("fork")
             with ctx.Pool(min(job.workers, len(tasks)), initializer=_worker_init, initargs=(job,)) as pool:
                 for n in pool.imap_unordered(_worker_run, tasks):
-                    done += n
-                    bar.update(n)
+                    tick(n)
     bar.close()
-    seconds = time.perf_counter() - start
+    end = time.perf_counter()
+    seconds = end - start
+    # Steady rate: after the workers have built their worlds and returned a first task.
+    steady = (done - first[1]) / (end - first[0]) if first and done > first[1] and end > first[0] else 0.0
     return {"written": done, "skipped": skipped, "seconds": seconds,
-            "fps": done / seconds if seconds > 0 and done else 0.0, "out": str(job.out / domain)}
+            "fps": done / seconds if seconds > 0 and done else 0.0, "steady_fps": steady,
+            "out": str(job.out / domain)}
 
 
 def _progress(total: int, enabled: bool):
