@@ -128,8 +128,10 @@ def run_benchmark(
             session = make_session(path, threads=threads)
             feed = {session.get_inputs()[0].name: frame}
             candidates[name] = (lambda s=session, f=feed: s.run(None, f))
+        quiet = make_session(files["onnxruntime fp32"], threads=threads, spin=False)
+        candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(None, {quiet.get_inputs()[0].name: frame})
 
-        segmenter = OnnxSegmenter(files["onnxruntime fp32"], threads=threads)
+        segmenter = OnnxSegmenter(files["onnxruntime fp32"], threads=threads)  # the navigator's defaults
         navigator = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
         rgb = frame[0]
         depth = np.linspace(0.5, 8.0, size, dtype=np.float32)[:, None].repeat(size, axis=1)

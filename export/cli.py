@@ -13,7 +13,7 @@ def register(commands, bench) -> None:
         description=(
             "Export a segmin checkpoint to ONNX. The graph takes uint8 RGB frames N x H x W x 3 and "
             "returns vegetation probability N x 1 x H x W; it is verified against PyTorch on real "
-            "frames (max |dp| <= 1e-4, mask agreement >= 99.9 %%) and not written if it fails."
+            "frames (max |dp| <= 1e-4, mask agreement >= 99.9 %) and not written if it fails."
         ),
     )
     parser.add_argument("--checkpoint", required=True, type=Path, help="checkpoint (best.pt / last.pt)")

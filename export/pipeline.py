@@ -9,6 +9,7 @@ outputs are never overwritten without `force`.
 
 from __future__ import annotations
 
+import ast
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,12 +101,31 @@ def planned_outputs(options: ExportOptions) -> list[Path]:
     return outputs
 
 
-def _frame_source(options: ExportOptions, model_info: dict[str, Any]) -> Path:
+def parse_train_data(text: str) -> tuple[Path, list[str] | None]:
+    """The training data root and domains from model_info["train_data"].
+
+    train/ records it as "<root> domains=<list or 'all'>[; val ...]"; a bare path also works.
+    """
+    head = str(text).split(";")[0].strip()
+    root_text, _, domains_text = head.partition(" domains=")
+    domains: list[str] | None = None
+    domains_text = domains_text.strip()
+    if domains_text and domains_text != "all":
+        try:
+            parsed = ast.literal_eval(domains_text)
+        except (ValueError, SyntaxError):
+            parsed = domains_text
+        domains = [parsed] if isinstance(parsed, str) else [str(d) for d in parsed]
+    return Path(root_text.strip()), domains
+
+
+def _frame_source(options: ExportOptions, model_info: dict[str, Any]) -> tuple[Path, list[str] | None]:
     if options.calib_data is not None:
-        return Path(options.calib_data)
-    train_data = model_info.get("train_data")
-    if train_data and Path(str(train_data)).is_dir():
-        return Path(str(train_data))
+        return Path(options.calib_data), None
+    train_data = str(model_info.get("train_data") or "")
+    root, domains = parse_train_data(train_data)
+    if train_data and root.is_dir():
+        return root, domains
     raise ValueError(
         f"{options.checkpoint}: no real frames to verify the export on: its training data "
         f"{train_data!r} is not a folder here; pass --calib-data DIR (images or an AgriSeg root)"
@@ -133,8 +153,13 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     model, info = load_model(options.checkpoint)
     input_size = tuple(int(v) for v in info["input_size"])
     threshold = float(info.get("threshold", 0.5))
-    source = _frame_source(options, info)
-    frames = load_frames(source, input_size, limit=max(options.verify_frames, options.calib_frames if options.int8 else 1))
+    source, domains = _frame_source(options, info)
+    frames = load_frames(
+        source,
+        input_size,
+        limit=max(options.verify_frames, options.calib_frames if options.int8 else 1),
+        domains=domains,
+    )
     verify_set = frames[np.linspace(0, len(frames) - 1, min(len(frames), options.verify_frames)).round().astype(int)]
     opset = int(options.opset if options.opset is not None else DEFAULT_OPSET[options.exporter])
     meta = build_metadata(
@@ -143,6 +168,8 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     report: dict[str, Any] = {
         "checkpoint": str(options.checkpoint),
         "frames_from": str(source),
+        "frames_domains": domains,
+        "frames_used": int(len(frames)),
         "input_size": list(input_size),
         "threshold": threshold,
         "metadata": meta,

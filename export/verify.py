@@ -68,14 +68,14 @@ def _image_files(folder: Path) -> list[Path]:
     return files
 
 
-def _agriseg_images(root: Path) -> list[Path]:
+def _agriseg_images(root: Path, domains: list[str] | None = None) -> list[Path]:
     """Image paths of an AgriSeg-layout root via data.agriseg_loader, [] when it is not one."""
     try:
         from data.agriseg_loader import find_frames
     except ImportError:
         return []
     try:
-        return [frame.image_path for frame in find_frames(root, skip_unpaired=True)]
+        return [frame.image_path for frame in find_frames(root, domains, skip_unpaired=True)]
     except (ValueError, OSError) as exc:  # not an AgriSeg layout (or an empty one): plain folder
         log.debug("%s is not an AgriSeg layout (%s); reading it as a folder of images", root, exc)
         return []
@@ -91,11 +91,14 @@ def _read_rgb(path: Path) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
-def load_frames(source: str | Path, input_size: tuple[int, int], limit: int = 32) -> np.ndarray:
+def load_frames(
+    source: str | Path, input_size: tuple[int, int], limit: int = 32, domains: list[str] | None = None
+) -> np.ndarray:
     """Up to `limit` real frames from `source`, as uint8 N x H x W x 3 at the model input size.
 
     `source` is an AgriSeg-layout root (read with data.agriseg_loader when available) or any
-    folder of PNG/JPG images (searched recursively; mask and depth folders are skipped). Frames
+    folder of PNG/JPG images (searched recursively; mask and depth folders are skipped);
+    `domains` restricts an AgriSeg root to those domains (the training run's choice). Frames
     are picked evenly spaced over the sorted list, so the choice is deterministic.
     """
     root = Path(source)
@@ -104,9 +107,10 @@ def load_frames(source: str | Path, input_size: tuple[int, int], limit: int = 32
     if root.is_file():
         paths = [root]
     else:
-        paths = _agriseg_images(root) or _image_files(root)
+        paths = _agriseg_images(root, domains) or ([] if domains else _image_files(root))
     if not paths:
-        raise ValueError(f"{root}: no images ({', '.join(IMAGE_SUFFIXES)}) found to verify the export on")
+        which = f" of domains {domains}" if domains else ""
+        raise ValueError(f"{root}: no images{which} ({', '.join(IMAGE_SUFFIXES)}) found to verify the export on")
     if limit < 1:
         raise ValueError(f"limit={limit}: need at least one frame")
     if len(paths) > limit:
@@ -148,11 +152,16 @@ def run_session(session, frames: np.ndarray, batch: int = 8) -> np.ndarray:
     return np.concatenate(outputs).astype(np.float32, copy=False)
 
 
-def make_session(path: str | Path, threads: int = 2, providers: list[str] | None = None):
-    """An onnxruntime session with all graph optimisations and `threads` intra-op threads."""
+def make_session(path: str | Path, threads: int = 2, providers: list[str] | None = None, spin: bool = True):
+    """An onnxruntime session with all graph optimisations and `threads` intra-op threads.
+
+    `spin=False` stops idle worker threads from busy-waiting between runs (see OnnxSegmenter).
+    """
     import onnxruntime as ort
 
     options = ort.SessionOptions()
+    if not spin:
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     options.intra_op_num_threads = int(threads)
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL

@@ -23,7 +23,7 @@ from export.verify import (
     make_session,
     run_session,
 )
-from export_helpers import SIZE, shared_checkpoint, shared_export, shared_frames, write_frames
+from export_helpers import SIZE, field_image, shared_checkpoint, shared_export, shared_frames, write_frames
 from models.checkpoint import load_model
 from segmin.cli import main as segmin_main
 
@@ -227,3 +227,36 @@ def test_verification_bounds_reject_disagreement() -> None:
         compare(reference[:1], reference, 0.5)
     with pytest.raises(VerificationError, match="NaN"):
         compare(np.full_like(reference, np.nan), reference, 0.5)
+
+
+def _agriseg_root(root: Path) -> Path:
+    """Two domains in the formatted AgriSeg layout; masks are white so they cannot pass as frames."""
+    import cv2
+
+    rng = np.random.default_rng(11)
+    for domain, count in (("synth_a", 3), ("synth_b", 2)):
+        subset = root / domain / f"{domain}_0"
+        for n in range(1, count + 1):
+            image, mask = field_image(rng, 40, 40)
+            (subset / "images" / f"Image{n}").mkdir(parents=True)
+            (subset / "masks" / f"Image{n}").mkdir(parents=True)
+            cv2.imwrite(str(subset / "images" / f"Image{n}" / f"Image{n}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            cv2.imwrite(str(subset / "masks" / f"Image{n}" / f"Segmentation{n}.png"), np.full((40, 40), 255, np.uint8))
+    return root
+
+
+def test_frames_from_agriseg_root_and_training_data(tmp_path) -> None:
+    from export.pipeline import _frame_source, parse_train_data
+
+    root = _agriseg_root(tmp_path / "agriseg")
+    frames = load_frames(root, (SIZE, SIZE))
+    assert frames.shape == (5, SIZE, SIZE, 3) and frames.dtype == np.uint8
+    assert not np.any(np.all(frames == 255, axis=(1, 2, 3)))  # no mask was read as a frame
+    assert load_frames(root, (SIZE, SIZE), domains=["synth_b"]).shape[0] == 2
+    assert load_frames(root, (SIZE, SIZE), limit=2).shape[0] == 2
+    # What train/ records in model_info["train_data"] leads back to the same frames.
+    assert parse_train_data(f"{root} domains=['synth_b']; val {root} domains=['synth_a']") == (root, ["synth_b"])
+    assert parse_train_data(f"{root} domains=all") == (root, None)
+    assert parse_train_data(str(root)) == (root, None)
+    options = ExportOptions(checkpoint=tmp_path / "x.pt", out=tmp_path / "m.onnx")
+    assert _frame_source(options, {"train_data": f"{root} domains=['synth_a']"}) == (root, ["synth_a"])
