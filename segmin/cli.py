@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "export.cli",
     "nav_eval.navigator_cli",
     "nav_eval.cli",
+    "segmin.pipeline.cli",
 )
 
 

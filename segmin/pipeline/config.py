@@ -1,0 +1,122 @@
+"""Pipeline profiles (`configs/pipeline/<profile>.yaml`): what each stage renders, trains and drives.
+
+The paper trains one model per crop family and tests it on that family's fields: the trees
+model drives the high-tree and pear rows, the vineyards model the three vineyards. A profile
+lists, per family, the training worlds, the held-out validation worlds (rendered with another
+seed, so they are never the worlds the training frames came from), the training config and the
+test fields. Paths inside a profile are relative to the project root.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from segmin.config import load_config
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+PROFILES_DIR = PROJECT_ROOT / "configs" / "pipeline"
+STAGES: tuple[str, ...] = ("render", "train", "export", "nav-eval", "report")
+
+
+@dataclass
+class FamilyPlan:
+    """One crop family: its worlds, its training config and the fields its model drives."""
+
+    train_worlds: list[str]
+    val_worlds: list[str]
+    fields: list[str]
+    train_config: Path = Path("configs/train/quick.yaml")
+    train_overrides: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for name in ("train_worlds", "val_worlds", "fields"):
+            if not getattr(self, name):
+                raise ValueError(f"{name}: list at least one world")
+
+
+@dataclass
+class RenderPlan:
+    """How many frames per world, at what size, with how many processes."""
+
+    frames_per_world: int = 300
+    val_frames_per_world: int = 60
+    val_seed_offset: int = 1000
+    size: int = 224
+    workers: int = 2
+    contact_sheet_frames: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("frames_per_world", "val_frames_per_world", "size", "workers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"render.{name} must be >= 1, got {getattr(self, name)}")
+        if self.val_seed_offset == 0:
+            raise ValueError("render.val_seed_offset must not be 0 (validation worlds would be the training worlds)")
+
+
+@dataclass
+class ExportPlan:
+    """Export options (see `segmin export --help`)."""
+
+    exporter: str = "dynamo"
+    verify_frames: int = 32
+    fp16: bool = False
+    int8: bool = False
+    latency_frames: int = 50
+
+
+@dataclass
+class NavPlan:
+    """Closed-loop evaluation: nav config, methods, runs; the oracle runs beside the model."""
+
+    config: Path = Path("configs/nav/default.yaml")
+    overrides: list[str] = field(default_factory=list)
+    methods: list[str] = field(default_factory=lambda: ["segmin", "segmind", "segzeros"])
+    runs: int = 1
+    workers: int = 2
+    oracle: bool = True
+    seed: int = 0
+    video: bool = False
+
+    def __post_init__(self) -> None:
+        if self.runs < 1 or self.workers < 1:
+            raise ValueError("nav.runs and nav.workers must be >= 1")
+
+
+@dataclass
+class PipelineConfig:
+    """A whole profile."""
+
+    profile: str
+    families: dict[str, FamilyPlan]
+    render: RenderPlan = field(default_factory=RenderPlan)
+    export: ExportPlan = field(default_factory=ExportPlan)
+    nav: NavPlan = field(default_factory=NavPlan)
+    # "auto": ImageNet when its file is cached (said so in the log), else from scratch;
+    # or "imagenet" / "none" / a state-dict path, passed to every family's training.
+    backbone_weights: str = "auto"
+
+    def __post_init__(self) -> None:
+        if not self.families:
+            raise ValueError("families: name at least one crop family")
+
+
+def resolve_profile(name_or_path: str | Path) -> Path:
+    """A bare profile name means `configs/pipeline/<name>.yaml`."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return path
+    return PROFILES_DIR / f"{name_or_path}.yaml"
+
+
+def project_path(path: str | Path) -> Path:
+    """A path from a profile: absolute, relative to the working folder if it exists there, else to the project."""
+    path = Path(path)
+    if path.is_absolute() or path.exists():
+        return path
+    return PROJECT_ROOT / path
+
+
+def load_pipeline_config(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> PipelineConfig:
+    """Load a profile with dotted key=value overrides (e.g. `render.frames_per_world=50`)."""
+    return load_config(PipelineConfig, resolve_profile(name_or_path), overrides)

@@ -1,0 +1,181 @@
+"""The pipeline's final report: report.md, and report.html with every figure embedded.
+
+It gathers what each stage left in its folder (stage records, metrics.csv, export reports,
+nav-eval results and figures) so the report can be rebuilt from cached stages alone.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+from segmin.atomic import atomic_path, write_text
+from segmin.pipeline.cache import StageCache
+from segmin.pipeline.config import PipelineConfig
+from segmin.pipeline.stages import load_results, read_metrics_csv
+
+
+def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCache, log) -> dict[str, str]:
+    """Write run_dir/report.md and run_dir/report.html; returns their paths."""
+    from export.onnx import git_commit
+    from nav_eval.report import table3_markdown
+    from segmin.pipeline.runner import machine_summary
+
+    families = list(config.families)
+    curves = run_dir / "report" / "training_curves.png"
+    _training_curves(run_dir, families, curves)
+
+    model_results = []
+    for family in families:
+        path = run_dir / "nav-eval" / family / "results.json"
+        if path.is_file():
+            model_results += load_results(path)
+    oracle_path = run_dir / "nav-eval" / "oracle" / "results.json"
+    oracle_results = load_results(oracle_path) if config.nav.oracle and oracle_path.is_file() else []
+
+    lines = [
+        f"# segmin pipeline report: `{config.profile}` profile",
+        "",
+        f"- date: {datetime.datetime.now().strftime('%Y-%m-%d %H:%M')}",
+        f"- commit: `{git_commit()}`",
+        f"- machine: {machine_summary()}",
+        "",
+        "## Stages",
+        "",
+        "| stage | time s | input hash |",
+        "|---|---|---|",
+    ]
+    for key in ["render", *[f"{s}/{f}" for s in ("train", "export", "nav-eval") for f in families],
+                *(["nav-eval/oracle"] if config.nav.oracle else [])]:
+        record = cache.record(key)
+        if record is not None:
+            lines.append(f"| {key} | {record.seconds:.1f} | `{record.input_hash}` |")
+    lines += ["", "## 1. Data: rendered training worlds", ""]
+    render = cache.record("render")
+    if render and render.outputs:
+        for family, domains in render.outputs["domains"].items():
+            counts = {split: _count_frames(run_dir / "render" / split, names) for split, names in domains.items()}
+            lines.append(f"- **{family}**: {counts['train']} training frames from {', '.join(domains['train'])}; "
+                         f"{counts['val']} validation frames from held-out worlds {', '.join(domains['val'])}")
+        lines += ["", "RGB | vegetation mask overlay | depth, one row per training world:", "",
+                  "![contact sheet](render/contact_sheet.png)", ""]
+    lines += ["## 2. Training", "", "| family | epochs | image size | backbone | best val IoU | pixel acc | time s |",
+              "|---|---|---|---|---|---|---|"]
+    for family in families:
+        record = cache.record(f"train/{family}")
+        if record and record.outputs:
+            o = record.outputs
+            lines.append(f"| {family} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
+                         f"{_num(o['best_val_iou'])} | {_num(o['best_val_pixel_acc'])} | {record.seconds:.0f} |")
+    lines += ["", "Validation IoU is the crop-class IoU summed over the whole held-out set (the paper reports "
+              "IoU on AgriSeg test domains; these are rendered frames).", ""]
+    if curves.is_file():
+        lines += ["![training curves](report/training_curves.png)", ""]
+    lines += ["## 3. Export (ONNX, verified against PyTorch)", "",
+              "| family | max abs prob diff | mask agreement | onnxruntime latency median / p95 ms (2 threads) |",
+              "|---|---|---|---|"]
+    for family in families:
+        record = cache.record(f"export/{family}")
+        if record and record.outputs:
+            v, t = record.outputs["verification"], record.outputs["latency_ms"]
+            lines.append(f"| {family} | {v['max_abs_diff']:.2e} | {100 * v['mask_agreement']:.3f} % | "
+                         f"{t['median']:.2f} / {t['p95']:.2f} |")
+    lines += ["", "## 4. Closed loop in the five test fields", "",
+              "With the exported models (trees model: high trees and pear; vineyards model: the three vineyards). "
+              "Ours: mean ± std over runs; the paper's Table 3 value (Gazebo) in brackets.", ""]
+    lines += [table3_markdown(model_results) if model_results else "(no results)", ""]
+    if oracle_results:
+        lines += ["With the oracle segmenter (the simulator's exact mask), which separates control from perception:",
+                  "", table3_markdown(oracle_results), ""]
+    lines += ["### Comparison with the paper", "", *_comparison(model_results), ""]
+    lines += ["## 5. Figures", ""]
+    for family in families:
+        folder = run_dir / "nav-eval" / family
+        for figure in sorted(folder.glob("*_trajectories.png")) + sorted(folder.glob("*_histograms.png")):
+            lines += [f"![{figure.stem}]({figure.relative_to(run_dir).as_posix()})", ""]
+    markdown_text = "\n".join(lines) + "\n"
+    md_path = run_dir / "report.md"
+    write_text(md_path, markdown_text)
+    html_path = run_dir / "report.html"
+    write_text(html_path, to_html(markdown_text, run_dir, title=f"segmin pipeline report ({config.profile})"))
+    log(f"report: {md_path} and {html_path}")
+    return {"markdown": str(md_path), "html": str(html_path)}
+
+
+def _count_frames(root: Path, domains: list[str]) -> int:
+    return sum(len(list((root / d).glob("*/images/*/*.png"))) for d in domains)
+
+
+def _num(value: Any) -> str:
+    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3f}"
+
+
+def _comparison(results: list[Any]) -> list[str]:
+    """One sentence per field: our SegMinD MAE against the paper's, and whether every run succeeded."""
+    from nav_eval.report import summarise
+
+    lines = []
+    for entry in summarise(results):
+        if entry["method"] != "segmind":
+            continue
+        mae, _, n = entry["mae"]
+        ok = f"{entry['successes']}/{entry['runs']} runs succeeded"
+        if entry["paper"] and n and math.isfinite(mae):
+            paper_mae = entry["paper"][1]
+            verdict = "lower (better)" if mae < paper_mae else "higher (worse)"
+            lines.append(f"- {entry['field']}: SegMinD MAE {mae:.3f} m vs the paper's {paper_mae:.3f} m, {verdict}; {ok}.")
+        else:
+            lines.append(f"- {entry['field']}: {ok}.")
+    return lines or ["(no SegMinD runs)"]
+
+
+def _training_curves(run_dir: Path, families: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    histories = {f: read_metrics_csv(run_dir / "train" / f / "metrics.csv") for f in families}
+    if not any(histories.values()):
+        return
+    fig, (loss_ax, iou_ax) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for family, rows in histories.items():
+        epochs = [r["epoch"] for r in rows]
+        loss_ax.plot(epochs, [r["train_loss"] for r in rows], marker="o", label=f"{family} train")
+        loss_ax.plot(epochs, [r["val_loss"] for r in rows], marker="o", ls="--", label=f"{family} val")
+        iou_ax.plot(epochs, [r["val_iou"] for r in rows], marker="o", label=family)
+    loss_ax.set(xlabel="epoch", ylabel="BCE loss", title="loss")
+    iou_ax.set(xlabel="epoch", ylabel="val IoU (crop)", title="validation IoU on held-out worlds", ylim=(0, 1))
+    loss_ax.legend(fontsize=8)
+    iou_ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
+    plt.close(fig)
+
+
+def to_html(markdown_text: str, base: Path, *, title: str) -> str:
+    """A self-contained HTML page: markdown rendered, every local image inlined as a data URI."""
+    import markdown
+
+    body = markdown.markdown(markdown_text, extensions=["tables"])
+
+    def inline(match: re.Match) -> str:
+        src = match.group(1)
+        image = base / src
+        if not image.is_file():
+            return match.group(0)
+        data = base64.b64encode(image.read_bytes()).decode("ascii")
+        return f'src="data:image/png;base64,{data}"'
+
+    body = re.sub(r'src="([^"]+\.png)"', inline, body)
+    style = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+             "table{border-collapse:collapse;font-size:0.85em;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 6px}"
+             "th{background:#f0f0f0}img{max-width:100%}code{background:#f4f4f4}")
+    return (f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{title}</title><style>{style}</style>"
+            f"</head><body>\n{body}\n</body></html>\n")

@@ -1,0 +1,125 @@
+"""Run the stages in order, skipping what is up to date and resuming what was interrupted.
+
+Stage keys and folders: `render`, `train/<family>`, `export/<family>`, `nav-eval/<family>`,
+`nav-eval/oracle`, `report`. A stage's input hash chains the hashes of the stages it reads, so
+changing a training config reruns that family's training, export and evaluation, and nothing
+else. `--from STAGE` reruns that stage and every later one from scratch.
+"""
+
+from __future__ import annotations
+
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from segmin.config import to_dict
+from segmin.pipeline import stages
+from segmin.pipeline.cache import StageCache, Timer, hash_inputs
+from segmin.pipeline.config import STAGES, PipelineConfig
+
+
+class PipelineRunner:
+    """One pipeline run in one folder."""
+
+    def __init__(self, config: PipelineConfig, run_dir: str | Path, *, from_stage: str | None = None,
+                 log: Callable[[str], None] | None = None) -> None:
+        if from_stage is not None and from_stage not in STAGES:
+            raise ValueError(f"--from: unknown stage {from_stage!r}; stages are {', '.join(STAGES)}")
+        self.config = config
+        self.run_dir = Path(run_dir)
+        self.cache = StageCache(self.run_dir)
+        self.forced = set(STAGES[STAGES.index(from_stage):]) if from_stage else set()
+        self.log = log or _default_log
+        self.skipped: list[str] = []
+        self.ran: list[str] = []
+
+    def run(self) -> Path:
+        """Run every stage; returns the path of report.md."""
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        config = self.config
+        backbone = stages.resolve_backbone(config, self.log)
+
+        render_hash = hash_inputs("render", to_dict(config.render), stages.world_specs(config))
+        render = self._stage("render", "render", render_hash,
+                             lambda folder, fresh: stages.render_stage(config, folder, overwrite=fresh, log=self.log))
+
+        nav_config = stages.nav_config(config)
+        upstream: dict[str, str] = {"render": render_hash}
+        models: dict[str, tuple[str, str]] = {}
+        for family, plan in config.families.items():
+            domains = render["domains"][family]
+            train_config = stages.train_config_for(config, family, plan, self.cache.folder("render"), domains, backbone)
+            train_hash = hash_inputs("train", render_hash, to_dict(train_config))
+            trained = self._stage(
+                "train", f"train/{family}", train_hash,
+                lambda folder, fresh, tc=train_config: stages.train_stage(
+                    tc, folder, resume=not fresh and (folder / "last.pt").is_file(), log=self.log),
+            )
+            export_hash = hash_inputs("export", train_hash, to_dict(config.export))
+            exported = self._stage(
+                "export", f"export/{family}", export_hash,
+                lambda folder, fresh, ckpt=trained["checkpoint"], fam=family: stages.export_stage(
+                    config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log),
+            )
+            models[family] = (exported["onnx"], export_hash)
+            upstream.update({f"train/{family}": train_hash, f"export/{family}": export_hash})
+
+        nav_common = (to_dict(config.nav), to_dict(nav_config))
+        for family, plan in config.families.items():
+            onnx_path, export_hash = models[family]
+            key = f"nav-eval/{family}"
+            upstream[key] = hash_inputs("nav", export_hash, nav_common, plan.fields)
+            self._stage("nav-eval", key, upstream[key],
+                        lambda folder, fresh, m=onnx_path, f=plan.fields: stages.nav_stage(config, m, f, folder, self.log))
+        if config.nav.oracle:
+            fields = [f for plan in config.families.values() for f in plan.fields]
+            upstream["nav-eval/oracle"] = hash_inputs("nav-oracle", nav_common, fields)
+            self._stage("nav-eval", "nav-eval/oracle", upstream["nav-eval/oracle"],
+                        lambda folder, fresh: stages.nav_stage(config, "oracle", fields, folder, self.log))
+
+        from segmin.pipeline.report import write_pipeline_report
+
+        report_hash = hash_inputs("report", upstream, to_dict(config))
+        report = self._stage("report", "report", report_hash,
+                             lambda folder, fresh: write_pipeline_report(config, self.run_dir, self.cache, self.log))
+        return Path(report["markdown"])
+
+    def _stage(self, stage: str, key: str, input_hash: str, work: Callable[[Path, bool], dict[str, Any]]) -> dict[str, Any]:
+        """Skip a finished stage with the same inputs; otherwise run it (resuming where possible).
+
+        `work(folder, fresh)`: `fresh` is true when earlier work in the folder must not be reused
+        (forced with --from, or done with other inputs).
+        """
+        record = self.cache.record(key)
+        forced = stage in self.forced
+        if record is not None and record.finished and record.input_hash == input_hash and not forced:
+            self.log(f"{key}: up to date, skipped")
+            self.skipped.append(key)
+            return record.outputs or {}
+        fresh = forced or (record is not None and record.input_hash != input_hash)
+        if record is not None and not record.finished and not fresh:
+            self.log(f"{key}: resuming an interrupted run")
+        self.cache.started(key, input_hash)
+        timer = Timer()
+        outputs = work(self.cache.folder(key), fresh)
+        self.cache.finished(key, input_hash, timer.seconds, outputs)
+        self.log(f"{key}: done in {timer.seconds:.1f} s")
+        self.ran.append(key)
+        return outputs
+
+
+def _default_log(message: str) -> None:
+    print(f"[pipeline {time.strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+def machine_summary() -> str:
+    """One line about where this ran (for the report)."""
+    import os
+
+    import torch
+
+    device = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
+    return (f"{platform.platform(terse=True)}, Python {sys.version.split()[0]}, {os.cpu_count()} CPU cores, "
+            f"{device}, torch {torch.__version__}")

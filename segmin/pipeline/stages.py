@@ -1,0 +1,230 @@
+"""The pipeline's stages, in data-flow order: render -> train -> export -> nav-eval -> report.
+
+Each stage function does one family's (or the oracle's) work in its own folder and returns a
+small JSON-able dict of outputs for its stage record. Caching and ordering live in
+`runner.py`; the work itself is done by the packages (data.synth, train, export, nav_eval).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from segmin.config import to_dict
+from segmin.pipeline.config import FamilyPlan, PipelineConfig, project_path
+
+
+def resolve_backbone(config: PipelineConfig, log) -> str:
+    """`auto` means ImageNet when its file is cached (and say so), else training from scratch."""
+    if config.backbone_weights != "auto":
+        return config.backbone_weights
+    from models.lraspp import imagenet_weights_cached, imagenet_weights_path
+
+    if imagenet_weights_cached():
+        log(f"using the cached ImageNet backbone weights at {imagenet_weights_path()}")
+        return "imagenet"
+    log(f"no ImageNet backbone file at {imagenet_weights_path()}: training from scratch (backbone_weights=none)")
+    return "none"
+
+
+# ------------------------------------------------------------------------------------ render
+
+
+def world_specs(config: PipelineConfig) -> dict[str, dict[str, Any]]:
+    """Every world to render, per family and split, as loaded specs (so YAML edits change the hash)."""
+    from data.synth.spec import load_world_spec
+
+    specs: dict[str, dict[str, Any]] = {}
+    for family, plan in config.families.items():
+        for split, names in (("train", plan.train_worlds), ("val", plan.val_worlds)):
+            for name in names:
+                spec = load_world_spec(name, _world_overrides(config, name, split))
+                specs[f"{family}/{split}/{name}"] = to_dict(spec)
+    return specs
+
+
+def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]:
+    """Validation worlds are the same kind of field grown from another seed, under their own domain."""
+    if split == "train":
+        return []
+    from data.synth.spec import load_world_spec
+
+    base = load_world_spec(name)
+    stem = base.name[len("train_"):] if base.name.startswith("train_") else base.name
+    return [f"seed={base.seed + config.render.val_seed_offset}", f"domain=synth_val_{stem}"]
+
+
+def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) -> dict[str, Any]:
+    """Render training and held-out validation frames in the AgriSeg layout, plus a contact sheet."""
+    from data.synth.camera import CameraModel
+    from data.synth.spec import load_world_spec
+    from data.synth.writer import RenderJob, render_dataset
+
+    camera = CameraModel(width=config.render.size, height=config.render.size)
+    outputs: dict[str, Any] = {"domains": {}}
+    for family, plan in config.families.items():
+        domains: dict[str, list[str]] = {"train": [], "val": []}
+        for split, names, frames in (("train", plan.train_worlds, config.render.frames_per_world),
+                                     ("val", plan.val_worlds, config.render.val_frames_per_world)):
+            for name in names:
+                spec = load_world_spec(name, _world_overrides(config, name, split))
+                log(f"render: {family} {split} world {name} ({spec.domain}), {frames} frames")
+                job = RenderJob(spec=spec, out=folder / split, frames=frames, camera=camera,
+                                workers=config.render.workers, overwrite=overwrite)
+                render_dataset(job)
+                domains[split].append(spec.domain)
+        outputs["domains"][family] = domains
+    sheet = folder / "contact_sheet.png"
+    _contact_sheet(config, camera, sheet)
+    outputs["contact_sheet"] = str(sheet)
+    return outputs
+
+
+def _contact_sheet(config: PipelineConfig, camera, path: Path) -> None:
+    import cv2
+
+    from data.synth.cli import preview_sheet
+    from segmin.atomic import write_bytes
+
+    worlds = [w for plan in config.families.values() for w in plan.train_worlds]
+    sheet = preview_sheet(worlds, config.render.contact_sheet_frames, camera)
+    ok, png = cv2.imencode(".png", sheet[:, :, ::-1])
+    if not ok:
+        raise RuntimeError(f"{path}: PNG encoding failed")
+    write_bytes(path, png.tobytes())
+
+
+# ------------------------------------------------------------------------------------- train
+
+
+def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, render_dir: Path,
+                     domains: dict[str, list[str]], backbone: str):
+    """The family's training config, pointed at this run's rendered frames."""
+    from train.config import load_train_config
+
+    overrides = [
+        f"family={family}",
+        f"data.root={render_dir / 'train'}",
+        f"data.val_root={render_dir / 'val'}",
+        f"data.domains=[{', '.join(domains['train'])}]",
+        f"data.val_domains=[{', '.join(domains['val'])}]",
+        f"backbone_weights={backbone}",
+        *plan.train_overrides,
+    ]
+    return load_train_config(project_path(plan.train_config), overrides)
+
+
+def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, Any]:
+    """Train one family; `resume` continues from the folder's last checkpoint."""
+    from train.run import train_model
+
+    log(f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
+        f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}")
+    best = train_model(train_config, folder, resume=resume)
+    history = read_metrics_csv(folder / "metrics.csv")
+    best_row = max(history, key=lambda r: r.get("val_iou", -1.0)) if history else {}
+    return {"checkpoint": str(best), "epochs": len(history), "best_val_iou": best_row.get("val_iou"),
+            "best_val_pixel_acc": best_row.get("val_pixel_acc", best_row.get("val_acc")),
+            "backbone_weights": train_config.backbone_weights, "image_size": train_config.image_size}
+
+
+def read_metrics_csv(path: Path) -> list[dict[str, float]]:
+    """train/'s metrics.csv as a list of numeric rows (empty when there is none yet)."""
+    import csv
+
+    if not path.is_file():
+        return []
+    rows = []
+    with open(path, newline="") as handle:
+        for raw in csv.DictReader(handle):
+            row = {}
+            for key, value in raw.items():
+                try:
+                    row[key] = float(value)
+                except (TypeError, ValueError):
+                    continue
+            rows.append(row)
+    return rows
+
+
+# ------------------------------------------------------------------------------------ export
+
+
+def export_stage(config: PipelineConfig, checkpoint: Path, out: Path, val_root: Path, log) -> dict[str, Any]:
+    """Export and verify one family's ONNX model, then time it with the runtime the robot uses."""
+    from export.pipeline import ExportOptions, export_checkpoint
+
+    log(f"export: {checkpoint} -> {out}")
+    report = export_checkpoint(ExportOptions(
+        checkpoint=checkpoint, out=out, force=True, exporter=config.export.exporter,
+        verify_frames=config.export.verify_frames, fp16=config.export.fp16, int8=config.export.int8,
+    ))
+    verification = report["fp32"]["verification_vs_torch"]
+    latency = onnx_latency_ms(out, val_root, config.export.latency_frames)
+    return {"onnx": str(out), "verification": verification, "latency_ms": latency,
+            "input_size": report["input_size"]}
+
+
+def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2) -> dict[str, float]:
+    """Median and p95 of one `OnnxSegmenter.segment` call on rendered validation frames."""
+    import cv2
+
+    from nav_eval.segmenter import OnnxSegmenter
+
+    paths = sorted(frames_root.rglob("images/*/*.png"))[:count]
+    if not paths:
+        raise FileNotFoundError(f"{frames_root}: no rendered images to time the model on")
+    images = [cv2.imread(str(p))[:, :, ::-1].copy() for p in paths]
+    segmenter = OnnxSegmenter(model, threads=threads)
+    for image in images[:3]:
+        segmenter.segment(image)
+    times = []
+    for image in images:
+        start = time.perf_counter()
+        segmenter.segment(image)
+        times.append((time.perf_counter() - start) * 1e3)
+    return {"median": float(statistics.median(times)), "p95": float(np.percentile(times, 95)),
+            "threads": threads, "frames": len(times), "frame_size": list(images[0].shape[:2])}
+
+
+# ---------------------------------------------------------------------------------- nav-eval
+
+
+def nav_config(config: PipelineConfig):
+    from nav_eval.eval_config import load_nav_config
+
+    return load_nav_config(project_path(config.nav.config), config.nav.overrides)
+
+
+def nav_stage(config: PipelineConfig, model: str, fields: list[str], folder: Path, log) -> dict[str, Any]:
+    """Drive every method through `fields` with `model` (an ONNX path or 'oracle')."""
+    from nav_eval.evaluate import run_evaluation
+
+    log(f"nav-eval: {model} on {', '.join(fields)} with {', '.join(config.nav.methods)}, "
+        f"{config.nav.runs} run(s) each")
+    results = run_evaluation(model, fields=fields, methods=config.nav.methods, runs=config.nav.runs,
+                             out_dir=folder, workers=config.nav.workers, config=nav_config(config),
+                             seed=config.nav.seed, video=config.nav.video)
+    successes = sum(bool(r.success) for r in results)
+    return {"results": str(folder / "results.json"), "runs": len(results), "successes": successes}
+
+
+def load_results(path: Path) -> list[Any]:
+    """RunResult objects back from a results.json (for a report over cached stages)."""
+    import json
+
+    from nav_eval.evaluate import RunResult
+
+    names = {f.name for f in dataclasses.fields(RunResult)} - {"trajectory", "commands"}
+    rows = json.loads(path.read_text())["rows"]
+    results = []
+    for row in rows:
+        values = {k: (math.nan if v is None else v) for k, v in row.items() if k in names}
+        results.append(RunResult(**values))
+    return results
