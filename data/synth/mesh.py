@@ -166,6 +166,33 @@ def leaves(centres: np.ndarray, sizes: np.ndarray, rng: np.random.Generator,
     )
 
 
+def blades(bases: np.ndarray, heights: np.ndarray, rng: np.random.Generator, per_tuft: int = 3) -> Mesh:
+    """Grass tufts: `per_tuft` thin leaning blades (double-sided triangles) per base point."""
+    n = len(bases) * per_tuft
+    if n == 0:
+        return Mesh()
+    base = np.repeat(bases, per_tuft, axis=0)
+    h = np.repeat(heights, per_tuft) * rng.uniform(0.6, 1.2, n)
+    az = rng.uniform(0, 2 * np.pi, n)
+    side = np.stack([np.cos(az), np.sin(az), np.zeros(n)], axis=1)
+    lean = np.stack([-np.sin(az), np.cos(az), np.zeros(n)], axis=1) * (h * rng.uniform(-0.5, 0.5, n))[:, None]
+    width = rng.uniform(0.012, 0.03, n)[:, None]
+    foot = base + rng.normal(0, 0.03, (n, 3)) * np.array([1, 1, 0])
+    a, b = foot - side * width, foot + side * width
+    tip = foot + lean + np.array([0, 0, 1.0]) * h[:, None]
+    tri = np.stack([a, b, tip], axis=1)
+    normal = np.cross(b - a, tip - a)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
+    uv = np.stack([rng.uniform(0.05, 0.95, n), rng.uniform(0.05, 0.95, n)], axis=1)
+    uvs = np.repeat(uv, 3, axis=0) + np.tile([[0, 0], [0.02, 0], [0.01, 0.05]], (n, 1))
+    verts = tri.reshape(-1, 3)
+    norms = np.repeat(normal, 3, axis=0)
+    front = np.arange(3 * n)
+    back = (3 * n + np.arange(3 * n).reshape(n, 3)[:, ::-1]).reshape(-1)
+    return Mesh(np.concatenate([verts, verts]), np.concatenate([norms, -norms]), np.concatenate([uvs, uvs]),
+                np.concatenate([front, back]).astype(np.int64))
+
+
 def grid_surface(xs: np.ndarray, ys: np.ndarray, height_fn, normal_fn, uv_scale: float) -> Mesh:
     """A height-field patch over the grid xs x ys, upward faces, uv = world xy * uv_scale."""
     gx, gy = np.meshgrid(xs, ys, indexing="ij")

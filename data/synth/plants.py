@@ -181,7 +181,7 @@ def _tree(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: in
         d = rng.normal(size=3)
         d[2] *= 0.6
         d /= np.linalg.norm(d)
-        c = centre + d * rng.uniform(0.3, 0.55) * np.array([rh, rh, rv])
+        c = centre + d * rng.uniform(0.35, 0.65) * np.array([rh, rh, rv])
         clusters.append((c, np.array([rh, rh, rv]) * rng.uniform(0.4, 0.55, size=3)))
     plant.clusters.extend(clusters)
     for c, _ in clusters[: max(2, _i(rng, ps.branches))]:  # scaffold branches to the clusters
@@ -210,20 +210,20 @@ def _pergola(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index:
         _seg(plant, top, [rng.normal(0, 0.2), sign * reach * 0.85, ph + 0.02], 0.5 * r, 0.25 * r)
     n = max(2, _i(rng, ps.clusters))
     c0, c1 = -reach_right, reach_left
-    thickness = height - ph
-    along = 0.5 * ps.spacing + 0.15
-    for k in range(n):  # flat clusters covering the overhead span, edges at the free bands
+    thickness = max(height - ph, 0.2)
+    along = 0.5 * ps.spacing + 0.2
+    for k in range(n):  # flat clusters: a leaf ceiling over the span, edges at the free bands
         c = c0 + (c1 - c0) * (k + 0.5) / n
-        rc = min(0.5 * (c1 - c0) / n * 1.25, c - c0, c1 - c)  # never past the band edges
-        plant.clusters.append((np.array([rng.normal(0, 0.1), c, ph + 0.5 * thickness]),
-                               np.array([along, rc, 0.5 * thickness + 0.08])))
+        rc = min(0.5 * (c1 - c0) / n * 1.3, c - c0, c1 - c)  # never past the band edges
+        plant.clusters.append((np.array([rng.normal(0, 0.1), c, ph + 0.4 * thickness]),
+                               np.array([along, rc, 0.5 * thickness])))
     for sign, reach in ((1, reach_left), (-1, reach_right)):  # shoots hanging at the band edges
-        drop = rng.uniform(0.25, 0.6)
-        plant.clusters.append((np.array([rng.normal(0, 0.15), sign * (reach - 0.15), ph - drop * 0.5]),
-                               np.array([0.35 * ps.spacing, 0.15, drop * 0.5 + 0.05])))
-    bottom = _u(rng, ps.canopy_bottom)  # a few leaves on the trunk, the vine's own head
-    plant.clusters.append((np.array([0.0, 0.0, 0.5 * (bottom + ph)]),
-                           np.array([0.3, 0.2, 0.5 * (ph - bottom)])))
+        drop = rng.uniform(0.15, 0.4)
+        plant.clusters.append((np.array([rng.normal(0, 0.15), sign * (reach - 0.2), ph - drop * 0.4]),
+                               np.array([0.35 * ps.spacing, 0.2, drop * 0.5 + 0.05])))
+    if rng.uniform() < 0.5:  # now and then a sucker low on the trunk
+        z = _u(rng, ps.canopy_bottom)
+        plant.clusters.append((np.array([0.0, rng.normal(0, 0.1), z]), np.array([0.2, 0.15, 0.2])))
 
 
 def _low_branches(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> None:

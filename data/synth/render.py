@@ -126,6 +126,8 @@ class Renderer:
         # Put every body in a known state: another renderer may have used this world before.
         for c in chunks:
             for b in c.bodies:
+                if b < 0:
+                    continue
                 self.rgba[b] = [1.0, 1.0, 1.0] if c.kind != "structure" else [0.9, 0.9, 0.9]
                 self.texture[b] = c.texture
                 self.shown[b] = True
@@ -150,9 +152,13 @@ class Renderer:
                 tint = rng.uniform(0.78, 1.0) * (1 + rng.uniform(-0.07, 0.07, 3))
             elif c.kind == "ground":
                 texture, tint = tex.ground[ground], ground_tint
+            elif c.kind == "grass":
+                texture, tint = tex.grass[ground], ground_tint
             else:
                 texture, tint = tex.structure, struct_tint
             for b in c.bodies:
+                if b < 0:
+                    continue
                 self.rgba[b] = [float(v) for v in np.clip(tint, 0, 1)]
                 self.texture[b] = texture
                 alpha = 1.0 if self.shown[b] else 0.0

@@ -90,6 +90,17 @@ def ground_texture(rng: np.random.Generator, appearance) -> np.ndarray:
     return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
 
+def grass_texture(rng: np.random.Generator, appearance) -> np.ndarray:
+    """Blades of grass and weeds: greens to straw, streaked along the blade."""
+    size = SIZE
+    green = _hsv(rng.uniform(55, 100), rng.uniform(0.4, 0.7), rng.uniform(0.35, 0.6))
+    straw = _hsv(rng.uniform(38, 50), rng.uniform(0.35, 0.55), rng.uniform(0.5, 0.7))
+    mix = np.clip(_noise(rng, size, (4, 8)) - (1 - rng.uniform(0.1, 0.5)) + 0.5, 0, 1)[..., None]
+    streaks = cv2.resize(rng.uniform(0.75, 1.15, size=(4, size)).astype(np.float32), (size, size))[..., None]
+    img = (green[None, None] * (1 - mix) + straw[None, None] * mix) * streaks
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
 def structure_texture(rng: np.random.Generator) -> np.ndarray:
     size = SIZE
     base = _hsv(rng.uniform(25, 40), rng.uniform(0.05, 0.25), rng.uniform(0.45, 0.7))
@@ -107,6 +118,7 @@ class TextureSet:
         self.autumn[0] = False
         images = {f"plant{i}": plant_atlas(rng, appearance, self.autumn[i]) for i in range(n)}
         images.update({f"ground{i}": ground_texture(rng, appearance) for i in range(n)})
+        images.update({f"grass{i}": grass_texture(rng, appearance) for i in range(n)})
         images["structure"] = structure_texture(rng)
         folder = Path(tempfile.mkdtemp(prefix="segmin_tex_"))
         try:
@@ -119,6 +131,7 @@ class TextureSet:
             shutil.rmtree(folder, ignore_errors=True)
         self.plant = [ids[f"plant{i}"] for i in range(n)]
         self.ground = [ids[f"ground{i}"] for i in range(n)]
+        self.grass = [ids[f"grass{i}"] for i in range(n)]
         self.structure = ids["structure"]
         # Mean colour of each ground texture (0..1), used to paint ground beyond the tiles.
         self.ground_mean = [images[f"ground{i}"].reshape(-1, 3).mean(axis=0) / 255.0 * 0.8 for i in range(n)]

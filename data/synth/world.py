@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pybullet as p
 
-from data.synth.mesh import Mesh, cylinders, grid_surface, leaves
+from data.synth.mesh import Mesh, blades, cylinders, grid_surface
 from data.synth.plants import LOD_FACTORS, Plant, make_plant
 from data.synth.spec import WorldSpec, pergola_reach
 from data.synth.textures import TextureSet
@@ -114,7 +114,7 @@ class Chunk:
     centre: np.ndarray
     radius: float
     bodies: list[int]    # one pybullet body per level of detail, finest first
-    kind: str            # "plants", "structure", "ground", "skirt"
+    kind: str            # "plants", "structure", "ground", "grass"
     texture: int = -1
     triangles: list[int] = field(default_factory=list)  # per level
     capsule: tuple[np.ndarray, np.ndarray, float] | None = None  # tighter bound for distances
@@ -229,7 +229,7 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
 
     chunks: list[Chunk] = []
     vegetation: set[int] = set()
-    tris = {"plants": [0] * len(LOD_FACTORS), "structure": [0], "ground": [0, 0]}
+    tris = {"plants": [0] * len(LOD_FACTORS), "structure": [0], "ground": [0, 0], "grass": [0]}
     for key in sorted(plants):
         levels = [Mesh.concat([pl.mesh(level) for pl in plants[key]]) for level in range(len(LOD_FACTORS))]
         ch = _chunk(client_id, levels, "plants", textures.plant[0])
@@ -335,17 +335,19 @@ def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
             xs = np.linspace(x0, x0 + GROUND_TILE, steps)
             ys = np.linspace(y0, y0 + GROUND_TILE, steps)
             fine = grid_surface(xs, ys, terrain.height, terrain.normal, uv_scale)
-            n_tufts = rng.poisson(ts.grass_tufts * GROUND_TILE ** 2)
-            if n_tufts:
-                tx = rng.uniform(x0, x0 + GROUND_TILE, n_tufts)
-                ty = rng.uniform(y0, y0 + GROUND_TILE, n_tufts)
-                th = rng.uniform(0.05, 0.2, n_tufts)
-                centres = np.column_stack([tx, ty, terrain.height(tx, ty) + th * 0.5])
-                # Blades: small near-vertical triangles textured with the ground's grass.
-                blades = leaves(centres, th * 1.3, rng, uv_region=(0.0, 0.0, 1.0, 1.0), up_bias=-0.25)
-                fine = Mesh.concat([fine, blades])
             coarse = grid_surface(np.linspace(x0, x0 + GROUND_TILE, 3), np.linspace(y0, y0 + GROUND_TILE, 3),
                                   terrain.height, terrain.normal, uv_scale)
             chunks.append(_chunk(client, [fine, coarse], "ground", textures.ground[0]))
             tris["ground"][0] += fine.n_triangles
             tris["ground"][1] += coarse.n_triangles
+            n_tufts = rng.poisson(ts.grass_tufts * GROUND_TILE ** 2)
+            if n_tufts:  # grass and weeds: not vegetation in the mask; drawn near the camera only
+                tx = rng.uniform(x0, x0 + GROUND_TILE, n_tufts)
+                ty = rng.uniform(y0, y0 + GROUND_TILE, n_tufts)
+                th = rng.uniform(0.08, 0.3, n_tufts)
+                grass = blades(np.column_stack([tx, ty, terrain.height(tx, ty) - 0.01]), th, rng)
+                ch = _chunk(client, [grass], "grass", textures.grass[0])
+                ch.bodies.append(-1)  # beyond the first level-of-detail distance: not drawn
+                ch.triangles.append(0)
+                chunks.append(ch)
+                tris["grass"][0] += grass.n_triangles
