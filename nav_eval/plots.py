@@ -42,8 +42,15 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
     line = env.centreline
     xs = [line[:, 0]] + [r.trajectory.x for r in results if r.trajectory is not None]
     ys = [line[:, 1]] + [r.trajectory.y for r in results if r.trajectory is not None]
-    lo = np.array([min(v.min() for v in xs), min(v.min() for v in ys)]) - 2.5
-    hi = np.array([max(v.max() for v in xs), max(v.max() for v in ys)]) + 2.5
+    # Show the two rows that border the gap: the centreline +- its free half-width, plus a margin.
+    d = np.gradient(line, axis=0)
+    normal = np.stack([-d[:, 1], d[:, 0]], 1) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
+    for side in (-1.0, 1.0):
+        edge = line + side * (env.half_width + 1.0) * normal
+        xs.append(edge[:, 0])
+        ys.append(edge[:, 1])
+    lo = np.array([min(v.min() for v in xs), min(v.min() for v in ys)]) - 1.0
+    hi = np.array([max(v.max() for v in xs), max(v.max() for v in ys)]) + 1.0
     for circles, colour, label in ((env.plants, "saddlebrown", "trunks"), (env.obstacles, "grey", "posts")):
         if len(circles):
             inside = np.all((circles[:, :2] >= lo) & (circles[:, :2] <= hi), axis=1)
