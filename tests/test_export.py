@@ -86,6 +86,9 @@ def test_graph_takes_uint8_nhwc_with_dynamic_batch(exported) -> None:
     assert np.all((probs >= 0) & (probs <= 1))
     (single,) = session.run(None, {graph_input.name: batch[2:3]})
     np.testing.assert_allclose(single[0], probs[2], atol=1e-5)
+    # The pooling is exported as GlobalAveragePool, not a batch-dependent Gather over indices.
+    ops = {node.op_type for node in onnx.load(str(out)).graph.node}
+    assert "GlobalAveragePool" in ops and not ops & {"Gather", "Range", "ReduceMean"}
 
 
 def test_metadata_present(exported) -> None:
