@@ -1,0 +1,99 @@
+"""`segmin pipeline` end to end with the micro profile: artefacts, skipping, resuming, --from."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from segmin.cli import main
+from segmin.config import ConfigError
+from segmin.pipeline.cache import StageCache
+from segmin.pipeline.config import load_pipeline_config
+from segmin.pipeline.runner import PipelineRunner
+
+FIELDS = ("straight_vineyard", "curved_vineyard", "pergola_vineyard", "pear_field", "high_trees")
+STAGE_KEYS = ("render", "train/trees", "train/vineyards", "export/trees", "export/vineyards",
+              "nav-eval/trees", "nav-eval/vineyards", "nav-eval/oracle", "report")
+
+
+def micro_config():
+    return load_pipeline_config("micro", ["export.exporter=legacy"])
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("micro")
+    code = main(["pipeline", "--config", "micro", "--out", str(out), "export.exporter=legacy"])
+    assert code == 0
+    return out
+
+
+def runner_for(run_dir: Path, messages: list[str], **kwargs) -> PipelineRunner:
+    return PipelineRunner(micro_config(), run_dir, log=messages.append, **kwargs)
+
+
+def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    report = (run_dir / "report.md").read_text()
+    for field in FIELDS:
+        assert f"| {field} | segmind |" in report
+        for folder in ("nav-eval/oracle", "nav-eval/trees" if field in ("pear_field", "high_trees") else "nav-eval/vineyards"):
+            assert (run_dir / folder / f"{field}_trajectories.png").stat().st_size > 1000
+            assert (run_dir / folder / f"{field}_histograms.png").stat().st_size > 1000
+    for artefact in ("render/contact_sheet.png", "report/training_curves.png", "export/trees/trees.onnx",
+                     "export/vineyards/vineyards.onnx", "train/trees/best.pt", "train/vineyards/metrics.csv"):
+        assert (run_dir / artefact).stat().st_size > 0, artefact
+    for section in ("## 1. Data", "## 2. Training", "## 3. Export", "## 4. Closed loop", "oracle segmenter",
+                    "Comparison with the paper", "## 5. Figures"):
+        assert section in report
+    html = (run_dir / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 2 + 2 * len(FIELDS)
+    assert 'src="render/' not in html  # every figure embedded, the page stands alone
+    rows = json.loads((run_dir / "nav-eval" / "oracle" / "results.json").read_text())["rows"]
+    assert sorted(r["field"] for r in rows) == sorted(FIELDS)
+
+
+def test_a_second_run_skips_every_stage(run_dir: Path) -> None:
+    messages: list[str] = []
+    runner = runner_for(run_dir, messages)
+    report = runner.run()
+    assert runner.ran == []
+    assert sorted(runner.skipped) == sorted(STAGE_KEYS)
+    assert report == run_dir / "report.md"
+
+
+def test_an_interrupted_stage_resumes_and_later_stages_stay_cached(run_dir: Path) -> None:
+    cache = StageCache(run_dir)
+    frames = sorted((run_dir / "render" / "train").rglob("images/*/*.png"))
+    lost = frames[:2]
+    for image in lost:
+        image.unlink()
+    cache.invalidate("render")  # as if the process had been killed mid-stage
+    cache.invalidate("train/trees")
+    messages: list[str] = []
+    runner = runner_for(run_dir, messages)
+    runner.run()
+    assert all(image.is_file() for image in lost)
+    assert "render: resuming an interrupted run" in messages
+    assert "train/trees: resuming an interrupted run" in messages
+    assert sorted(runner.ran) == ["render", "train/trees"]  # same inputs: nothing downstream reruns
+    assert cache.record("render").finished and cache.record("train/trees").finished
+
+
+def test_from_reruns_that_stage_and_later_ones(run_dir: Path) -> None:
+    messages: list[str] = []
+    runner = runner_for(run_dir, messages, from_stage="report")
+    runner.run()
+    assert runner.ran == ["report"]
+    with pytest.raises(ValueError, match="unknown stage 'bake'"):
+        runner_for(run_dir, [], from_stage="bake")
+
+
+def test_profiles_are_validated() -> None:
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_pipeline_config("micro", ["render.frame_per_world=3"])
+    with pytest.raises(ConfigError, match="val_seed_offset"):
+        load_pipeline_config("micro", ["render.val_seed_offset=0"])
+    for profile in ("quick", "paper", "micro"):
+        assert load_pipeline_config(profile).families.keys() == {"trees", "vineyards"}
