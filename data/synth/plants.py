@@ -81,10 +81,13 @@ class Plant:
         n = int(min(budget, len(local), max(4, 2.0 * cover * visible_area / self.leaf_size ** 2)))
         size = max(self.leaf_size, float(np.sqrt(2.0 * cover * visible_area / max(n, 1))))
         pick = rng.choice(len(local), size=n, replace=False) if n < len(local) else np.arange(len(local))
+        # Outermost leaves (towards the gaps) first: TinyRenderer draws triangles in order and
+        # skips shading a pixel that is already nearer, so this cuts the overdraw seen from a gap.
+        pick = pick[np.argsort(-np.abs(local[pick, 1]), kind="stable")]
         sizes = size * rng.uniform(0.75, 1.25, size=len(pick))
         facing = self.to_world(outward[pick]) - self.base[None, :]
-        parts.append(leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0))
-        return Mesh.concat(parts)
+        # Leaves before wood: they hide most of it, and hidden pixels skip shading.
+        return Mesh.concat([leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0)] + parts)
 
 
 def _u(rng: np.random.Generator, pair) -> float:
