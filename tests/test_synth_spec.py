@@ -54,6 +54,7 @@ def test_paper_geometry_of_the_test_fields():
         ({"rows": {"spacing": 0.05}}, "rows.spacing"),  # trunks of neighbouring rows would touch
         ({"rows": {"curve_radius": 1.5}}, "rows.curve_radius"),  # inner rows would cross
         ({"plants": {"height": [2.0, 1.0]}}, "plants.height"),
+        ({"rows": {"polyline": [[0, 0], [3, 0], [3, 3], [10, 3]]}}, "rows.polyline"),  # sharp turn
         ({"rows": {"colour": 3}}, "colour"),  # unknown key
         ({"terrain": {"roughness": -0.1}}, "terrain.roughness"),
         ({"family": "cereals"}, "family"),

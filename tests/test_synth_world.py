@@ -32,9 +32,13 @@ def _signed_lateral(centreline: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("curve", [0.0, 12.0])
-def test_centreline_lies_midway_between_the_rows(client, curve):
-    spec = spec_from_dict(tiny(rows={"count": 4, "curve_radius": curve, "curve_start": 1.0, "length": 8.0}))
+ARC = [[12.0 * np.sin(t), 12.0 * (1 - np.cos(t))] for t in np.linspace(0, 0.8, 40)]  # radius 12, left
+
+
+@pytest.mark.parametrize("curve, polyline", [(0.0, []), (12.0, []), (0.0, ARC)])
+def test_centreline_lies_midway_between_the_rows(client, curve, polyline):
+    spec = spec_from_dict(tiny(rows={"count": 4, "curve_radius": curve, "curve_start": 1.0, "length": 8.0,
+                                     "polyline": [[float(a), float(b)] for a, b in polyline]}))
     world = build_world(spec, client)
     assert len(world.centrelines) == 3 and len(world.gap_half_widths) == 3
     half = spec.rows.spacing / 2
@@ -51,7 +55,7 @@ def test_centreline_lies_midway_between_the_rows(client, curve):
     assert abs(first[0] - spec.rows.start_x) < 1e-6
     path = np.linalg.norm(np.diff(world.centrelines[1], axis=0), axis=1).sum()
     assert abs(path - spec.rows.length) < 0.1
-    if curve:
+    if curve or polyline:
         assert last[1] > 1.0  # bends left
 
 

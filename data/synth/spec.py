@@ -8,6 +8,7 @@ impossible field (negative spacing, rows that would intersect) fails before pybu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -74,10 +75,31 @@ class RowsSpec:
                 f"rows.curve_radius: |{self.curve_radius}| m is too tight for {self.count} rows "
                 f"{self.spacing} m apart; the inner rows would intersect (need > {half_width + 1.0:.1f} m)"
             )
-        if self.polyline and len(self.polyline) < 2:
-            raise ValueError("rows.polyline: needs at least 2 points (or leave it empty)")
+        if self.polyline:
+            self._check_polyline(half_width)
         if not -1 <= self.eval_gap < self.count - 1:
             raise ValueError(f"rows.eval_gap: must be -1 or a gap index below {self.count - 1}, got {self.eval_gap}")
+
+
+    def _check_polyline(self, half_width: float) -> None:
+        """The reference line must be long enough and turn gently enough for the outer rows."""
+        pts = [tuple(map(float, q)) for q in self.polyline]
+        if len(pts) < 2:
+            raise ValueError("rows.polyline: needs at least 2 points (or leave it empty)")
+        seg = [math.dist(a, b) for a, b in zip(pts[:-1], pts[1:])]
+        if min(seg) <= 0:
+            raise ValueError("rows.polyline: repeated point")
+        if sum(seg) < self.length:
+            raise ValueError(f"rows.polyline: {sum(seg):.1f} m long, shorter than rows.length {self.length}")
+        for i in range(1, len(pts) - 1):
+            a = math.atan2(pts[i][1] - pts[i - 1][1], pts[i][0] - pts[i - 1][0])
+            b = math.atan2(pts[i + 1][1] - pts[i][1], pts[i + 1][0] - pts[i][0])
+            turn = abs((b - a + math.pi) % (2 * math.pi) - math.pi)
+            if turn > 1e-9 and 0.5 * (seg[i - 1] + seg[i]) / turn <= half_width + 1.0:
+                raise ValueError(
+                    f"rows.polyline: turns too sharply at point {i} for rows {half_width:.1f} m either side; "
+                    "the inner rows would intersect"
+                )
 
 
 @dataclass
