@@ -271,7 +271,7 @@ class Renderer:
             rgb[~hit] = sky[~hit]
         if rng is not None:
             gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
-            rgb = np.clip(rgb.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+            rgb = cv2.multiply(rgb, (float(gain[0]), float(gain[1]), float(gain[2]), 0.0))  # saturating
         if noisy_depth and cam.depth_noise_enabled:
             depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
         return RenderedFrame(rgb=rgb, depth=depth, mask=mask, camera_pose=pose,
