@@ -18,7 +18,7 @@ from data.synth.spec import WorldSpec, pergola_reach
 
 # Leaves per plant at the finest level (TinyRenderer pays ~1.5 us per visible triangle), and
 # how many times fewer (bigger) leaves each coarser level of detail has.
-LEAF_BUDGET = {"vineyard": 170, "pear": 200, "pergola": 420, "tree": 900}
+LEAF_BUDGET = {"vineyard": 300, "pear": 320, "pergola": 480, "tree": 900}
 LOD_FACTORS = (1, 4, 16)
 
 
@@ -131,7 +131,7 @@ def _vine(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: in
     for _ in range(_i(rng, ps.branches)):  # shoots up into the canopy
         a0 = rng.uniform(-arm, arm)
         _seg(plant, [a0, lean[1], trunk_h + 0.03], [a0 + rng.normal(0, 0.15), rng.normal(0, 0.08), height * 0.92],
-             0.012, 0.007)
+             0.009, 0.005)
     n = _i(rng, ps.clusters)
     span = 0.5 * ps.spacing
     depth = height - bottom
