@@ -159,7 +159,7 @@ class Renderer:
             for b in c.bodies:
                 if b < 0:
                     continue
-                self.rgba[b] = [float(v) for v in np.clip(tint, 0, 1)]
+                self.rgba[b] = [min(max(float(v), 0.0), 1.0) for v in tint]
                 self.texture[b] = texture
                 alpha = 1.0 if self.shown[b] else 0.0
                 p.changeVisualShape(b, -1, textureUniqueId=texture, rgbaColor=self.rgba[b] + [alpha],
@@ -258,22 +258,21 @@ class Renderer:
         )
         rgba = np.reshape(np.asarray(rgba, np.uint8), (cam.height, cam.width, 4))
         zbuf = np.reshape(np.asarray(zbuf, np.float32), (cam.height, cam.width))
-        seg = np.reshape(np.asarray(seg, np.int64), (cam.height, cam.width))
+        seg = np.reshape(np.asarray(seg, np.int32), (cam.height, cam.width))
         hit = seg >= 0
-        ids = np.where(hit, seg & 0xFFFFFF, -1)
-        mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)] & hit
+        ids = np.where(hit, seg & 0xFFFFFF, -1).astype(np.int32)
+        mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)]
         near, far = cam.near, cam.far
         depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
         depth[~hit] = 0.0
-        rgb = rgba[..., :3].copy()
+        rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
         if not hit.all():
-            sky = self._sky(pose, rng)
-            rgb[~hit] = sky[~hit]
+            np.copyto(rgb, self._sky(pose, rng), where=~hit[..., None])
         if rng is not None:
             gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
             rgb = cv2.multiply(rgb, (float(gain[0]), float(gain[1]), float(gain[2]), 0.0))  # saturating
         if noisy_depth and cam.depth_noise_enabled:
             depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
         return RenderedFrame(rgb=rgb, depth=depth, mask=mask, camera_pose=pose,
-                             robot_pose=(float(x), float(y), float(yaw)), body_ids=ids.astype(np.int32),
+                             robot_pose=(float(x), float(y), float(yaw)), body_ids=ids,
                              stats=stats)

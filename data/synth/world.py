@@ -230,7 +230,11 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     chunks: list[Chunk] = []
     vegetation: set[int] = set()
     tris = {"plants": [0] * len(LOD_FACTORS), "structure": [0], "ground": [0, 0], "grass": [0]}
-    for key in sorted(plants):
+    # Creation order is TinyRenderer's drawing order, and a pixel already covered by something
+    # nearer skips shading: inner rows first (they hide the outer ones from the middle gaps),
+    # then along each row from the entrance.
+    middle = (rs.count - 1) / 2
+    for key in sorted(plants, key=lambda k: (abs(k[0] - middle), k[0], k[1])):
         levels = [Mesh.concat([pl.mesh(level) for pl in plants[key]]) for level in range(len(LOD_FACTORS))]
         ch = _chunk(client_id, levels, "plants", textures.plant[0])
         chunks.append(ch)
