@@ -51,7 +51,12 @@ def interleaved(candidates: dict[str, Callable[[], object]], runs: int, rounds: 
                 call()
                 samples[name].append((time.perf_counter() - start) * 1e3)
     return {
-        name: {"median_ms": float(np.median(s)), "p95_ms": float(np.percentile(s, 95)), "runs": len(s)}
+        name: {
+            "median_ms": float(np.median(s)),
+            "p95_ms": float(np.percentile(s, 95)),
+            "min_ms": float(np.min(s)),
+            "runs": len(s),
+        }
         for name, s in samples.items()
     }
 
@@ -140,6 +145,7 @@ def run_benchmark(
             return navigator.step(segmenter.segment(rgb), depth)
 
         candidates["full step: OnnxSegmenter + Navigator.step (SegMinD)"] = full_step
+        load_before = _load_average()
         results = interleaved(candidates, runs=runs)
 
         cuda = {}
@@ -157,9 +163,15 @@ def run_benchmark(
         entry["ratio_to_eager"] = entry["median_ms"] / eager_ms
     print(f"segmin bench export: {size}x{size}, batch 1, {threads} threads, weights: {origin}")
     print(f"onnxruntime {ort.__version__}, torch {torch.__version__}")
-    print(f"{'model':<56}{'median ms':>10}{'p95 ms':>10}{'x eager':>9}")
+    load = load_before
+    if load is not None:
+        print(f"load average (1 min) before timing: {load:.2f} on {_cpu_count()} cores; figures are noisy when it is high")
+    print(f"{'model':<56}{'median ms':>10}{'p95 ms':>10}{'min ms':>9}{'x eager':>9}")
     for name, entry in results.items():
-        print(f"{name:<56}{entry['median_ms']:>10.2f}{entry['p95_ms']:>10.2f}{entry['ratio_to_eager']:>9.2f}")
+        print(
+            f"{name:<56}{entry['median_ms']:>10.2f}{entry['p95_ms']:>10.2f}"
+            f"{entry['min_ms']:>9.2f}{entry['ratio_to_eager']:>9.2f}"
+        )
     fp32 = results["onnxruntime fp32"]
     step = results["full step: OnnxSegmenter + Navigator.step (SegMinD)"]
     checks = {
@@ -174,7 +186,14 @@ def run_benchmark(
         speedup = fp32["median_ms"] / results["onnxruntime INT8 (QDQ)"]["median_ms"]
         verdict = "faster" if speedup >= 1.05 else "not faster: deploy fp32"
         print(f"INT8 vs fp32: {speedup:.2f}x ({verdict})")
-    summary = {"size": size, "threads": threads, "weights": origin, "results": results, "targets": checks}
+    summary = {
+        "size": size,
+        "threads": threads,
+        "weights": origin,
+        "load_average_1min": load_before,
+        "results": results,
+        "targets": checks,
+    }
     if json_path is not None:
         from segmin.atomic import write_json
 
@@ -192,3 +211,18 @@ def _stamp_minimal(path: Path, size: int) -> None:
     info = {"threshold": 0.5, "family": "bench", "train_data": "none", "backbone_weights": "none"}
     set_metadata(model, build_metadata(info, input_size=(size, size), exporter="dynamo", opset=18))
     onnx.save(model, str(path))
+
+
+def _load_average() -> float | None:
+    import os
+
+    try:
+        return float(os.getloadavg()[0])
+    except (OSError, AttributeError):
+        return None
+
+
+def _cpu_count() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

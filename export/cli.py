@@ -60,7 +60,8 @@ def run_export(args: argparse.Namespace) -> int:
 
     from export.pipeline import ExportOptions, export_checkpoint
 
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    logging.getLogger("export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes
     options = ExportOptions(
         checkpoint=args.checkpoint,
         out=args.out,

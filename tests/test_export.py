@@ -263,3 +263,22 @@ def test_frames_from_agriseg_root_and_training_data(tmp_path) -> None:
     assert parse_train_data(str(root)) == (root, None)
     options = ExportOptions(checkpoint=tmp_path / "x.pt", out=tmp_path / "m.onnx")
     assert _frame_source(options, {"train_data": f"{root} domains=['synth_a']"}) == (root, ["synth_a"])
+
+
+def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys) -> None:
+    """`segmin bench export` code path at 64 px with a handful of runs (figures are not checked)."""
+    out, _ = exported
+    code = segmin_main(
+        ["bench", "export", "--onnx", str(out), "--checkpoint", str(checkpoint), "--size", str(SIZE),
+         "--runs", "8", "--no-int8", "--json", str(tmp_path / "bench.json")]
+    )
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "pytorch eager" in printed and "full step: OnnxSegmenter + Navigator.step (SegMinD)" in printed
+    summary = json.loads((tmp_path / "bench.json").read_text())
+    for entry in summary["results"].values():
+        assert entry["runs"] == 8 and 0 < entry["min_ms"] <= entry["median_ms"] <= entry["p95_ms"]
+    with pytest.raises(ValueError, match="pass --size"):
+        from export.bench import run_benchmark
+
+        run_benchmark(onnx_path=out, checkpoint=checkpoint, size=SIZE * 2, runs=2, int8=False)
