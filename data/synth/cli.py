@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
@@ -79,7 +78,7 @@ def _render(args) -> int:
     return 0
 
 
-def preview_sheet(worlds: list[str], frames: int, camera, overrides=()) :
+def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
     """Rows of RGB | mask overlay | depth for `frames` poses along each world's evaluation gap."""
     import cv2
     import numpy as np

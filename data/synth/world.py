@@ -19,7 +19,7 @@ import pybullet as p
 
 from data.synth.mesh import Mesh, blades, cylinders, grid_surface
 from data.synth.plants import LOD_FACTORS, Plant, make_plant
-from data.synth.spec import WorldSpec, pergola_reach
+from data.synth.spec import WorldSpec
 from data.synth.textures import TextureSet
 
 CENTRELINE_STEP = 0.1  # metres between centreline points
