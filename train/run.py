@@ -89,9 +89,12 @@ def _subsample(frames: list[Frame], limit: int | None, seed: int) -> list[Frame]
 
 
 def _worker_init(_: int) -> None:
+    import signal
+
     import cv2
 
     cv2.setNumThreads(1)  # loader workers must not fight the training threads for the cores
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle (it saves)
 
 
 def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame], val_frames: list[Frame]):
