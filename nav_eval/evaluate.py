@@ -296,7 +296,7 @@ def run_evaluation(
             for m in method_list:
                 path = ""
                 if video and out is not None and r == 0:
-                    path = str(out / "videos" / f"{field_label(f)}_{m}.gif")
+                    path = str(out / "videos" / f"{field_label(f)}_{m}.mp4")
                 jobs.append(Job(f, m, r, run_seed(seed, f, r), path))
     meta = {"model": str(model), "fields": [field_label(f) for f in field_list], "methods": method_list,
             "runs": runs, "seed": seed, "workers": workers, "config": to_dict(config)}

@@ -88,8 +88,9 @@ class Trajectory:
         arr = np.asarray(rows, dtype=float).reshape(-1, 7)
         return cls(*(arr[:, i].copy() for i in range(7)))
 
-    def to_dict(self) -> dict[str, list[float]]:
-        return {f.name: [float(v) for v in getattr(self, f.name)] for f in dataclasses.fields(self)}
+    def to_dict(self, digits: int = 5) -> dict[str, list[float]]:
+        """JSON-ready lists, rounded (1e-5 m is far below anything measured; keeps files small)."""
+        return {f.name: [round(float(v), digits) for v in getattr(self, f.name)] for f in dataclasses.fields(self)}
 
 
 def lateral_mae_mse(x: np.ndarray, y: np.ndarray, centreline: np.ndarray) -> tuple[float, float]:

@@ -7,7 +7,7 @@ Per field:
 - `<field>_histograms.png`: the paper's histogram figure: the camera frame (mask tinted, chosen
   columns marked) | SegMin histogram | SegMinD histogram, of the same frame, rendered on the
   centreline a few metres into the row and segmented by the evaluated segmenter.
-With `--video`: `videos/<field>_<method>.gif`, the camera view with the fused mask and the
+With `--video`: `videos/<field>_<method>.mp4` (GIF where no MP4 encoder exists), the camera view with the fused mask and the
 chosen column, one frame per command.
 """
 
@@ -163,14 +163,40 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
 
 
-def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> None:
-    """Animated GIF (Pillow), written atomically; one frame per navigator command."""
+def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> Path:
+    """The camera view as MP4 (OpenCV, mp4v) or, when the suffix is .gif or MP4 cannot be
+    written, an animated GIF (Pillow). Written atomically; returns the path actually written."""
+    import os
+    import tempfile
+
+    path = Path(path)
+    if not frames:
+        return path
+    height, width = np.asarray(frames[0]).shape[:2]
+    if path.suffix.lower() == ".mp4":
+        import cv2
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
+        os.close(fd)
+        try:
+            writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
+            if writer.isOpened():
+                for frame in frames:
+                    writer.write(cv2.cvtColor(np.asarray(frame, dtype=np.uint8), cv2.COLOR_RGB2BGR))
+                writer.release()
+                if os.path.getsize(tmp) > 0:
+                    os.replace(tmp, path)
+                    return path
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        path = path.with_suffix(".gif")          # no MP4 encoder here: fall back to GIF
     from PIL import Image
 
-    if not frames:
-        return
     images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
     buffer = io.BytesIO()
     images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
                    duration=int(round(1000.0 / fps)), loop=0)
     write_bytes(path, buffer.getvalue())
+    return path

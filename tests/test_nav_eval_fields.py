@@ -75,7 +75,8 @@ def test_same_seed_same_trajectory_in_a_real_field(worker) -> None:
 
 def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None:
     config = load_nav_config(overrides=TINY + ["run.length_m=1.0"])
-    results = run_evaluation("oracle", "straight_vineyard", "segmin", 1, tmp_path, 1, config, progress=False)
+    results = run_evaluation("oracle", "straight_vineyard", "segmin", 1, tmp_path, 1, config, progress=False,
+                             video=True)
     assert len(results) == 1 and results[0].reason != "error"
     data = json.loads((tmp_path / "results.json").read_text())
     assert data["rows"][0]["seed"] == results[0].seed and data["rows"][0]["config"]["run"]["length_m"] == 1.0
@@ -83,6 +84,9 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
     assert "straight_vineyard" in (tmp_path / "report.md").read_text()
     assert (tmp_path / "straight_vineyard_trajectories.png").stat().st_size > 1000
     assert (tmp_path / "straight_vineyard_histograms.png").stat().st_size > 1000
+    videos = list((tmp_path / "videos").iterdir())
+    assert len(videos) == 1 and videos[0].suffix in (".mp4", ".gif") and videos[0].stat().st_size > 1000
+    assert not list(tmp_path.rglob("*.tmp"))          # atomic writes leave no temporaries
     # An invalid navigator value fails inside each run: failure rows, no crash.
     bad = load_nav_config(overrides=TINY + ["navigator.smooth_window=4"])
     rows = run_evaluation("oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad,
