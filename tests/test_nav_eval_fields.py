@@ -92,3 +92,14 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
     rows = run_evaluation("oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad,
                           progress=False, plots=False)
     assert [r.reason for r in rows] == ["error", "error"] and "smooth_window" in rows[0].error
+
+
+def test_cli_refuses_training_worlds_bad_methods_and_missing_models(tmp_path, capsys) -> None:
+    from segmin.cli import main
+
+    assert main(["nav-eval", "--model", "oracle", "--fields", "train_vineyard_a", "--out", str(tmp_path)]) == 2
+    assert "training world" in capsys.readouterr().err
+    assert main(["nav-eval", "--model", "oracle", "--methods", "segmax", "--out", str(tmp_path)]) == 2
+    assert main(["nav-eval", "--model", str(tmp_path / "none.onnx"), "--out", str(tmp_path)]) == 2
+    assert main(["nav-eval", "--model", "oracle", "--set", "run.speed=3", "--out", str(tmp_path)]) == 2
+    assert not (tmp_path / "results.csv").exists()
