@@ -38,13 +38,13 @@ def _field_like_frames(count: int, size: int, seed: int = 0) -> np.ndarray:
     return frames
 
 
-def interleaved(candidates: dict[str, Callable[[], object]], runs: int, rounds: int = 4) -> dict[str, dict[str, float]]:
+def interleaved(candidates: dict[str, Callable[[], object]], runs: int, rounds: int = 8) -> dict[str, dict[str, float]]:
     """Median / p95 milliseconds of each callable, measured in alternating rounds."""
     samples: dict[str, list[float]] = {name: [] for name in candidates}
     per_round = max(1, runs // rounds)
     for _ in range(rounds):
         for name, call in candidates.items():
-            for _ in range(3):
+            for _ in range(min(3, per_round)):
                 call()
             for _ in range(per_round):
                 start = time.perf_counter()
