@@ -2,7 +2,9 @@
 
 Measures training images/s twice on the same model and batch size: (a) the model step alone
 on one fixed batch already in memory, (b) the full pipeline (PNG decode, augmentation,
-collation, loader workers) feeding the same step. The ratio b/a should be >= 0.9.
+collation, loader workers) feeding the same step. The ratio b/a should be >= 0.9. It also times
+(c) decode + augmentation alone in this process, which gives a load-independent bound: with
+loading done serially the ratio would be 1 / (1 + a/c).
 Without `--root` a small formatted-layout dataset of 320x240 PNGs is written to a temp folder.
 """
 
@@ -59,7 +61,10 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
     from train.loop import SegLoss, StepContext, train_step
     from train.run import _worker_init
 
+    import cv2
+
     torch.set_num_threads(threads)
+    cv2.setNumThreads(1)  # OpenCV's own thread pool would fight torch's threads for the cores
     torch.manual_seed(0)
     tmp = None
     if root is None:
@@ -98,18 +103,26 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
                 train_step(ctx, *next(batches))
             sync()
 
+        def data_only(n: int) -> None:  # the same work the loader does, in this process
+            for i in range(n * batch_size):
+                dataset[(1, i % len(dataset))]
+
         model_only(warmup)
         full(warmup)
-        t_model, t_full = [], []
+        t_model, t_full, t_data = [], [], []
         for _ in range(repeats):
             t_model.append(_timed(model_only, steps))
             t_full.append(_timed(full, steps))
+            t_data.append(_timed(data_only, steps))
         model_ips = steps * batch_size / min(t_model)
         full_ips = steps * batch_size / min(t_full)
+        data_ips = steps * batch_size / min(t_data)
         del batches
         return {"image_size": image_size, "batch_size": batch_size, "threads": threads, "workers": workers,
                 "device": str(dev), "frames": len(dataset), "model_step_ips": model_ips,
-                "full_pipeline_ips": full_ips, "ratio": full_ips / model_ips}
+                "full_pipeline_ips": full_ips, "data_only_ips": data_ips, "ratio": full_ips / model_ips,
+                # what the ratio would be if loading ran serially in the training process (workers=0)
+                "serial_bound": 1.0 / (1.0 + model_ips / data_ips)}
     finally:
         if tmp is not None:
             tmp.cleanup()

@@ -49,15 +49,20 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    import os
+
     from train.bench import bench_train
 
     r = bench_train(args.root, image_size=args.size, batch_size=args.batch, threads=args.threads,
                     steps=args.steps, workers=args.workers, repeats=args.repeats, device=args.device)
     print(f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
-          f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames")
+          f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames; "
+          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     print(f"  model step alone : {r['model_step_ips']:7.2f} images/s")
     print(f"  full pipeline    : {r['full_pipeline_ips']:7.2f} images/s")
     print(f"  ratio            : {r['ratio']:.3f}  (target >= 0.90)")
+    print(f"  data alone       : {r['data_only_ips']:7.2f} images/s (decode + augment, 1 process); "
+          f"serial-loading bound {r['serial_bound']:.3f}")
     return 0
 
 

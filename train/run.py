@@ -122,9 +122,12 @@ def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame]
 
 
 def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> FitResult:
+    import cv2
+
     out_dir = Path(out_dir)
     if config.threads:
         torch.set_num_threads(config.threads)
+    cv2.setNumThreads(1)  # in-process loading (num_workers=0) must not start a second thread pool
     dist = init_distributed(config.device)
     try:
         return _fit(config, out_dir, resume, dist)
