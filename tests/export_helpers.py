@@ -32,7 +32,7 @@ def field_image(rng: np.random.Generator, height: int, width: int) -> tuple[np.n
     return np.clip(image, 0, 255).astype(np.uint8), mask
 
 
-def make_checkpoint(path: Path, steps: int = 8, size: int = SIZE, threshold: float = 0.5) -> Path:
+def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: float = 0.5) -> Path:
     """A few Adam steps of build_model("none") on toy frames, saved with models.checkpoint.
 
     BatchNorm stays in eval mode while training: with a handful of steps its running statistics
@@ -48,7 +48,7 @@ def make_checkpoint(path: Path, steps: int = 8, size: int = SIZE, threshold: flo
     model = build_model("none")
     mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
     std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
-    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    optimizer = torch.optim.Adam(model.parameters(), lr=5e-3)
     model.eval()
     for _ in range(steps):
         pairs = [field_image(rng, size, size) for _ in range(4)]

@@ -266,11 +266,14 @@ def test_frames_from_agriseg_root_and_training_data(tmp_path) -> None:
 
 
 def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys) -> None:
-    """`segmin bench export` code path at 64 px with a handful of runs (figures are not checked)."""
+    """`segmin bench export` code path at 64 px with a handful of runs (figures are not checked).
+
+    One thread: on a shared machine, PyTorch's 2-thread OpenMP barriers can take a second a call.
+    """
     out, _ = exported
     code = segmin_main(
         ["bench", "export", "--onnx", str(out), "--checkpoint", str(checkpoint), "--size", str(SIZE),
-         "--runs", "8", "--no-int8", "--json", str(tmp_path / "bench.json")]
+         "--runs", "8", "--threads", "1", "--no-int8", "--json", str(tmp_path / "bench.json")]
     )
     assert code == 0
     printed = capsys.readouterr().out
