@@ -202,6 +202,11 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
     log.info("wrote %s (verified: %s)", out, _summary(agreement))
 
+    for tag, wanted in (("fp16", options.fp16), ("int8", options.int8)):
+        stale = variant_path(out, tag)
+        if not wanted and stale.exists():  # built from the file just replaced: it no longer matches
+            stale.unlink()
+            log.info("removed %s (a variant of the previous %s)", stale, out.name)
     fp32_probs = run_session(make_session(out, threads=options.threads), verify_set)
     if options.fp16:
         report["fp16"] = _export_fp16(out, meta, fp32_probs, verify_set, threshold)

@@ -154,6 +154,7 @@ def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> No
 def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, capsys) -> None:
     out = workdir / "legacy.onnx"
     out.write_bytes(b"old")
+    variant_path(out, "int8").write_bytes(b"old int8 built from the old file")
     code = segmin_main(
         ["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(frames_dir),
          "--exporter", "legacy", "--force", "--verify-frames", "3"]
@@ -162,6 +163,7 @@ def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, 
     assert "verified on 3 frames" in capsys.readouterr().out
     meta = read_metadata(out)
     assert meta[md.KEY_EXPORTER] == "legacy" and meta[md.KEY_OPSET] == "17"
+    assert not variant_path(out, "int8").exists()  # stale variant of the replaced file removed
     assert not [p for p in workdir.iterdir() if p.name.endswith(".tmp")]
 
 
