@@ -135,16 +135,30 @@ def _walk(root: Path, folder: Path, result: ScanResult, depth: int) -> None:
     if folder.name.startswith(_DISTRIBUTED_PREFIX):
         _scan_distributed_crop(folder, result)
         return
+    if _is_distributed_subset(folder):  # a subset folder given directly (or under another name)
+        parent = folder.parent.name
+        crop = parent[len(_DISTRIBUTED_PREFIX):] if parent.startswith(_DISTRIBUTED_PREFIX) else folder.name
+        _scan_distributed_subset(CROP_DOMAINS.get(crop.lower(), crop.lower()), folder, folder.name, result)
+        return
     if depth >= 4:
         return
     for child in _subdirs(folder):
         _walk(root, child, result, depth + 1)
 
 
+def _is_distributed_subset(folder: Path) -> bool:
+    """True when the first ImageN child folder holds Image* and Segmentation* files."""
+    for child in _subdirs(folder):
+        if _FRAME_DIR.match(child.name):
+            names = [p.name.lower() for p in child.iterdir() if p.is_file()]
+            return any(n.startswith("image") for n in names) and any(n.startswith("segmentation") for n in names)
+    return False
+
+
 def _domain_subset(root: Path, folder: Path) -> tuple[str, str]:
     """Formatted `<domain>/<domain>_<k>` -> (domain, subset); a lone folder is its own domain."""
     parent = folder.parent
-    if folder != root and folder.name.startswith(parent.name + "_"):
+    if parent.name and folder.name.startswith(parent.name + "_"):
         return parent.name, folder.name
     return folder.name, folder.name
 
@@ -231,26 +245,30 @@ def _scan_distributed_crop(crop_dir: Path, result: ScanResult) -> None:
     if subsets and any(p.is_file() and p.name.lower().startswith("image") for p in subsets[0].iterdir()):
         subsets = [crop_dir]  # frame folders directly under the crop folder
     for subset_dir in subsets:
-        result.layouts[str(subset_dir)] = "distributed"
-        img: dict[int, Path] = {}
-        msk: dict[int, Path] = {}
-        dep: dict[int, Path] = {}
-        for frame_dir in _subdirs(subset_dir):
-            match = _FRAME_DIR.match(frame_dir.name)
-            if not match:
-                result.problems.append(f"{frame_dir}: folder name has no frame number (expected ImageN)")
-                continue
-            n = int(match.group(1))
-            for target, prefix, exts in ((img, "image", IMAGE_EXTS), (msk, "segmentation", IMAGE_EXTS),
-                                         (dep, "depth", DEPTH_EXTS)):
-                files = sorted(p for p in frame_dir.iterdir()
-                               if p.is_file() and p.name.lower().startswith(prefix) and p.suffix.lower() in exts)
-                if len(files) > 1:
-                    result.problems.append(f"{frame_dir}: {len(files)} {prefix} files, expected one")
-                elif files:
-                    target[n] = files[0]
         subset = subset_dir.name if subset_dir != crop_dir else domain
-        _pair(domain, subset, subset_dir, img, msk, dep, result)
+        _scan_distributed_subset(domain, subset_dir, subset, result)
+
+
+def _scan_distributed_subset(domain: str, subset_dir: Path, subset: str, result: ScanResult) -> None:
+    result.layouts[str(subset_dir)] = "distributed"
+    img: dict[int, Path] = {}
+    msk: dict[int, Path] = {}
+    dep: dict[int, Path] = {}
+    for frame_dir in _subdirs(subset_dir):
+        match = _FRAME_DIR.match(frame_dir.name)
+        if not match:
+            result.problems.append(f"{frame_dir}: folder name has no frame number (expected ImageN)")
+            continue
+        n = int(match.group(1))
+        for target, prefix, exts in ((img, "image", IMAGE_EXTS), (msk, "segmentation", IMAGE_EXTS),
+                                     (dep, "depth", DEPTH_EXTS)):
+            files = sorted(p for p in frame_dir.iterdir()
+                           if p.is_file() and p.name.lower().startswith(prefix) and p.suffix.lower() in exts)
+            if len(files) > 1:
+                result.problems.append(f"{frame_dir}: {len(files)} {prefix} files, expected one")
+            elif files:
+                target[n] = files[0]
+    _pair(domain, subset, subset_dir, img, msk, dep, result)
 
 
 def _pair(domain: str, subset: str, folder: Path, img: dict[int, Path], msk: dict[int, Path],

@@ -358,3 +358,11 @@ def test_augment_config_validation():
         AugmentConfig(crop_scale=(0.0, 1.0))
     with pytest.raises(ValueError, match="gray_p"):
         AugmentConfig(gray_p=1.5)
+
+
+def test_root_may_be_a_single_subset_folder(tmp_path):
+    sub = make_distributed(tmp_path, "Pear", "part_a", ids=(1, 10))
+    frames = find_frames(sub)
+    assert [(f.domain, f.subset, f.frame_id) for f in frames] == [("pear", "part_a", 1), ("pear", "part_a", 10)]
+    formatted = make_formatted(tmp_path / "fmt", "vineyard", ids=(2, 3))
+    assert {(f.domain, f.subset) for f in find_frames(formatted)} == {("vineyard", "vineyard_1")}
