@@ -72,6 +72,7 @@ def run_benchmark(
     compare_exporters: bool = False,
     calib_data: Path | None = None,
     json_path: Path | None = None,
+    step_candidates: Callable[[Path, np.ndarray, int], dict[str, Callable[[], object]]] | None = None,
 ) -> dict:
     import onnxruntime as ort
     import torch
@@ -82,8 +83,6 @@ def run_benchmark(
     from export.verify import load_frames, make_session
     from models import build_model
     from models.checkpoint import load_model
-    from nav_eval.navigator import Navigator, NavigatorConfig
-    from nav_eval.segmenter import OnnxSegmenter
 
     torch.set_num_threads(threads)
     if checkpoint is not None:
@@ -136,15 +135,10 @@ def run_benchmark(
         quiet = make_session(files["onnxruntime fp32"], threads=threads, spin=False)
         candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(None, {quiet.get_inputs()[0].name: frame})
 
-        segmenter = OnnxSegmenter(files["onnxruntime fp32"], threads=threads)  # the navigator's defaults
-        navigator = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
-        rgb = frame[0]
-        depth = np.linspace(0.5, 8.0, size, dtype=np.float32)[:, None].repeat(size, axis=1)
-
-        def full_step() -> object:
-            return navigator.step(segmenter.segment(rgb), depth)
-
-        candidates["full step: OnnxSegmenter + Navigator.step (SegMinD)"] = full_step
+        if step_candidates is not None:
+            # Timers of code downstream of export (the robot-side perception + control step)
+            # come from the caller, so this package never imports nav_eval.
+            candidates.update(step_candidates(files["onnxruntime fp32"], frame[0], threads))
         load_before = _load_average()
         results = interleaved(candidates, runs=runs)
 
@@ -173,15 +167,18 @@ def run_benchmark(
             f"{entry['min_ms']:>9.2f}{entry['ratio_to_eager']:>9.2f}"
         )
     fp32 = results["onnxruntime fp32"]
-    step = results["full step: OnnxSegmenter + Navigator.step (SegMinD)"]
     checks = {
         f"ort fp32 median <= {TARGET_ORT_MS} ms": fp32["median_ms"] <= TARGET_ORT_MS,
         f"ort fp32 <= {TARGET_RATIO}x eager": fp32["ratio_to_eager"] <= TARGET_RATIO,
-        f"full step median <= {TARGET_STEP_MS} ms": step["median_ms"] <= TARGET_STEP_MS,
     }
+    step = next((entry for name, entry in results.items() if name.startswith("full step")), None)
+    if step is not None:
+        checks[f"full step median <= {TARGET_STEP_MS} ms"] = step["median_ms"] <= TARGET_STEP_MS
     for label, ok in checks.items():
         print(f"target {label}: {'met' if ok else 'NOT met'}")
-    print(f"full step rate: {1000.0 / step['median_ms']:.0f} Hz ({1000.0 / step['median_ms'] / 20.0:.1f}x the paper's 20 Hz)")
+    if step is not None:
+        rate = 1000.0 / step["median_ms"]
+        print(f"full step rate: {rate:.0f} Hz ({rate / 20.0:.1f}x the paper's 20 Hz)")
     if "onnxruntime INT8 (QDQ)" in results:
         speedup = fp32["median_ms"] / results["onnxruntime INT8 (QDQ)"]["median_ms"]
         verdict = "faster" if speedup >= 1.05 else "not faster: deploy fp32"

@@ -1,4 +1,4 @@
-"""`segmin export` and `segmin bench export`."""
+"""`segmin export` (its benchmark, `segmin bench export`, is wired in segmin/bench_export.py)."""
 
 from __future__ import annotations
 
@@ -37,23 +37,6 @@ def register(commands, bench) -> None:
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime threads for checks (default 2)")
     parser.set_defaults(func=run_export)
 
-    bench_parser = bench.add_parser(
-        "export",
-        help="per-frame latency: PyTorch eager vs onnxruntime fp32 / INT8, and one full SegMinD step",
-    )
-    bench_parser.add_argument("--checkpoint", type=Path, default=None, help="checkpoint (default: random weights)")
-    bench_parser.add_argument("--onnx", type=Path, default=None, help="an exported fp32 file to time instead")
-    bench_parser.add_argument("--size", type=int, default=224, help="square input size (default 224)")
-    bench_parser.add_argument("--threads", type=int, default=2, help="threads for torch and onnxruntime (default 2)")
-    bench_parser.add_argument("--runs", type=int, default=200, help="timed frames per model (default 200)")
-    bench_parser.add_argument("--no-int8", action="store_true", help="skip building and timing INT8")
-    bench_parser.add_argument(
-        "--compare-exporters", action="store_true", help="also time the legacy TorchScript exporter's graph"
-    )
-    bench_parser.add_argument("--calib-data", type=Path, default=None, help="frames for INT8 calibration")
-    bench_parser.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
-    bench_parser.set_defaults(func=run_bench)
-
 
 def run_export(args: argparse.Namespace) -> int:
     import logging
@@ -87,21 +70,4 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"{report['fp16']['path']}: max |dp| vs fp32 {vs['max_abs_diff']:.2e}, mask IoU {vs['mask_iou']:.4f}")
     if "int8" in report:
         print(f"{report['int8']['path']}: {report['int8']['recommendation']}")
-    return 0
-
-
-def run_bench(args: argparse.Namespace) -> int:
-    from export.bench import run_benchmark
-
-    run_benchmark(
-        checkpoint=args.checkpoint,
-        onnx_path=args.onnx,
-        size=args.size,
-        threads=args.threads,
-        runs=args.runs,
-        int8=not args.no_int8,
-        compare_exporters=args.compare_exporters,
-        calib_data=args.calib_data,
-        json_path=args.json,
-    )
     return 0

@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "data.synth.cli",
     "train.cli",
     "export.cli",
+    "segmin.bench_export",
     "nav_eval.navigator_cli",
     "nav_eval.cli",
     "segmin.pipeline.cli",
