@@ -150,6 +150,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
 
     model = build_model(config.backbone_weights)
     cuda = dist.device.type == "cuda"
+    if cuda:
+        torch.backends.cudnn.benchmark = True  # fixed input size: let cuDNN pick the fastest kernels
     model.to(dist.device)
     if cuda and config.channels_last:
         model.to(memory_format=torch.channels_last)
