@@ -20,7 +20,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         help="closed-loop navigation in the simulated test fields (Table 3 metrics, plots)",
         description="Drive a simulated Jackal through the row gaps of the test fields with SegMin, SegMinD "
         "and/or SegZeros, guided by an exported ONNX model or the simulator's exact mask ('oracle'). Writes "
-        "results.csv, results.json, report.md, trajectory and histogram figures (and GIFs with --video).",
+        "results.csv, results.json, report.md, trajectory and histogram figures (and MP4 videos with --video).",
     )
     parser.add_argument("--model", required=True, help="exported .onnx file, or 'oracle' (exact masks)")
     parser.add_argument("--fields", default="all",
@@ -29,7 +29,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
-    parser.add_argument("--video", action="store_true", help="GIF of the camera view for run 0 of each pair")
+    parser.add_argument("--video", action="store_true", help="MP4 (else GIF) of the camera view, mask and chosen column for run 0 of each field and method")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_common(parser)
