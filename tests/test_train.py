@@ -157,10 +157,12 @@ def _assert_same_weights(a: Path, b: Path) -> None:
 def test_resume_gives_the_same_weights_as_an_uninterrupted_run(dataset_root, tmp_path):
     from train.run import fit
 
-    config = tiny_config(dataset_root, epochs=3, schedule="step", step_size=1, gamma=0.5)
+    config = tiny_config(dataset_root, epochs=3, schedule="step", step_size=1, gamma=0.5, bn_momentum=0.2)
     fit(config, tmp_path / "straight")
-    fit(tiny_config(dataset_root, epochs=1, schedule="step", step_size=1, gamma=0.5), tmp_path / "resumed")
+    fit(tiny_config(dataset_root, epochs=1, schedule="step", step_size=1, gamma=0.5, bn_momentum=0.2),
+        tmp_path / "resumed")
     result = fit(config, tmp_path / "resumed", resume=True)
+    assert {m.momentum for m in result.model.modules() if isinstance(m, torch.nn.BatchNorm2d)} == {0.2}
     assert [r["epoch"] for r in result.history] == [1, 2, 3]
     _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "resumed" / "last.pt")
     straight = (tmp_path / "straight" / "metrics.csv").read_text().splitlines()

@@ -149,6 +149,10 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     train_loader, sampler, val_loader = build_loaders(config, dist, train_frames, val_frames)
 
     model = build_model(config.backbone_weights)
+    if config.bn_momentum is not None:
+        for module in model.modules():
+            if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
+                module.momentum = config.bn_momentum
     cuda = dist.device.type == "cuda"
     if cuda:
         torch.backends.cudnn.benchmark = True  # fixed input size: let cuDNN pick the fastest kernels
