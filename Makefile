@@ -20,4 +20,4 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 demo: $(STAMP)
-	$(VENV)/bin/segmin navigate-demo --out runs/demo
+	$(VENV)/bin/segmin pipeline --config quick --out runs/demo
