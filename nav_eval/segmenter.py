@@ -71,25 +71,15 @@ class OnnxSegmenter:
         providers: list[str] | None = None,
         spin: bool = SPIN_DEFAULT,
     ) -> None:
-        import onnxruntime as ort
-
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: ONNX model not found")
         if int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
-        options = ort.SessionOptions()
-        if not spin:
-            options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        options.intra_op_num_threads = int(threads)
-        options.inter_op_num_threads = 1
-        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        options.log_severity_level = 3
+        from export.verify import make_session  # torch-free: the export checks use the same session
+
         try:
-            self.session = ort.InferenceSession(
-                str(self.path), options, providers=providers or ["CPUExecutionProvider"]
-            )
+            self.session = make_session(self.path, threads=int(threads), providers=providers, spin=spin)
         except Exception as exc:  # onnxruntime raises its own types for unparsable files
             raise ValueError(f"{self.path}: not a loadable ONNX model ({str(exc).splitlines()[0][:300]})") from exc
 
