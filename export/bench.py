@@ -80,6 +80,7 @@ def run_benchmark(
     from export.metadata import KEY_INPUT_SIZE, parse_input_size
     from export.onnx import DeployWrapper, export_graph
     from export.quantize import quantize_int8
+    from export.roofline import conv_flops, floor_summary, sgemm_gflops
     from export.verify import load_frames, make_session
     from models import build_model
     from models.checkpoint import load_model
@@ -141,6 +142,7 @@ def run_benchmark(
             candidates.update(step_candidates(files["onnxruntime fp32"], frame[0], threads))
         load_before = _load_average()
         results = interleaved(candidates, runs=runs)
+        flops = conv_flops(files["onnxruntime fp32"])
 
         cuda = {}
         if "CUDAExecutionProvider" in ort.get_available_providers():
@@ -167,6 +169,13 @@ def run_benchmark(
             f"{entry['min_ms']:>9.2f}{entry['ratio_to_eager']:>9.2f}"
         )
     fp32 = results["onnxruntime fp32"]
+    roofline = floor_summary(flops, fp32["median_ms"], eager_ms, sgemm_gflops(threads))
+    print(
+        f"fp32 graph: {roofline['conv_gflop']:.3f} GFLOP of convolutions per frame, run at "
+        f"{roofline['achieved_gflops']:.0f} GFLOP/s = {roofline['fraction_of_peak']:.0%} of this machine's "
+        f"{threads}-thread sgemm rate ({roofline['peak_gflops']:.0f} GFLOP/s); at that rate a frame takes "
+        f">= {roofline['floor_ms']:.2f} ms = {roofline['floor_ratio_to_eager']:.2f}x eager"
+    )
     checks = {
         f"ort fp32 median <= {TARGET_ORT_MS} ms": fp32["median_ms"] <= TARGET_ORT_MS,
         f"ort fp32 <= {TARGET_RATIO}x eager": fp32["ratio_to_eager"] <= TARGET_RATIO,
@@ -189,6 +198,7 @@ def run_benchmark(
         "weights": origin,
         "load_average_1min": load_before,
         "results": results,
+        "roofline": roofline,
         "targets": checks,
     }
     if json_path is not None:

@@ -287,3 +287,32 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
         from export.bench import run_benchmark
 
         run_benchmark(onnx_path=out, checkpoint=checkpoint, size=SIZE * 2, runs=2, int8=False)
+
+
+def test_conv_flops_counts_grouped_and_strided_convolutions(tmp_path) -> None:
+    """Two hand-made convs: 3->8 3x3 stride 2 on 16x16, then depthwise 3x3 on the 8x8 result."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from export.roofline import conv_flops, floor_summary
+
+    w1 = numpy_helper.from_array(np.zeros((8, 3, 3, 3), np.float32), "w1")
+    w2 = numpy_helper.from_array(np.zeros((8, 1, 3, 3), np.float32), "w2")
+    graph = helper.make_graph(
+        [
+            helper.make_node("Conv", ["x", "w1"], ["y"], strides=[2, 2], pads=[1, 1, 1, 1]),
+            helper.make_node("Conv", ["y", "w2"], ["z"], group=8, pads=[1, 1, 1, 1]),
+        ],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["batch", 3, 16, 16])],
+        [helper.make_tensor_value_info("z", TensorProto.FLOAT, None)],
+        [w1, w2],
+    )
+    path = tmp_path / "two_convs.onnx"
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)]), str(path))
+    per_frame = 2 * 8 * 3 * 9 * 8 * 8 + 2 * 8 * 1 * 9 * 8 * 8
+    assert conv_flops(path) == per_frame
+    assert conv_flops(path, batch=3) == 3 * per_frame
+    summary = floor_summary(flops=2_000_000_000, ort_ms=20.0, eager_ms=40.0, peak_gflops=200.0)
+    assert summary["floor_ms"] == pytest.approx(10.0) and summary["floor_ratio_to_eager"] == pytest.approx(0.25)
+    assert summary["achieved_gflops"] == pytest.approx(100.0) and summary["fraction_of_peak"] == pytest.approx(0.5)
