@@ -268,3 +268,44 @@ def test_bench_runs_and_reports_both_rates():
     result = bench_train(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
     assert result["model_step_ips"] > 0 and result["full_pipeline_ips"] > 0
     assert result["ratio"] == pytest.approx(result["full_pipeline_ips"] / result["model_step_ips"])
+
+
+# ----------------------------------------------------------------------------- resolution ceiling
+
+
+def test_output_grid_matches_the_models_logit_grid():
+    from models import build_model
+    from train.resolution_bound import output_grid
+
+    model = build_model("none").eval()
+    for size in (40, 45, 64):
+        with torch.no_grad():
+            features = model.net.backbone(torch.zeros(1, 3, size, size))
+        assert features["low"].shape[-1] == output_grid(size), size
+
+
+def test_iou_bound_is_exact_on_cell_aligned_masks_and_lower_on_stripes():
+    """Masks made of whole 8x8 cells are representable (ceiling ~1); 1-pixel stripes are not."""
+    from train.resolution_bound import iou_bound
+
+    rng = np.random.default_rng(0)
+    blocky = np.kron(rng.integers(0, 2, (4, 8, 8)), np.ones((8, 8))).astype(np.float32)
+    result = iou_bound(blocky, steps=60)
+    assert result.grid == 8 and result.frames == 4
+    assert result.fitted_iou > 0.93 and result.area_iou > 0.9
+    stripes = np.zeros((2, 64, 64), np.float32)
+    stripes[:, :, ::2] = 1.0  # every other column: finer than any 8x8 logit grid can draw
+    thin = iou_bound(stripes, steps=60)
+    assert thin.fitted_iou < 0.7
+    assert thin.fitted_iou >= thin.area_iou
+
+
+def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
+    from segmin.cli import main
+
+    assert main(["bench", "iou-bound", "--root", str(dataset_root), "--sizes", "32", "--frames", "4",
+                 "--steps", "5"]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.strip().startswith("32"))
+    area, fitted = (float(v) for v in row.split()[-2:])
+    assert 0.0 < area <= fitted <= 1.0

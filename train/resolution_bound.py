@@ -1,0 +1,99 @@
+"""The best validation IoU any LR-ASPP can reach on a set of masks, given its output resolution.
+
+torchvision's LR-ASPP predicts one logit per 8 x 8 input pixels and upsamples the logits
+bilinearly to the input size. Holes between leaves, thin branches and ragged canopy edges that
+are narrower than that grid cannot be represented, whatever the weights. This module measures
+the ceiling this puts on the crop IoU of a dataset (summed over frames, as train.metrics does):
+
+- `area`: the ground truth averaged over each 8 x 8 cell, turned into logits, upsampled and
+  thresholded, a simple "perfect at low resolution" predictor;
+- `fitted`: logits on the model's output grid optimised directly (Adam on BCE through the same
+  bilinear upsampling) to reproduce each mask, an estimate of the best any model can do.
+
+A quality target above `fitted` cannot be met at that input size by training longer or better;
+`segmin bench iou-bound` prints both for given sizes so the limit can be checked on any data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+OUTPUT_STRIDE_CONVS = 3  # three stride-2 3x3 convolutions (padding 1) before LR-ASPP's low-level features
+
+
+def output_grid(size: int) -> int:
+    """Side of LR-ASPP's logit grid for an input side `size` (ceil-halved three times)."""
+    side = int(size)
+    for _ in range(OUTPUT_STRIDE_CONVS):
+        side = math.ceil(side / 2)
+    return side
+
+
+@dataclass(frozen=True)
+class Bound:
+    """IoU ceilings at one input size."""
+
+    size: int
+    grid: int
+    frames: int
+    area_iou: float
+    fitted_iou: float
+
+
+def load_masks(root: str | Path, domains: Sequence[str] | None, size: int, limit: int) -> np.ndarray:
+    """Up to `limit` masks (evenly spaced over the sorted frames) resized to size x size, nearest."""
+    import cv2
+
+    from data.agriseg_loader import find_frames, read_mask
+
+    frames = find_frames(root, domains)
+    if not frames:
+        raise ValueError(f"{root}: no frames found for domains {domains}")
+    if len(frames) > limit:
+        picks = np.linspace(0, len(frames) - 1, limit).round().astype(int)
+        frames = [frames[i] for i in picks]
+    masks = [
+        cv2.resize(read_mask(frame.mask_path), (size, size), interpolation=cv2.INTER_NEAREST_EXACT)
+        for frame in frames
+    ]
+    return np.stack(masks).astype(np.float32)
+
+
+def _iou(logits, masks) -> float:
+    import torch.nn.functional as F
+
+    predicted = F.interpolate(logits, size=masks.shape[-2:], mode="bilinear", align_corners=False) > 0
+    truth = masks > 0.5
+    union = (predicted | truth).sum().item()
+    return float((predicted & truth).sum().item() / union) if union else 1.0
+
+
+def iou_bound(masks: np.ndarray, steps: int = 150, lr: float = 0.3, seed: int = 0) -> Bound:
+    """Both ceilings for masks (N x S x S, 0/1) at input size S."""
+    import torch
+    import torch.nn.functional as F
+
+    if masks.ndim != 3 or masks.shape[1] != masks.shape[2]:
+        raise ValueError(f"masks of shape {masks.shape}: expected N x S x S")
+    torch.manual_seed(seed)
+    size = int(masks.shape[1])
+    grid = output_grid(size)
+    target = torch.from_numpy(np.ascontiguousarray(masks, dtype=np.float32))[:, None]
+    coverage = F.adaptive_avg_pool2d(target, grid).clamp(1e-3, 1 - 1e-3)
+    area_logits = torch.log(coverage / (1 - coverage))
+    area_iou = _iou(area_logits, target)
+    logits = area_logits.clone().requires_grad_(True)
+    optimiser = torch.optim.Adam([logits], lr=lr)
+    for _ in range(int(steps)):
+        optimiser.zero_grad()
+        upsampled = F.interpolate(logits, size=(size, size), mode="bilinear", align_corners=False)
+        F.binary_cross_entropy_with_logits(upsampled, target).backward()
+        optimiser.step()
+    with torch.no_grad():
+        fitted_iou = max(_iou(logits, target), area_iou)
+    return Bound(size=size, grid=grid, frames=len(masks), area_iou=area_iou, fitted_iou=fitted_iou)
