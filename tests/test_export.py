@@ -283,6 +283,10 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     summary = json.loads((tmp_path / "bench.json").read_text())
     for entry in summary["results"].values():
         assert entry["runs"] == 8 and 0 < entry["min_ms"] <= entry["median_ms"] <= entry["p95_ms"]
+    roofline = summary["roofline"]
+    assert roofline["conv_gflop"] > 0 and roofline["peak_gflops"] > 0
+    assert roofline["floor_ms"] == pytest.approx(roofline["conv_gflop"] / roofline["peak_gflops"] * 1e3)
+    assert "GFLOP of convolutions per frame" in printed
     with pytest.raises(ValueError, match="pass --size"):
         from export.bench import run_benchmark
 

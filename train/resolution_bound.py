@@ -1,17 +1,20 @@
-"""The best validation IoU any LR-ASPP can reach on a set of masks, given its output resolution.
+"""How high the validation IoU of an LR-ASPP can go on a set of masks, given its output resolution.
 
 torchvision's LR-ASPP predicts one logit per 8 x 8 input pixels and upsamples the logits
 bilinearly to the input size. Holes between leaves, thin branches and ragged canopy edges that
 are narrower than that grid cannot be represented, whatever the weights. This module measures
-the ceiling this puts on the crop IoU of a dataset (summed over frames, as train.metrics does):
+the ceiling this puts on the crop IoU of a dataset (summed over frames, as train.metrics does), with two
+predictors that any LR-ASPP could in principle reproduce:
 
 - `area`: the ground truth averaged over each 8 x 8 cell, turned into logits, upsampled and
   thresholded, a simple "perfect at low resolution" predictor;
 - `fitted`: logits on the model's output grid optimised directly (Adam on BCE through the same
-  bilinear upsampling) to reproduce each mask, an estimate of the best any model can do.
+  bilinear upsampling) to reproduce each mask.
 
-A quality target above `fitted` cannot be met at that input size by training longer or better;
-`segmin bench iou-bound` prints both for given sizes so the limit can be checked on any data.
+`fitted` estimates the ceiling from below: it is one reachable grid, found with a BCE
+objective, not a proven optimum of IoU. On the rendered test fields it moved by less than 0.002
+with 4x more steps, so it is a close estimate there. A target well above it is not a matter of
+training longer; `segmin bench iou-bound` prints both figures for given sizes on any data.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-OUTPUT_STRIDE_CONVS = 3  # three stride-2 3x3 convolutions (padding 1) before LR-ASPP's low-level features
+OUTPUT_STRIDE_CONVS = 3  # stride-2 convolutions before LR-ASPP's low-level features, each ceil-halving the side
 
 
 def output_grid(size: int) -> int:
@@ -45,23 +48,29 @@ class Bound:
     fitted_iou: float
 
 
-def load_masks(root: str | Path, domains: Sequence[str] | None, size: int, limit: int) -> np.ndarray:
-    """Up to `limit` masks (evenly spaced over the sorted frames) resized to size x size, nearest."""
-    import cv2
-
+def load_masks(root: str | Path, domains: Sequence[str] | None, limit: int) -> list[np.ndarray]:
+    """Up to `limit` binary masks at their stored size, evenly spaced over the sorted frames."""
     from data.agriseg_loader import find_frames, read_mask
 
+    if limit < 1:
+        raise ValueError(f"frames={limit}: need at least one mask")
     frames = find_frames(root, domains)
     if not frames:
         raise ValueError(f"{root}: no frames found for domains {domains}")
     if len(frames) > limit:
         picks = np.linspace(0, len(frames) - 1, limit).round().astype(int)
         frames = [frames[i] for i in picks]
-    masks = [
-        cv2.resize(read_mask(frame.mask_path), (size, size), interpolation=cv2.INTER_NEAREST_EXACT)
-        for frame in frames
-    ]
-    return np.stack(masks).astype(np.float32)
+    return [read_mask(frame.mask_path) for frame in frames]
+
+
+def resize_masks(masks: Sequence[np.ndarray], size: int) -> np.ndarray:
+    """N x size x size float masks, resized with nearest neighbour as the training loader does."""
+    import cv2
+
+    if size < 8:
+        raise ValueError(f"size={size}: need an input side of at least 8 pixels")
+    resized = [cv2.resize(m, (size, size), interpolation=cv2.INTER_NEAREST_EXACT) for m in masks]
+    return np.stack(resized).astype(np.float32)
 
 
 def _iou(logits, masks) -> float:
