@@ -312,7 +312,9 @@ def run_evaluation(
     bar = _progress(len(jobs), progress)
     try:
         if workers <= 1:
-            worker = Worker(str(model), config, threads=max(1, os.cpu_count() or 1))
+            # One core is left to pybullet: the episode renders the next frame on this thread
+            # while the segmenter runs on its helper thread (see nav_eval.sim).
+            worker = Worker(str(model), config, threads=max(1, (os.cpu_count() or 1) - 1))
             try:
                 for job in jobs:
                     done(worker.run(job))

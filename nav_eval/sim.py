@@ -9,6 +9,11 @@ Two layers, Gymnasium-style:
 - `run_episode(env, segmenter, navigator)` is the robot's software: it segments those frames,
   ORs the last `fuse_frames` masks, and asks the navigator for the next command.
 
+Frames are rendered on demand (`RowEnv.frame(tick)`), in tick order on the calling thread, and
+each is segmented on a helper thread while the next one renders: onnxruntime releases the GIL,
+so segmentation and pybullet's software rasteriser share the two cores instead of taking turns.
+The results do not depend on it: render order, noise draws and masks are the same either way.
+
 Timing (deterministic, all on integer physics ticks): camera frames exist at camera_hz, the
 segmenter runs at segment_hz on the latest camera frame, the navigator runs at command_hz on
 the OR of the last `fuse_frames` masks (and the depth of the newest frame). Only the camera
@@ -25,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -39,11 +45,14 @@ REASONS = ("success", "collision", "left_row", "stalled", "timeout", "error")
 
 @dataclasses.dataclass
 class Observation:
-    """Frames for the perception pipeline, oldest first (empty once the run has ended)."""
+    """Camera ticks whose frames feed the next command, oldest first (empty once the run has ended).
+
+    Only the ticks: `RowEnv.frame(tick)` renders a frame when the caller asks for it, so the
+    caller decides what to overlap with rendering.
+    """
 
     t: float
-    frames: list[Any]
-    ticks: list[int] = dataclasses.field(default_factory=list)   # camera tick of each frame
+    ticks: list[int]
 
 
 def point_on_polyline(polyline: np.ndarray, s: float) -> tuple[float, float, float]:
@@ -184,9 +193,9 @@ class RowEnv:
 
     # ---- camera -----------------------------------------------------------------------------
     def _observation(self) -> Observation:
-        """Frames at the segmentation ticks in the fusion window of the command at this tick."""
+        """Camera ticks of the segmentation ticks in the fusion window of the command at this tick."""
         if self.reason is not None:
-            return Observation(self.t, [], [])
+            return Observation(self.t, [])
         fuse = self.config.perception.fuse_frames
         last_seg = self._tick // self._seg_every
         seg_ticks = [j * self._seg_every for j in range(max(0, last_seg - fuse + 1), last_seg + 1)]
@@ -195,16 +204,19 @@ class RowEnv:
             cam = (tick // self._cam_every) * self._cam_every
             if cam not in cam_ticks:
                 cam_ticks.append(cam)
-        frames = [self._frame(tick) for tick in cam_ticks]
         self._frames = {k: v for k, v in self._frames.items() if k in cam_ticks}
-        return Observation(self.t, frames, cam_ticks)
+        return Observation(self.t, cam_ticks)
 
-    def _frame(self, tick: int) -> Any:
-        """Render the camera at the pose of camera tick `tick` (fixed light and sky: no flicker).
+    def frame(self, tick: int) -> Any:
+        """The camera frame at the pose of camera tick `tick`, rendered on first use (fixed light
+        and sky: no flicker). Frames of the current observation stay cached until the next one.
 
         Depth noise is applied here with the run's own generator, not inside the renderer, so a
-        run's noise depends on its seed only (not on the runs a worker did before it).
+        run's noise depends on its seed only (not on the runs a worker did before it); ask for
+        the frames of an observation in tick order (as `run_episode` does) to keep it so.
         """
+        if not 0 <= tick <= self._tick:
+            raise ValueError(f"camera tick {tick} is in the future (the run is at tick {self._tick})")
         if tick not in self._frames:
             _, x, y, yaw = self._rows[tick][:4]
             frame = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
@@ -235,24 +247,24 @@ def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video
     """Drive one run to its end. The navigator must not fuse again (its fuse_frames = 1)."""
     navigator.reset()
     obs, info = env.reset(seed, pose)
-    masks: dict[int, np.ndarray] = {}
+    masks: dict[int, Future] = {}   # camera tick -> its mask, segmented on the helper thread
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
     ended = info["reason"] is not None
-    while not ended:
-        fused = None
-        for key, frame in zip(obs.ticks, obs.frames):
-            if key not in masks:
-                masks[key] = segment_frame(segmenter, frame)
-            fused = masks[key] if fused is None else (fused | masks[key])
-        masks = {k: v for k, v in masks.items() if k in obs.ticks}
-        newest = obs.frames[-1]
-        cmd = navigator.step(fused, newest.depth)
-        column = getattr(cmd, "target_column", None)
-        commands.append((obs.t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
-        if video:
-            frames_out.append(overlay(newest.rgb, fused, column))
-        obs, ended, info = env.step((cmd.v, cmd.omega))
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="segmin-segment") as segment_pool:
+        while not ended:
+            for key in obs.ticks:   # render in tick order; segment each while the next renders
+                if key not in masks:
+                    masks[key] = segment_pool.submit(segment_frame, segmenter, env.frame(key))
+            masks = {k: v for k, v in masks.items() if k in obs.ticks}
+            fused = np.logical_or.reduce([masks[key].result() for key in obs.ticks])
+            newest = env.frame(obs.ticks[-1])
+            cmd = navigator.step(fused, newest.depth)
+            column = getattr(cmd, "target_column", None)
+            commands.append((obs.t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
+            if video:
+                frames_out.append(overlay(newest.rgb, fused, column))
+            obs, ended, info = env.step((cmd.v, cmd.omega))
     reason = env.reason or "error"
     return Episode(
         trajectory=env.trajectory, reason=reason, success=reason == "success",

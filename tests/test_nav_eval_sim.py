@@ -118,6 +118,20 @@ def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
     assert np.max(np.abs(episode.trajectory.y)) < 0.4
 
 
+def test_frames_render_on_demand_and_never_from_the_future() -> None:
+    world = FakeWorld()
+    renderer = FakeRenderer(world)
+    env = RowEnv(world, renderer, _config())
+    obs, _ = env.reset(seed=0)
+    assert renderer.calls == 0 and obs.ticks == [0]
+    first = env.frame(0)
+    assert env.frame(0) is first and renderer.calls == 1   # cached within the observation
+    with pytest.raises(ValueError, match="future"):
+        env.frame(1)
+    obs, _, _ = env.step((0.4, 0.0))
+    assert obs.ticks and max(obs.ticks) <= 12 and renderer.calls == 1
+
+
 def test_same_seed_same_trajectory_and_seeded_start() -> None:
     a, _, _ = _run(seed=11)
     b, _, _ = _run(seed=11)
