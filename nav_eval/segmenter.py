@@ -15,6 +15,7 @@ see `nav_eval.oracle.segment_frame`).
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -50,6 +51,14 @@ def check_rgb(rgb: np.ndarray) -> np.ndarray:
     if rgb.shape[0] < 1 or rgb.shape[1] < 1:
         raise ValueError(f"frame shape is {rgb.shape}: empty image")
     return np.ascontiguousarray(rgb)
+
+
+@dataclass(frozen=True)
+class PreparedFrame:
+    """A checked frame resized to the model input: `batch` is uint8 1 x h x w x 3."""
+
+    batch: np.ndarray
+    frame_shape: tuple[int, int]   # (H, W) of the original frame, for the mask
 
 
 class OnnxSegmenter:
@@ -110,35 +119,49 @@ class OnnxSegmenter:
         if outputs[0].type != "tensor(float)":
             raise ValueError(f"{self.path}: model output is {outputs[0].type}, expected float32 probabilities")
 
-    def _model_probabilities(self, rgb: np.ndarray) -> np.ndarray:
-        """Probabilities at the model input size (float32 h x w) of a checked frame."""
+    def prepare(self, rgb: np.ndarray) -> PreparedFrame:
+        """Check and resize a frame for the model (the part of `segment` before onnxruntime).
+
+        A caller that overlaps segmentation with other work runs this on its own thread and
+        `segment_prepared` on a helper: the helper then releases the GIL at its first step.
+        """
         import cv2
 
+        rgb = check_rgb(rgb)
         height, width = self.input_size
-        if rgb.shape[:2] != (height, width):
+        frame_shape = (int(rgb.shape[0]), int(rgb.shape[1]))
+        if frame_shape != (height, width):
             shrinking = rgb.shape[0] >= height and rgb.shape[1] >= width
             rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
-        output = self.session.run(None, {self._input_name: rgb[None]})[0]
-        return output[0, 0]
+        return PreparedFrame(rgb[None], frame_shape)
+
+    def _model_probabilities(self, prepared: PreparedFrame) -> np.ndarray:
+        """Probabilities at the model input size (float32 h x w)."""
+        return self.session.run(None, {self._input_name: prepared.batch})[0][0, 0]
 
     def probabilities(self, rgb: np.ndarray) -> np.ndarray:
         """float32 H x W vegetation probability at the frame size (bilinear resize back)."""
         import cv2
 
-        rgb = check_rgb(rgb)
-        probs = self._model_probabilities(rgb)
-        if probs.shape != rgb.shape[:2]:
-            probs = cv2.resize(probs, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
+        prepared = self.prepare(rgb)
+        probs = self._model_probabilities(prepared)
+        height, width = prepared.frame_shape
+        if probs.shape != (height, width):
+            probs = cv2.resize(probs, (width, height), interpolation=cv2.INTER_LINEAR)
         return np.clip(probs, 0.0, 1.0).astype(np.float32, copy=False)
 
     def segment(self, rgb: np.ndarray) -> np.ndarray:
         """bool H x W vegetation mask at the frame size (thresholded at the model size, nearest resize)."""
+        return self.segment_prepared(self.prepare(rgb))
+
+    def segment_prepared(self, prepared: PreparedFrame) -> np.ndarray:
+        """The mask of a frame from `prepare` (onnxruntime, threshold, resize back)."""
         import cv2
 
-        rgb = check_rgb(rgb)
-        mask = (self._model_probabilities(rgb) >= self.threshold).astype(np.uint8)
-        if mask.shape != rgb.shape[:2]:
-            mask = cv2.resize(mask, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST)
+        mask = (self._model_probabilities(prepared) >= self.threshold).astype(np.uint8)
+        height, width = prepared.frame_shape
+        if mask.shape != (height, width):
+            mask = cv2.resize(mask, (width, height), interpolation=cv2.INTER_NEAREST)
         return mask.astype(bool)
 
     def __repr__(self) -> str:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
@@ -227,6 +228,44 @@ class RowEnv:
         return self._frames[tick]
 
 
+class BackgroundSegmenter:
+    """Segments frames on one helper thread while the caller renders the next one.
+
+    `submit` returns only once the helper has started the job. A thread waiting for the GIL
+    gets it at the holder's next switch point, and pybullet holds the GIL for the whole of
+    `getCameraImage`: without the handshake the helper would start after the next render, and
+    nothing would overlap. Once started, the helper releases the GIL inside onnxruntime.
+    """
+
+    def __init__(self, segmenter: Any) -> None:
+        self.segmenter = segmenter
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="segmin-segment")
+
+    def submit(self, frame: Any) -> Future:
+        started = threading.Event()
+        if hasattr(self.segmenter, "prepare") and hasattr(self.segmenter, "segment_prepared"):
+            # Resize here: OpenCV releases the GIL, which would hand it to this thread's next
+            # render and stall the helper before it reached onnxruntime.
+            prepared = self.segmenter.prepare(frame.rgb)
+            work = lambda: np.asarray(self.segmenter.segment_prepared(prepared), dtype=bool)  # noqa: E731
+        else:
+            work = lambda: segment_frame(self.segmenter, frame)  # noqa: E731
+
+        def job() -> np.ndarray:
+            started.set()
+            return work()
+
+        future = self._pool.submit(job)
+        started.wait()
+        return future
+
+    def __enter__(self) -> "BackgroundSegmenter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._pool.shutdown(wait=True)
+
+
 @dataclasses.dataclass
 class Episode:
     """One finished run: the trajectory and how it ended (metrics come from nav_eval.metrics)."""
@@ -251,11 +290,11 @@ def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
     ended = info["reason"] is not None
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="segmin-segment") as segment_pool:
+    with BackgroundSegmenter(segmenter) as background:
         while not ended:
             for key in obs.ticks:   # render in tick order; segment each while the next renders
                 if key not in masks:
-                    masks[key] = segment_pool.submit(segment_frame, segmenter, env.frame(key))
+                    masks[key] = background.submit(env.frame(key))
             masks = {k: v for k, v in masks.items() if k in obs.ticks}
             fused = np.logical_or.reduce([masks[key].result() for key in obs.ticks])
             newest = env.frame(obs.ticks[-1])

@@ -151,3 +151,21 @@ def test_segmenter_module_does_not_import_torch() -> None:
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_background_segmentation_gives_the_masks_of_segment(model_path) -> None:
+    """The closed loop segments on a helper thread (prepare here, onnxruntime there): same masks."""
+    from types import SimpleNamespace
+
+    from nav_eval.sim import BackgroundSegmenter
+
+    segmenter = OnnxSegmenter(model_path, threads=1)
+    frames = [_frame(SIZE + 8 * k, SIZE, seed=20 + k) for k in range(4)]
+    with BackgroundSegmenter(segmenter) as background:
+        futures = [background.submit(SimpleNamespace(rgb=rgb)) for rgb in frames]
+        masks = [future.result() for future in futures]
+    for rgb, mask in zip(frames, masks):
+        assert mask.dtype == np.bool_ and mask.shape == rgb.shape[:2]
+        assert np.array_equal(mask, segmenter.segment(rgb))
+    with pytest.raises(ValueError, match="dtype"):
+        segmenter.prepare(frames[0].astype(np.float32))
