@@ -239,21 +239,22 @@ class BackgroundSegmenter:
 
     def __init__(self, segmenter: Any) -> None:
         self.segmenter = segmenter
+        # OnnxSegmenter splits `segment` into prepare (check, resize) and segment_prepared.
+        self._two_phase = hasattr(segmenter, "prepare") and hasattr(segmenter, "segment_prepared")
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="segmin-segment")
 
     def submit(self, frame: Any) -> Future:
+        """Start segmenting `frame`; the future holds its bool mask."""
+        # Resize on this thread: OpenCV releases the GIL, which would hand it to this thread's
+        # next render and stall the helper before it reached onnxruntime.
+        prepared = self.segmenter.prepare(frame.rgb) if self._two_phase else None
         started = threading.Event()
-        if hasattr(self.segmenter, "prepare") and hasattr(self.segmenter, "segment_prepared"):
-            # Resize here: OpenCV releases the GIL, which would hand it to this thread's next
-            # render and stall the helper before it reached onnxruntime.
-            prepared = self.segmenter.prepare(frame.rgb)
-            work = lambda: np.asarray(self.segmenter.segment_prepared(prepared), dtype=bool)  # noqa: E731
-        else:
-            work = lambda: segment_frame(self.segmenter, frame)  # noqa: E731
 
         def job() -> np.ndarray:
             started.set()
-            return work()
+            if prepared is None:
+                return segment_frame(self.segmenter, frame)
+            return np.asarray(self.segmenter.segment_prepared(prepared), dtype=bool)
 
         future = self._pool.submit(job)
         started.wait()
