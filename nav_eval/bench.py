@@ -75,7 +75,7 @@ def bench_one_run(model: str, field: str, method: str, seconds: float, config: A
     env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
     navigator = make_navigator(method, ctx.depth_threshold, config)
     render = _Timed(ctx.renderer, "render")
-    seg = _Timed(segmenter, "segment_frame" if hasattr(segmenter, "segment_frame") else "segment")
+    seg = _Timed(segmenter, next(m for m in ("segment_prepared", "segment_frame", "segment") if hasattr(segmenter, m)))
     nav = _Timed(navigator, "step")
     t0 = time.perf_counter()
     episode = run_episode(env, segmenter, navigator, seed)
@@ -110,7 +110,7 @@ def bench_nav_eval(args: argparse.Namespace) -> None:
         print(f"simulated {r['sim_s']:.1f} s in {r['wall_s']:.1f} s wall: {r['realtime_factor']:.2f}x real time "
               f"(target >= 3x); run ended: {r['reason']}")
         print(f"per frame: render {r['render_ms']:.1f} ms x {r['frames']} frames, segment {r['segment_ms']:.1f} ms "
-              f"(on a helper thread, overlapping the next render); navigator {r['navigator_ms']:.2f} ms x "
+              f"(wall time on the helper thread, overlapping the next render; it includes waiting for the GIL); navigator {r['navigator_ms']:.2f} ms x "
               f"{r['commands']} commands; robot, checks and unhidden segmentation "
               f"{r['other_ms_per_sim_s']:.1f} ms per simulated s")
         render_bound = 1000.0 / (r["render_ms"] * r["frames"] / max(r["sim_s"], 1e-9))
