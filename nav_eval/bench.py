@@ -2,9 +2,9 @@
 
 One run on one field with the ONNX segmenter on one thread (what each of 2 workers gets on the
 2-core machine), timed per stage: rendering, segmentation (on a helper thread, overlapping the
-next render), navigator, and the rest. The figure
-of merit is simulated seconds per wall-clock second (target >= 3x). The full matrix (5 fields x 3
-methods x 3 runs) is estimated from it, or measured with `--matrix`.
+next render), navigator, and the rest. The figure of merit is simulated seconds per wall-clock
+second (target >= 3x). The full matrix (5 fields x 3 methods x 3 runs) is estimated from it, or
+measured with `--matrix`.
 """
 
 from __future__ import annotations
@@ -110,7 +110,8 @@ def bench_nav_eval(args: argparse.Namespace) -> None:
         print(f"simulated {r['sim_s']:.1f} s in {r['wall_s']:.1f} s wall: {r['realtime_factor']:.2f}x real time "
               f"(target >= 3x); run ended: {r['reason']}")
         print(f"per frame: render {r['render_ms']:.1f} ms x {r['frames']} frames, segment {r['segment_ms']:.1f} ms "
-              f"(wall time on the helper thread, overlapping the next render; it includes waiting for the GIL); navigator {r['navigator_ms']:.2f} ms x "
+              f"(wall time on the helper thread, overlapping the next render; it includes waiting for "
+              f"the GIL); navigator {r['navigator_ms']:.2f} ms x "
               f"{r['commands']} commands; robot, checks and unhidden segmentation "
               f"{r['other_ms_per_sim_s']:.1f} ms per simulated s")
         render_bound = 1000.0 / (r["render_ms"] * r["frames"] / max(r["sim_s"], 1e-9))
