@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from segmin.atomic import write_json
+from segmin.common.atomic import write_json
 
 log = logging.getLogger(__name__)
 
@@ -544,7 +544,7 @@ class AgriSegDataset(_TorchDataset):
         self.seed = seed
         self.image_size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
         if transform is None:
-            from data.augment import eval_transform
+            from segmin.data.augment import eval_transform
 
             transform = eval_transform(self.image_size)
         self.transform = transform

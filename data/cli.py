@@ -17,7 +17,7 @@ def register(commands, bench) -> None:  # noqa: ARG001 - bench unused: data has 
 
 
 def _inspect(args: argparse.Namespace) -> int:
-    from data.agriseg_loader import DatasetError, load_frame, scan
+    from segmin.data.agriseg_loader import DatasetError, load_frame, scan
 
     result = scan(args.root)
     problems = list(result.problems) + list(result.unpaired)

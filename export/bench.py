@@ -77,13 +77,13 @@ def run_benchmark(
     import onnxruntime as ort
     import torch
 
-    from export.metadata import KEY_INPUT_SIZE, parse_input_size
-    from export.onnx import DeployWrapper, export_graph
-    from export.quantize import quantize_int8
-    from export.roofline import conv_flops, floor_summary, sgemm_gflops
-    from export.verify import load_frames, make_session
-    from models import build_model
-    from models.checkpoint import load_model
+    from segmin.export.metadata import KEY_INPUT_SIZE, parse_input_size
+    from segmin.export.onnx import DeployWrapper, export_graph
+    from segmin.export.quantize import quantize_int8
+    from segmin.export.roofline import conv_flops, floor_summary, sgemm_gflops
+    from segmin.export.verify import load_frames, make_session
+    from segmin.models import build_model
+    from segmin.models.checkpoint import load_model
 
     torch.set_num_threads(threads)
     if checkpoint is not None:
@@ -152,7 +152,7 @@ def run_benchmark(
 
         cuda = {}
         if "CUDAExecutionProvider" in ort.get_available_providers():
-            from export.quantize import convert_fp16
+            from segmin.export.quantize import convert_fp16
 
             convert_fp16(files["onnxruntime fp32"], tmp / "fp16.onnx")
             session = make_session(tmp / "fp16.onnx", threads=threads, providers=["CUDAExecutionProvider"])
@@ -210,7 +210,7 @@ def run_benchmark(
         "targets": checks,
     }
     if json_path is not None:
-        from segmin.atomic import write_json
+        from segmin.common.atomic import write_json
 
         write_json(json_path, summary)
     return summary
@@ -220,7 +220,7 @@ def _stamp_minimal(path: Path, size: int) -> None:
     """Metadata OnnxSegmenter needs, for a bench-only graph that has no checkpoint behind it."""
     import onnx
 
-    from export.onnx import build_metadata, set_metadata
+    from segmin.export.onnx import build_metadata, set_metadata
 
     model = onnx.load(str(path))
     info = {"threshold": 0.5, "family": "bench", "train_data": "none", "backbone_weights": "none"}

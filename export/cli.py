@@ -41,7 +41,7 @@ def register(commands, bench) -> None:
 def run_export(args: argparse.Namespace) -> int:
     import logging
 
-    from export.pipeline import ExportOptions, export_checkpoint
+    from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     logging.getLogger("export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes

@@ -20,7 +20,6 @@ kept for old consumers; `segmin bench export --compare-exporters` times both.
 from __future__ import annotations
 
 import hashlib
-import subprocess
 import warnings
 from pathlib import Path
 from typing import Any, Mapping
@@ -30,7 +29,8 @@ import torch
 from torch import nn
 
 import segmin
-from export import metadata as md
+from segmin.common.provenance import git_commit
+from segmin.export import metadata as md
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -53,23 +53,6 @@ class DeployWrapper(nn.Module):
     def forward(self, rgb: torch.Tensor) -> torch.Tensor:
         images = rgb.permute(0, 3, 1, 2).to(torch.float32) * self.scale + self.bias
         return torch.sigmoid(self.model(images))
-
-
-def git_commit() -> str:
-    """The project's git commit (best effort; "unknown" outside a checkout or without git)."""
-    try:
-        result = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-            check=False,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    commit = result.stdout.strip()
-    return commit if result.returncode == 0 and commit else "unknown"
 
 
 def file_sha256(path: str | Path) -> str:
@@ -151,7 +134,7 @@ def export_graph(
 ) -> int:
     """Write the wrapped model as ONNX (one file, no metadata yet) to `path`; returns the opset used.
 
-    Writes `path` directly: callers wrap it in `segmin.atomic.atomic_path`.
+    Writes `path` directly: callers wrap it in `segmin.common.atomic.atomic_path`.
     """
     if exporter not in EXPORTERS:
         raise ValueError(f"exporter={exporter!r}: expected one of {EXPORTERS}")

@@ -1,6 +1,6 @@
 """checkpoint -> verified ONNX file (+ optional fp16 and INT8 variants) and a JSON export report.
 
-Every file is written through `segmin.atomic.atomic_path`: the graph is exported, stamped with
+Every file is written through `segmin.common.atomic.atomic_path`: the graph is exported, stamped with
 metadata and verified inside the temporary file, and only a file that passed is renamed to its
 final name. A failed check therefore leaves no new file behind (with `force`, a previous file of
 the same name stays as it was: a failed export never destroys the last good model). Existing
@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from export import metadata as md
-from export import quantize as quant
-from export.onnx import (
+from segmin.export import metadata as md
+from segmin.export import quantize as quant
+from segmin.export.onnx import (
     DEFAULT_OPSET,
     EXPORTERS,
     DeployWrapper,
@@ -28,7 +28,7 @@ from export.onnx import (
     export_graph,
     set_metadata,
 )
-from export.verify import (
+from segmin.export.verify import (
     MAX_ABS_DIFF,
     MIN_MASK_AGREEMENT,
     VerificationError,
@@ -39,7 +39,7 @@ from export.verify import (
     torch_reference,
     verify_against_torch,
 )
-from segmin.atomic import atomic_path, write_json
+from segmin.common.atomic import atomic_path, write_json
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +144,7 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     """Run the whole export; returns the report (also written to model.export.json)."""
     import onnx
 
-    from models.checkpoint import load_model
+    from segmin.models.checkpoint import load_model
 
     existing = [str(p) for p in planned_outputs(options) if p.exists()]
     if existing and not options.force:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from export.verify import Agreement, compare, make_session, run_session
+from segmin.export.verify import Agreement, compare, make_session, run_session
 
 # fp16 is compared with the fp32 export, not with PyTorch: half precision cannot meet 1e-4.
 FP16_MAX_ABS_DIFF = 1e-2

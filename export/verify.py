@@ -71,7 +71,7 @@ def _image_files(folder: Path) -> list[Path]:
 def _agriseg_images(root: Path, domains: list[str] | None = None) -> list[Path]:
     """Image paths of an AgriSeg-layout root via data.agriseg_loader, [] when it is not one."""
     try:
-        from data.agriseg_loader import find_frames
+        from segmin.data.agriseg_loader import find_frames
     except ImportError:
         return []
     try:

@@ -1,5 +1,5 @@
 """Models: build the LR-ASPP MobileNetV3 segmentation network, nothing else."""
 
-from models.lraspp import SegmentationNet, WeightsUnavailableError, build_model
+from segmin.models.lraspp import SegmentationNet, WeightsUnavailableError, build_model
 
 __all__ = ["SegmentationNet", "WeightsUnavailableError", "build_model"]

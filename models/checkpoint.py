@@ -18,8 +18,8 @@ from typing import Any
 
 import torch
 
-from models.lraspp import ARCHITECTURE, SegmentationNet, build_model
-from segmin.atomic import atomic_path
+from segmin.models.lraspp import ARCHITECTURE, SegmentationNet, build_model
+from segmin.common.atomic import atomic_path
 
 FORMAT = "segmin-checkpoint-v1"
 

@@ -42,9 +42,9 @@ class _Timed:
 
 def untrained_onnx(folder: Path, size: int = 224) -> Path:
     """An untrained (random-weight) model exported with the export package, for timing only."""
-    from export.onnx import build_metadata, export_graph, set_metadata
-    from models import build_model
-    from models.checkpoint import model_info
+    from segmin.export.onnx import build_metadata, export_graph, set_metadata
+    from segmin.models import build_model
+    from segmin.models.checkpoint import model_info
 
     import onnx
     import torch
@@ -63,8 +63,8 @@ def untrained_onnx(folder: Path, size: int = 224) -> Path:
 def bench_one_run(model: str, field: str, method: str, seconds: float, config: Any, threads: int = 1,
                   seed: int = 0) -> dict[str, Any]:
     """Drive `seconds` of simulated time and return the timing breakdown."""
-    from nav_eval.evaluate import FieldContext, make_navigator, make_segmenter
-    from nav_eval.sim import RowEnv, run_episode
+    from segmin.nav_eval.evaluate import FieldContext, make_navigator, make_segmenter
+    from segmin.nav_eval.sim import RowEnv, run_episode
 
     config = dataclasses.replace(config, run=dataclasses.replace(
         config.run, time_limit_s=seconds, stall_time_s=10 * seconds, length_m=max(config.run.length_m, 1.0)))
@@ -93,8 +93,8 @@ def bench_one_run(model: str, field: str, method: str, seconds: float, config: A
 
 
 def bench_nav_eval(args: argparse.Namespace) -> None:
-    from nav_eval.eval_config import load_nav_config
-    from nav_eval.evaluate import run_evaluation
+    from segmin.nav_eval.eval_config import load_nav_config
+    from segmin.nav_eval.evaluate import run_evaluation
 
     config = load_nav_config(args.config, args.overrides)
     with tempfile.TemporaryDirectory() as tmp:

@@ -51,9 +51,9 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def _nav_eval(args: argparse.Namespace) -> int:
-    from nav_eval.eval_config import load_nav_config
-    from nav_eval.evaluate import run_evaluation
-    from nav_eval.report import table3_markdown
+    from segmin.nav_eval.eval_config import load_nav_config
+    from segmin.nav_eval.evaluate import run_evaluation
+    from segmin.nav_eval.report import table3_markdown
 
     config = load_nav_config(args.config, args.overrides)
     if args.workers < 1:
@@ -70,7 +70,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from nav_eval.bench import bench_nav_eval
+    from segmin.nav_eval.bench import bench_nav_eval
 
     bench_nav_eval(args)
     return 0

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nav_eval.demo_scenes import DEMO_SCENES, DemoScene, render_scene
-from nav_eval.navigator import (
+from segmin.nav_eval.demo_scenes import DEMO_SCENES, DemoScene, render_scene
+from segmin.nav_eval.navigator import (
     METHODS,
     Navigator,
     NavigatorConfig,
@@ -21,7 +21,7 @@ from nav_eval.navigator import (
     control_law,
     moving_average,
 )
-from segmin.atomic import atomic_path, write_text
+from segmin.common.atomic import atomic_path, write_text
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The closed-loop evaluation config (`configs/nav/default.yaml`), validated by segmin.config.
+"""The closed-loop evaluation config (`configs/nav/default.yaml`), validated by segmin.common.config.
 
 Every number of the simulation a user may change lives here: rates, robot limits, run length,
 start noise, depth thresholds per field. The navigator's own constants (v_max, omega_gain, ...)
@@ -12,9 +12,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from nav_eval.robot import RobotConfig
+from segmin.nav_eval.robot import RobotConfig
 
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "nav" / "default.yaml"
+DEFAULT_CONFIG = "default"  # the shipped configs/nav/default.yaml
 
 METHODS = ("segmin", "segmind", "segzeros")
 
@@ -107,7 +107,7 @@ class NavEvalConfig:
         if forbidden:
             raise ValueError(f"navigator: {sorted(forbidden)} are set by the evaluation, not the config")
         try:
-            from nav_eval.navigator import NavigatorConfig
+            from segmin.nav_eval.navigator import NavigatorConfig
         except ImportError:  # navigator not installed yet: checked when a run builds it
             return
         allowed = {f.name for f in dataclasses.fields(NavigatorConfig)}
@@ -125,7 +125,8 @@ class NavEvalConfig:
 
 
 def load_nav_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> NavEvalConfig:
-    """Load the evaluation config (the shipped default when `path` is None) with key=value overrides."""
-    from segmin.config import load_config
+    """Load the evaluation config (a shipped name or a YAML path; the shipped default when None)."""
+    from segmin.common.config import load_config
+    from segmin.common.shipped import resolve_config
 
-    return load_config(NavEvalConfig, path if path is not None else DEFAULT_CONFIG, overrides)
+    return load_config(NavEvalConfig, resolve_config("nav", DEFAULT_CONFIG if path is None else path), overrides)

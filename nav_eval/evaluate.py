@@ -27,9 +27,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nav_eval.eval_config import METHODS, NavEvalConfig, load_nav_config
-from nav_eval.metrics import Trajectory, compute_metrics
-from segmin.config import from_dict, to_dict
+from segmin.nav_eval.eval_config import METHODS, NavEvalConfig, load_nav_config
+from segmin.nav_eval.metrics import Trajectory, compute_metrics
+from segmin.common.config import from_dict, to_dict
 
 METRIC_KEYS = ("clearance_time", "mae", "mse", "heading_avg", "v_avg", "omega_std", "collisions",
                "min_plant_distance", "distance")
@@ -89,7 +89,7 @@ class Job:
 
 def resolve_fields(fields: str | list[str] | tuple[str, ...]) -> list[str]:
     """'all' -> the five test fields; 'a,b' or a list -> names or world spec paths (checked)."""
-    from data.synth.spec import TEST_FIELDS, load_world_spec
+    from segmin.data.synth.spec import TEST_FIELDS, load_world_spec
 
     items = [f.strip() for f in fields.split(",")] if isinstance(fields, str) else [str(f) for f in fields]
     items = [f for f in items if f]
@@ -135,10 +135,10 @@ class FieldContext:
     def __init__(self, field: str, config: NavEvalConfig) -> None:
         import pybullet as p
 
-        from data.synth.camera import CameraModel
-        from data.synth.render import Renderer
-        from data.synth.spec import load_world_spec
-        from data.synth.world import build_world
+        from segmin.data.synth.camera import CameraModel
+        from segmin.data.synth.render import Renderer
+        from segmin.data.synth.spec import load_world_spec
+        from segmin.data.synth.world import build_world
 
         self.spec = load_world_spec(field)
         self.client = p.connect(p.DIRECT)
@@ -164,20 +164,20 @@ class FieldContext:
 def make_segmenter(model: str, threads: int = 1) -> Any:
     """'oracle' -> OracleSegmenter; otherwise an ONNX file -> nav_eval.segmenter.OnnxSegmenter."""
     if str(model) == "oracle":
-        from nav_eval.oracle import OracleSegmenter
+        from segmin.nav_eval.oracle import OracleSegmenter
 
         return OracleSegmenter()
     path = Path(model)
     if not path.is_file():
         raise FileNotFoundError(f"--model: {path} not found (give an .onnx file or 'oracle')")
-    from nav_eval.segmenter import OnnxSegmenter
+    from segmin.nav_eval.segmenter import OnnxSegmenter
 
     return OnnxSegmenter(str(path), threads=threads)
 
 
 def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
     """The paper's navigator; fusion happens in the sim (see sim.py), so fuse_frames=1 here."""
-    from nav_eval.navigator import Navigator, NavigatorConfig
+    from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
     return Navigator(NavigatorConfig(method=method, depth_threshold=depth_threshold, fuse_frames=1,
                                      **config.navigator))
@@ -211,7 +211,7 @@ class Worker:
 
     def run(self, job: Job) -> RunResult:
         """One run; never raises (an exception becomes a failure row)."""
-        from nav_eval.sim import RowEnv, run_episode
+        from segmin.nav_eval.sim import RowEnv, run_episode
 
         start = time.perf_counter()
         result = RunResult(field=field_label(job.field), method=job.method, run=job.run, seed=job.seed,
@@ -234,7 +234,7 @@ class Worker:
             result.trajectory = episode.trajectory
             result.commands = episode.commands
             if job.video_path and episode.video:
-                from nav_eval.plots import write_video
+                from segmin.nav_eval.plots import write_video
 
                 write_video(job.video_path, episode.video, fps=self.config.rates.command_hz)
         except Exception as exc:  # a failed run is a row, never a crash of the evaluation
@@ -305,7 +305,7 @@ def run_evaluation(
     def done(result: RunResult) -> None:
         results.append(result)
         if out is not None:
-            from nav_eval.report import write_results
+            from segmin.nav_eval.report import write_results
 
             write_results(out, sorted(results, key=_order(jobs)), meta)
 
@@ -327,7 +327,7 @@ def run_evaluation(
         bar.close()
     results.sort(key=_order(jobs))
     if out is not None:
-        from nav_eval.report import write_report
+        from segmin.nav_eval.report import write_report
 
         write_report(out, results, meta, field_list, config, plots=plots)
     return results

@@ -7,8 +7,8 @@ import time
 
 import numpy as np
 
-from nav_eval.demo_scenes import DEMO_SCENES, render_scene
-from nav_eval.navigator import METHODS, Navigator, NavigatorConfig
+from segmin.nav_eval.demo_scenes import DEMO_SCENES, render_scene
+from segmin.nav_eval.navigator import METHODS, Navigator, NavigatorConfig
 
 TARGET_MEDIAN_MS = 0.2
 

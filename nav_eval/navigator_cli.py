@@ -23,7 +23,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def _navigate_demo(args: argparse.Namespace) -> int:
-    from nav_eval.demo import run_demo
+    from segmin.nav_eval.demo import run_demo
 
     if args.size < 32:
         raise ValueError(f"--size must be at least 32 pixels, got {args.size}")
@@ -35,7 +35,7 @@ def _navigate_demo(args: argparse.Namespace) -> int:
 
 
 def _bench_navigator(args: argparse.Namespace) -> int:
-    from nav_eval.navigator_bench import bench_navigator, format_rows, single_thread_environment
+    from segmin.nav_eval.navigator_bench import bench_navigator, format_rows, single_thread_environment
 
     single_thread_environment()
     print(format_rows(bench_navigator(size=args.size, steps=args.steps), args.size))

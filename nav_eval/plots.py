@@ -23,8 +23,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nav_eval.metrics import project_onto_polyline  # noqa: E402
-from segmin.atomic import write_bytes  # noqa: E402
+from segmin.nav_eval.metrics import project_onto_polyline  # noqa: E402
+from segmin.common.atomic import write_bytes  # noqa: E402
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
@@ -86,7 +86,7 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
 
 def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth_threshold: float) -> None:
     """RGB (mask tinted, targets marked) | SegMin histogram | SegMinD histogram of one frame."""
-    from nav_eval.navigator import column_histogram, histogram_minimum, moving_average
+    from segmin.nav_eval.navigator import column_histogram, histogram_minimum, moving_average
 
     depth = np.asarray(frame.depth, dtype=np.float32)
     hists, targets = {}, {}
@@ -119,8 +119,8 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
 
 def make_field_figures(out: Path, results: list[Any], fields: list[str], config: Any, model: str) -> list[str]:
     """Both figures for every field; returns their paths relative to `out`. Never raises."""
-    from nav_eval.evaluate import FieldContext, field_label
-    from nav_eval.sim import RowEnv
+    from segmin.nav_eval.evaluate import FieldContext, field_label
+    from segmin.nav_eval.sim import RowEnv
 
     written: list[str] = []
     segmenters: dict[str, Any] = {}
@@ -149,9 +149,9 @@ def make_field_figures(out: Path, results: list[Any], fields: list[str], config:
 def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any, segmenters: dict[str, Any],
                         model: str) -> None:
     """Render the centreline view a few metres into the row and draw the histogram figure."""
-    from nav_eval.evaluate import make_segmenter
-    from nav_eval.oracle import segment_frame
-    from nav_eval.sim import point_on_polyline
+    from segmin.nav_eval.evaluate import make_segmenter
+    from segmin.nav_eval.oracle import segment_frame
+    from segmin.nav_eval.sim import point_on_polyline
 
     if model not in segmenters:
         segmenters[model] = make_segmenter(model)

@@ -1,6 +1,6 @@
 """Evaluation outputs: results.csv / results.json (one row per run) and report.md (Table 3 style).
 
-All files are written atomically (segmin.atomic). The report puts the paper's Table 3 numbers
+All files are written atomically (segmin.common.atomic). The report puts the paper's Table 3 numbers
 (Gazebo, 3 runs, 20 m) beside ours so the comparison is one glance; mean +- std are over runs
 (sample std, ddof = 1); clearance time is averaged over successful runs only, every other metric
 over all runs (failed runs included, up to where they ended).
@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from nav_eval.metrics import mean_std
-from segmin.atomic import write_bytes, write_json, write_text
+from segmin.nav_eval.metrics import mean_std
+from segmin.common.atomic import write_bytes, write_json, write_text
 
 # Paper Table 3 (reference-facts section 2): clearance s, MAE m, MSE m^2, heading rad, v_avg, omega std.
 PAPER_TABLE3: dict[tuple[str, str], tuple[float, ...]] = {
@@ -119,7 +119,7 @@ def write_report(out: str | Path, results: list[Any], meta: dict[str, Any], fiel
     write_bytes(out / "trajectories.json", json.dumps(trajectories).encode())
     figures: list[str] = []
     if plots:
-        from nav_eval.plots import make_field_figures
+        from segmin.nav_eval.plots import make_field_figures
 
         figures = make_field_figures(out, results, fields, config, meta["model"])
     errors = [r for r in results if r.reason == "error"]

@@ -13,8 +13,8 @@ from typing import Callable
 
 import numpy as np
 
-from nav_eval.navigator import Navigator, NavigatorConfig
-from nav_eval.segmenter import OnnxSegmenter
+from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.segmenter import OnnxSegmenter
 
 STEP_NAME = "full step: OnnxSegmenter + Navigator.step (SegMinD)"
 

@@ -21,7 +21,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from export import metadata as md
+from segmin.export import metadata as md
 
 # Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter).
 SPIN_DEFAULT = True
@@ -85,7 +85,7 @@ class OnnxSegmenter:
             raise FileNotFoundError(f"{self.path}: ONNX model not found")
         if int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
-        from export.verify import make_session  # torch-free: the export checks use the same session
+        from segmin.export.verify import make_session  # torch-free: the export checks use the same session
 
         try:
             self.session = make_session(self.path, threads=int(threads), providers=providers, spin=spin)

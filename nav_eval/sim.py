@@ -36,10 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from nav_eval.eval_config import NavEvalConfig
-from nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
-from nav_eval.oracle import segment_frame
-from nav_eval.robot import Robot, footprint_distances
+from segmin.nav_eval.eval_config import NavEvalConfig
+from segmin.nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
+from segmin.nav_eval.oracle import segment_frame
+from segmin.nav_eval.robot import Robot, footprint_distances
 
 REASONS = ("success", "collision", "left_row", "stalled", "timeout", "error")
 

@@ -40,8 +40,8 @@ def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: flo
     """
     import torch
 
-    from models import build_model
-    from models.checkpoint import model_info, save_checkpoint
+    from segmin.models import build_model
+    from segmin.models.checkpoint import model_info, save_checkpoint
 
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
@@ -98,7 +98,7 @@ def shared_frames(tmp_path_factory) -> Path:
 def shared_export(tmp_path_factory) -> tuple[Path, dict]:
     """model.onnx (default dynamo exporter) with fp16 and int8 variants, and its report."""
     if "export" not in _SESSION_CACHE:
-        from export.pipeline import ExportOptions, export_checkpoint
+        from segmin.export.pipeline import ExportOptions, export_checkpoint
 
         out = tmp_path_factory.mktemp("tiny_export") / "model.onnx"
         report = export_checkpoint(

@@ -9,7 +9,7 @@ import sys
 import cv2
 import pytest
 
-from segmin.cli import build_parser, main
+from segmin.app.cli import build_parser, main
 
 
 def _all_subparsers(parser: argparse.ArgumentParser, prefix: tuple[str, ...] = ()):
@@ -21,7 +21,7 @@ def _all_subparsers(parser: argparse.ArgumentParser, prefix: tuple[str, ...] = (
 
 
 def test_top_level_help_lists_the_subcommands() -> None:
-    out = subprocess.run([sys.executable, "-m", "segmin.cli", "--help"], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-m", "segmin.app.cli", "--help"], capture_output=True, text=True, check=True)
     for name in ("navigate-demo", "bench"):
         assert name in out.stdout
 

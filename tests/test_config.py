@@ -1,4 +1,4 @@
-"""segmin.config: strict YAML configs with typed overrides; segmin.atomic: no partial files."""
+"""segmin.common.config: strict YAML configs with typed overrides; segmin.common.atomic: no partial files."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from segmin.atomic import atomic_path, write_json
-from segmin.config import ConfigError, load_config, to_dict
+from segmin.common.atomic import atomic_path, write_json
+from segmin.common.config import ConfigError, load_config, to_dict
 
 
 @dataclass

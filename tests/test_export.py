@@ -11,10 +11,10 @@ import onnx
 import pytest
 import torch
 
-from export import metadata as md
-from export.onnx import DeployWrapper, read_metadata
-from export.pipeline import ExportOptions, OutputExistsError, export_checkpoint, report_path, variant_path
-from export.verify import (
+from segmin.export import metadata as md
+from segmin.export.onnx import DeployWrapper, read_metadata
+from segmin.export.pipeline import ExportOptions, OutputExistsError, export_checkpoint, report_path, variant_path
+from segmin.export.verify import (
     MAX_ABS_DIFF,
     MIN_MASK_AGREEMENT,
     VerificationError,
@@ -24,8 +24,8 @@ from export.verify import (
     run_session,
 )
 from export_helpers import SIZE, field_image, shared_checkpoint, shared_export, shared_frames, write_frames
-from models.checkpoint import load_model
-from segmin.cli import main as segmin_main
+from segmin.models.checkpoint import load_model
+from segmin.app.cli import main as segmin_main
 
 
 @pytest.fixture(scope="module")
@@ -168,7 +168,7 @@ def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, 
 
 
 def test_failed_verification_leaves_no_file(workdir, checkpoint, frames_dir, monkeypatch) -> None:
-    import export.pipeline as pipeline
+    import segmin.export.pipeline as pipeline
 
     def shifted_reference(wrapper):
         def probabilities(frames):
@@ -251,7 +251,7 @@ def _agriseg_root(root: Path) -> Path:
 
 
 def test_frames_from_agriseg_root_and_training_data(tmp_path) -> None:
-    from export.pipeline import _frame_source, parse_train_data
+    from segmin.export.pipeline import _frame_source, parse_train_data
 
     root = _agriseg_root(tmp_path / "agriseg")
     frames = load_frames(root, (SIZE, SIZE))
@@ -288,7 +288,7 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     assert roofline["floor_ms"] == pytest.approx(roofline["conv_gflop"] / roofline["peak_gflops"] * 1e3)
     assert "GFLOP of convolutions per frame" in printed
     with pytest.raises(ValueError, match="pass --size"):
-        from export.bench import run_benchmark
+        from segmin.export.bench import run_benchmark
 
         run_benchmark(onnx_path=out, checkpoint=checkpoint, size=SIZE * 2, runs=2, int8=False)
 
@@ -298,7 +298,7 @@ def test_conv_flops_counts_grouped_and_strided_convolutions(tmp_path) -> None:
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
-    from export.roofline import conv_flops, floor_summary
+    from segmin.export.roofline import conv_flops, floor_summary
 
     w1 = numpy_helper.from_array(np.zeros((8, 3, 3, 3), np.float32), "w1")
     w2 = numpy_helper.from_array(np.zeros((8, 1, 3, 3), np.float32), "w2")

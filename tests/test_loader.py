@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from data.agriseg_loader import (
+from segmin.data.agriseg_loader import (
     AgriSegDataset,
     DatasetError,
     find_frames,
@@ -23,7 +23,7 @@ from data.agriseg_loader import (
     save_split,
     scan,
 )
-from data.augment import IMAGENET_MEAN, IMAGENET_STD, AugmentConfig, denormalize, eval_transform, train_transform
+from segmin.data.augment import IMAGENET_MEAN, IMAGENET_STD, AugmentConfig, denormalize, eval_transform, train_transform
 
 SIZE = (40, 48)  # h, w
 
@@ -222,7 +222,7 @@ def test_two_files_in_one_frame_folder_is_a_problem(tmp_path):
 
 
 def test_inspect_cli_lists_counts_and_problems(tmp_path, capsys):
-    from segmin.cli import main
+    from segmin.app.cli import main
 
     make_formatted(tmp_path, "vineyard", ids=(1, 2, 10))
     sub = make_formatted(tmp_path, "pear", ids=(1, 2), subset_k=3)

@@ -6,9 +6,9 @@ import pytest
 import torch
 from torchvision.models import mobilenet_v3_large
 
-from models import WeightsUnavailableError, build_model
-from models.checkpoint import FORMAT, load_model, model_info, read_checkpoint, save_checkpoint
-from models.lraspp import imagenet_weights_path
+from segmin.models import WeightsUnavailableError, build_model
+from segmin.models.checkpoint import FORMAT, load_model, model_info, read_checkpoint, save_checkpoint
+from segmin.models.lraspp import imagenet_weights_path
 
 WEIGHTS_FILE = "mobilenet_v3_large-8738ca79.pth"
 

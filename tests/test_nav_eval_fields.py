@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from data.synth.spec import TEST_FIELDS
-from nav_eval.eval_config import load_nav_config
-from nav_eval.evaluate import FieldContext, Job, Worker, run_evaluation, run_seed
-from nav_eval.oracle import OracleSegmenter
-from nav_eval.sim import RowEnv, run_episode
+from segmin.data.synth.spec import TEST_FIELDS
+from segmin.nav_eval.eval_config import load_nav_config
+from segmin.nav_eval.evaluate import FieldContext, Job, Worker, run_evaluation, run_seed
+from segmin.nav_eval.oracle import OracleSegmenter
+from segmin.nav_eval.sim import RowEnv, run_episode
 
 TINY = ["perception.width=64", "perception.height=64", "run.length_m=2.0", "run.time_limit_s=12"]
 
@@ -96,7 +96,7 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
 
 
 def test_cli_refuses_training_worlds_bad_methods_and_missing_models(tmp_path, capsys) -> None:
-    from segmin.cli import main
+    from segmin.app.cli import main
 
     assert main(["nav-eval", "--model", "oracle", "--fields", "train_vineyard_a", "--out", str(tmp_path)]) == 2
     assert "training world" in capsys.readouterr().err

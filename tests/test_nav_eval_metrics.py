@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from nav_eval.metrics import (
+from segmin.nav_eval.metrics import (
     Trajectory,
     compute_metrics,
     heading_average,
@@ -15,8 +15,8 @@ from nav_eval.metrics import (
     mean_std,
     project_onto_polyline,
 )
-from nav_eval.robot import Robot, RobotConfig, collides, footprint_distances
-from nav_eval.sim import point_on_polyline
+from segmin.nav_eval.robot import Robot, RobotConfig, collides, footprint_distances
+from segmin.nav_eval.sim import point_on_polyline
 
 
 def _straight(n: int = 81) -> np.ndarray:

@@ -13,10 +13,10 @@ import math
 import numpy as np
 import pytest
 
-from nav_eval.eval_config import NavEvalConfig, Perception, Rates, RunSettings
-from nav_eval.evaluate import make_navigator
-from nav_eval.oracle import OracleSegmenter
-from nav_eval.sim import RowEnv, run_episode
+from segmin.nav_eval.eval_config import NavEvalConfig, Perception, Rates, RunSettings
+from segmin.nav_eval.evaluate import make_navigator
+from segmin.nav_eval.oracle import OracleSegmenter
+from segmin.nav_eval.sim import RowEnv, run_episode
 
 
 @dataclasses.dataclass

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from nav_eval.navigator import (
+from segmin.nav_eval.navigator import (
     METHODS,
     Navigator,
     NavigatorConfig,

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from segmin.cli import main
-from segmin.config import ConfigError
-from segmin.pipeline.cache import StageCache
-from segmin.pipeline.config import load_pipeline_config
-from segmin.pipeline.runner import PipelineRunner
+from segmin.app.cli import main
+from segmin.common.config import ConfigError
+from segmin.app.pipeline.cache import StageCache
+from segmin.app.pipeline.config import load_pipeline_config
+from segmin.app.pipeline.runner import PipelineRunner
 
 FIELDS = ("straight_vineyard", "curved_vineyard", "pergola_vineyard", "pear_field", "high_trees")
 STAGE_KEYS = ("render", "train/trees", "train/vineyards", "export/trees", "export/vineyards",

@@ -11,11 +11,11 @@ import onnx
 import pytest
 import torch
 
-from export import metadata as md
-from export.onnx import DeployWrapper
+from segmin.export import metadata as md
+from segmin.export.onnx import DeployWrapper
 from export_helpers import SIZE, field_image, shared_checkpoint, shared_export
-from models.checkpoint import load_model
-from nav_eval.segmenter import OnnxSegmenter, Segmenter
+from segmin.models.checkpoint import load_model
+from segmin.nav_eval.segmenter import OnnxSegmenter, Segmenter
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +122,7 @@ def test_bad_files_give_clear_errors(model_path, tmp_path) -> None:
 
 
 def test_fp16_and_int8_files_load_in_the_segmenter(model_path) -> None:
-    from export.pipeline import variant_path
+    from segmin.export.pipeline import variant_path
 
     rgb = _frame(SIZE, SIZE, seed=9)
     fp32 = OnnxSegmenter(model_path).probabilities(rgb)
@@ -132,7 +132,7 @@ def test_fp16_and_int8_files_load_in_the_segmenter(model_path) -> None:
 
 
 def test_full_perception_control_step(model_path) -> None:
-    from nav_eval.navigator import Navigator, NavigatorConfig
+    from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
     segmenter = OnnxSegmenter(model_path)
     navigator = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
@@ -157,7 +157,7 @@ def test_background_segmentation_gives_the_masks_of_segment(model_path) -> None:
     """The closed loop segments on a helper thread (prepare here, onnxruntime there): same masks."""
     from types import SimpleNamespace
 
-    from nav_eval.sim import BackgroundSegmenter
+    from segmin.nav_eval.sim import BackgroundSegmenter
 
     segmenter = OnnxSegmenter(model_path, threads=1)
     frames = [_frame(SIZE + 8 * k, SIZE, seed=20 + k) for k in range(4)]

@@ -8,10 +8,10 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from data.synth.camera import CameraModel
-from data.synth.render import Renderer, camera_pose
-from data.synth.spec import spec_from_dict
-from data.synth.world import build_world
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.render import Renderer, camera_pose
+from segmin.data.synth.spec import spec_from_dict
+from segmin.data.synth.world import build_world
 from synth_helpers import tiny
 
 SMALL = CameraModel(width=48, height=48)
@@ -138,7 +138,7 @@ def test_depth_noise_model():
 def test_preview_contact_sheet(tmp_path):
     import cv2
 
-    from segmin.cli import main as segmin_main
+    from segmin.app.cli import main as segmin_main
     from synth_helpers import write_spec
 
     spec_path = write_spec(tmp_path / "tiny.yaml", tiny())

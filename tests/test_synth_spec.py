@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from data.synth.spec import TEST_FIELDS, load_world_spec, spec_from_dict
-from segmin.config import ConfigError
+from segmin.data.synth.spec import TEST_FIELDS, load_world_spec, spec_from_dict
+from segmin.common.config import ConfigError
 from synth_helpers import tiny, write_spec
 
 WORLDS = Path(__file__).resolve().parents[1] / "configs" / "worlds"

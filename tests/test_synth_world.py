@@ -6,8 +6,8 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from data.synth.spec import spec_from_dict
-from data.synth.world import build_world
+from segmin.data.synth.spec import spec_from_dict
+from segmin.data.synth.world import build_world
 from synth_helpers import tiny
 
 

@@ -15,10 +15,10 @@ import cv2
 import numpy as np
 import pytest
 
-from data.synth.camera import CameraModel
-from data.synth.spec import spec_from_dict
-from data.synth.writer import RenderJob, render_dataset
-from segmin.cli import main as segmin_main
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.spec import spec_from_dict
+from segmin.data.synth.writer import RenderJob, render_dataset
+from segmin.app.cli import main as segmin_main
 from synth_helpers import tiny, write_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,7 +87,7 @@ def test_resume_after_killing_a_run(tmp_path):
     spec_path = write_spec(tmp_path / "tiny.yaml", tiny())
     out = tmp_path / "killed"
     frames = 300
-    cmd = [sys.executable, "-m", "segmin.cli", "synth", "render", "--world", spec_path, "--frames", str(frames),
+    cmd = [sys.executable, "-m", "segmin.app.cli", "synth", "render", "--world", spec_path, "--frames", str(frames),
            "--out", str(out), "--workers", "2", "--size", "32", "--no-progress"]
     proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     images = out / "synth_tiny_vineyard" / "synth_tiny_vineyard_1" / "images"
@@ -122,7 +122,7 @@ def test_unwritable_output_fails_before_rendering(tmp_path, monkeypatch):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     built = []
-    import data.synth.world as world_module
+    import segmin.data.synth.world as world_module
 
     monkeypatch.setattr(world_module, "build_world", lambda *a, **k: built.append(1))
     with pytest.raises(ValueError, match="not writable"):

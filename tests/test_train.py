@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from models.checkpoint import load_model
-from segmin.config import ConfigError
-from train.config import TrainConfig, load_train_config
-from train.loop import SegLoss, StepContext, train_step
-from train.metrics import SegMetrics
+from segmin.models.checkpoint import load_model
+from segmin.common.config import ConfigError
+from segmin.train.config import TrainConfig, load_train_config
+from segmin.train.loop import SegLoss, StepContext, train_step
+from segmin.train.metrics import SegMetrics
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "train"
 
@@ -50,7 +50,7 @@ def tiny_config(root: Path, **overrides) -> TrainConfig:
     }
     for key, value in overrides.items():
         raw[key] = value
-    from segmin.config import from_dict
+    from segmin.common.config import from_dict
 
     return from_dict(TrainConfig, raw)
 
@@ -101,13 +101,13 @@ def test_dice_term_adds_to_bce():
 
 
 def test_loss_decreases_on_a_tiny_overfit_set(dataset_root):
-    from data.agriseg_loader import AgriSegDataset
+    from segmin.data.agriseg_loader import AgriSegDataset
 
     torch.manual_seed(0)
     ds = AgriSegDataset(dataset_root, split="all", image_size=64)
     images = torch.stack([ds[i][0] for i in range(4)])
     masks = torch.stack([ds[i][1] for i in range(4)])
-    from models import build_model
+    from segmin.models import build_model
 
     model = build_model("none")
     ctx = StepContext(model, torch.optim.Adam(model.parameters(), lr=1e-3), SegLoss(), torch.device("cpu"))
@@ -119,7 +119,7 @@ def test_loss_decreases_on_a_tiny_overfit_set(dataset_root):
 
 
 def test_fit_writes_checkpoints_logs_and_previews(dataset_root, tmp_path):
-    from train.run import train_model
+    from segmin.train.run import train_model
 
     out = tmp_path / "run"
     best = train_model(tiny_config(dataset_root), out)
@@ -155,7 +155,7 @@ def _assert_same_weights(a: Path, b: Path) -> None:
 
 
 def test_resume_gives_the_same_weights_as_an_uninterrupted_run(dataset_root, tmp_path):
-    from train.run import fit
+    from segmin.train.run import fit
 
     config = tiny_config(dataset_root, epochs=3, schedule="step", step_size=1, gamma=0.5, bn_momentum=0.2)
     fit(config, tmp_path / "straight")
@@ -172,13 +172,13 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(dataset_root, tmp
 
 
 def test_ctrl_c_saves_a_checkpoint_and_resume_is_exact(dataset_root, tmp_path, monkeypatch):
-    import train.loop
-    from train.run import fit
+    import segmin.train.loop as loop_module
+    from segmin.train.run import fit
 
     config = tiny_config(dataset_root, epochs=2)
     fit(config, tmp_path / "straight")
 
-    real_step = train.loop.train_step
+    real_step = loop_module.train_step
     calls = {"n": 0}
 
     def interrupting_step(*args, **kwargs):
@@ -187,12 +187,12 @@ def test_ctrl_c_saves_a_checkpoint_and_resume_is_exact(dataset_root, tmp_path, m
             raise KeyboardInterrupt
         return real_step(*args, **kwargs)
 
-    monkeypatch.setattr(train.loop, "train_step", interrupting_step)
+    monkeypatch.setattr(loop_module, "train_step", interrupting_step)
     result = fit(config, tmp_path / "cut")
     assert result.interrupted
     state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
     assert (state["epoch"], state["step"]) == (1, 0)
-    monkeypatch.setattr(train.loop, "train_step", real_step)
+    monkeypatch.setattr(loop_module, "train_step", real_step)
     calls["n"] = 0
 
     def interrupting_after_one(*args, **kwargs):
@@ -201,11 +201,11 @@ def test_ctrl_c_saves_a_checkpoint_and_resume_is_exact(dataset_root, tmp_path, m
             raise KeyboardInterrupt
         return real_step(*args, **kwargs)
 
-    monkeypatch.setattr(train.loop, "train_step", interrupting_after_one)
+    monkeypatch.setattr(loop_module, "train_step", interrupting_after_one)
     assert fit(config, tmp_path / "cut", resume=True).interrupted
     state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
     assert (state["epoch"], state["step"]) == (1, 1)  # mid-epoch: one step of epoch 2 done
-    monkeypatch.setattr(train.loop, "train_step", real_step)
+    monkeypatch.setattr(loop_module, "train_step", real_step)
     assert not fit(config, tmp_path / "cut", resume=True).interrupted
     _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
 
@@ -216,7 +216,7 @@ def test_held_out_validation_domains(tmp_path):
     config = tiny_config(train_root, epochs=1)
     config.data.val_root = val_root
     config.data.val_domains = ["synth_vineyards"]
-    from train.run import select_frames
+    from segmin.train.run import select_frames
 
     train_frames, val_frames = select_frames(config)
     assert len(train_frames) == 6 and {f.domain for f in val_frames} == {"synth_straight_vineyard"}
@@ -246,12 +246,12 @@ def test_config_is_strict_and_takes_overrides():
 
 
 def test_train_cli_runs_and_resumes(dataset_root, tmp_path, capsys):
-    from segmin.cli import main
+    from segmin.app.cli import main
 
     config = tmp_path / "tiny.yaml"
     import yaml
 
-    from segmin.config import to_dict
+    from segmin.common.config import to_dict
 
     config.write_text(yaml.safe_dump(to_dict(tiny_config(dataset_root, epochs=1))))
     out = tmp_path / "cli_run"
@@ -263,7 +263,7 @@ def test_train_cli_runs_and_resumes(dataset_root, tmp_path, capsys):
 
 
 def test_bench_runs_and_reports_both_rates():
-    from train.bench import bench_train
+    from segmin.train.bench import bench_train
 
     result = bench_train(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
     assert result["model_step_ips"] > 0 and result["full_pipeline_ips"] > 0
@@ -274,8 +274,8 @@ def test_bench_runs_and_reports_both_rates():
 
 
 def test_output_grid_matches_the_models_logit_grid():
-    from models import build_model
-    from train.resolution_bound import output_grid
+    from segmin.models import build_model
+    from segmin.train.resolution_bound import output_grid
 
     model = build_model("none").eval()
     for size in (40, 45, 64):
@@ -286,7 +286,7 @@ def test_output_grid_matches_the_models_logit_grid():
 
 def test_iou_bound_is_exact_on_cell_aligned_masks_and_lower_on_stripes():
     """Masks made of whole 8x8 cells are representable (ceiling ~1); 1-pixel stripes are not."""
-    from train.resolution_bound import iou_bound
+    from segmin.train.resolution_bound import iou_bound
 
     rng = np.random.default_rng(0)
     blocky = np.kron(rng.integers(0, 2, (4, 8, 8)), np.ones((8, 8))).astype(np.float32)
@@ -301,7 +301,7 @@ def test_iou_bound_is_exact_on_cell_aligned_masks_and_lower_on_stripes():
 
 
 def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
-    from segmin.cli import main
+    from segmin.app.cli import main
 
     assert main(["bench", "iou-bound", "--root", str(dataset_root), "--sizes", "32", "--frames", "4",
                  "--steps", "20"]) == 0
@@ -318,7 +318,7 @@ def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
     (["--domains", "no_such_domain"], "no_such_domain"),
 ])
 def test_bench_iou_bound_rejects_bad_input_with_one_line(dataset_root, capsys, extra, message):
-    from segmin.cli import main
+    from segmin.app.cli import main
 
     assert main(["bench", "iou-bound", "--root", str(dataset_root), "--steps", "1", *extra]) == 2
     err = capsys.readouterr().err.strip()

@@ -25,7 +25,7 @@ def _worker(rank: int, world_size: int, port: int, data_root: str, tmp: str) -> 
     torch.set_num_threads(1)
     from test_train import tiny_config
 
-    from train.run import fit
+    from segmin.train.run import fit
 
     config = tiny_config(Path(data_root), epochs=2, batch_size=2)
     result = fit(config, Path(tmp) / f"run_rank{rank}")

@@ -54,12 +54,12 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
     """Images/s of the model step alone and of the full pipeline (best of `repeats`, alternating)."""
     from torch.utils.data import DataLoader, RandomSampler
 
-    from data.agriseg_loader import AgriSegDataset
-    from data.augment import train_transform
-    from models import build_model
-    from train.distributed import EpochSampler
-    from train.loop import SegLoss, StepContext, train_step
-    from train.run import _worker_init
+    from segmin.data.agriseg_loader import AgriSegDataset
+    from segmin.data.augment import train_transform
+    from segmin.models import build_model
+    from segmin.train.distributed import EpochSampler
+    from segmin.train.loop import SegLoss, StepContext, train_step
+    from segmin.train.run import _worker_init
 
     import cv2
 

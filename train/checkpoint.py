@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from models.checkpoint import model_info, read_checkpoint, save_checkpoint
+from segmin.models.checkpoint import model_info, read_checkpoint, save_checkpoint
 
 
 def rng_state() -> dict[str, Any]:

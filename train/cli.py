@@ -44,8 +44,8 @@ def register(commands, bench) -> None:
 def _train(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from train.config import load_train_config
-    from train.run import fit
+    from segmin.train.config import load_train_config
+    from segmin.train.run import fit
 
     config = load_train_config(args.config, args.overrides)
     out = Path(args.out) if args.out else Path("runs/train") / Path(args.config).stem
@@ -61,7 +61,7 @@ def _train(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     import os
 
-    from train.bench import bench_train
+    from segmin.train.bench import bench_train
 
     r = bench_train(args.root, image_size=args.size, batch_size=args.batch, threads=args.threads,
                     steps=args.steps, workers=args.workers, repeats=args.repeats, device=args.device)
@@ -77,7 +77,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _bench_iou_bound(args: argparse.Namespace) -> int:
-    from train.resolution_bound import iou_bound, load_masks, resize_masks
+    from segmin.train.resolution_bound import iou_bound, load_masks, resize_masks
 
     if args.steps < 0:
         raise ValueError(f"--steps {args.steps}: must be >= 0")
@@ -95,7 +95,7 @@ def _bench_iou_bound(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry for `python -m train.cli` (what torchrun launches): the same arguments as `segmin train`."""
-    parser = argparse.ArgumentParser(prog="train.cli", description="segmin training (torchrun entry)")
+    parser = argparse.ArgumentParser(prog="segmin.train.cli", description="segmin training (torchrun entry)")
     _add_train_arguments(parser)
     args = parser.parse_args(argv)
     return _train(args)

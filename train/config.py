@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from data.augment import AugmentConfig
-from segmin.config import load_config
+from segmin.data.augment import AugmentConfig
+from segmin.common.config import load_config
 
 
 @dataclass
@@ -100,5 +100,7 @@ class TrainConfig:
 
 
 def load_train_config(path: str | Path | None, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
-    """Load configs/train/<family>.yaml plus dotted `key=value` overrides."""
-    return load_config(TrainConfig, path, overrides)
+    """Load a training config (a shipped name such as `vineyards`, or a YAML path) plus `key=value` overrides."""
+    from segmin.common.shipped import resolve_config
+
+    return load_config(TrainConfig, None if path is None else resolve_config("train", path), overrides)

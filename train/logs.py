@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from segmin.atomic import write_bytes, write_text
+from segmin.common.atomic import write_bytes, write_text
 
 CSV_COLUMNS = ("epoch", "train_loss", "val_loss", "val_iou", "val_pixel_acc", "lr", "seconds")
 
@@ -45,7 +45,7 @@ class RunLogger:
             return None
         import cv2
 
-        from data.augment import denormalize
+        from segmin.data.augment import denormalize
 
         rows = []
         for image, mask, prob in samples:

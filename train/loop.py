@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from train.metrics import SegMetrics
+from segmin.train.metrics import SegMetrics
 
 
 class SegLoss(nn.Module):

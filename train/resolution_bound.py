@@ -50,7 +50,7 @@ class Bound:
 
 def load_masks(root: str | Path, domains: Sequence[str] | None, limit: int) -> list[np.ndarray]:
     """Up to `limit` binary masks at their stored size, evenly spaced over the sorted frames."""
-    from data.agriseg_loader import find_frames, read_mask
+    from segmin.data.agriseg_loader import find_frames, read_mask
 
     if limit < 1:
         raise ValueError(f"frames={limit}: need at least one mask")

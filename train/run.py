@@ -23,16 +23,16 @@ import torch
 import yaml
 from torch.utils.data import DataLoader, DistributedSampler
 
-from data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
-from data.augment import eval_transform, train_transform
-from models import build_model
-from segmin.atomic import write_text
-from segmin.config import to_dict
-from train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
-from train.config import TrainConfig
-from train.distributed import DistInfo, EpochSampler, ShardSampler, barrier, cleanup, init_distributed
-from train.logs import RunLogger
-from train.loop import SegLoss, StepContext, evaluate, train_one_epoch
+from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
+from segmin.data.augment import eval_transform, train_transform
+from segmin.models import build_model
+from segmin.common.atomic import write_text
+from segmin.common.config import to_dict
+from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
+from segmin.train.config import TrainConfig
+from segmin.train.distributed import DistInfo, EpochSampler, ShardSampler, barrier, cleanup, init_distributed
+from segmin.train.logs import RunLogger
+from segmin.train.loop import SegLoss, StepContext, evaluate, train_one_epoch
 
 log = logging.getLogger(__name__)
 

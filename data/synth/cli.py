@@ -49,7 +49,7 @@ def _world_args(p: argparse.ArgumentParser) -> None:
 
 
 def _camera(size: str):
-    from data.synth.camera import CameraModel
+    from segmin.data.synth.camera import CameraModel
 
     try:
         if "x" in size:
@@ -62,8 +62,8 @@ def _camera(size: str):
 
 
 def _render(args) -> int:
-    from data.synth.spec import load_world_spec
-    from data.synth.writer import RenderJob, check_writable, parse_shard, render_dataset
+    from segmin.data.synth.spec import load_world_spec
+    from segmin.data.synth.writer import RenderJob, check_writable, parse_shard, render_dataset
 
     check_writable(args.out)  # before loading anything heavy
     spec = load_world_spec(args.world, args.overrides)
@@ -84,9 +84,9 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
     import numpy as np
     import pybullet as p
 
-    from data.synth.render import Renderer
-    from data.synth.spec import load_world_spec
-    from data.synth.world import build_world
+    from segmin.data.synth.render import Renderer
+    from segmin.data.synth.spec import load_world_spec
+    from segmin.data.synth.world import build_world
 
     rows = []
     for name in worlds:
@@ -121,7 +121,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
 def _preview(args) -> int:
     import cv2
 
-    from segmin.atomic import write_bytes
+    from segmin.common.atomic import write_bytes
 
     sheet = preview_sheet(args.world, args.frames, _camera(args.size), args.overrides)
     ok, png = cv2.imencode(".png", sheet[:, :, ::-1])
@@ -139,12 +139,12 @@ def _bench(args) -> int:
     import numpy as np
     import pybullet as p
 
-    from data.synth.render import Renderer
-    from data.synth.spec import TEST_FIELDS, load_world_spec
-    from data.synth.world import build_world
-    from data.synth.writer import RenderJob, render_dataset
+    from segmin.data.synth.render import Renderer
+    from segmin.data.synth.spec import TEST_FIELDS, load_world_spec
+    from segmin.data.synth.world import build_world
+    from segmin.data.synth.writer import RenderJob, render_dataset
 
-    from data.synth.writer import FrameRenderer, encode_frame
+    from segmin.data.synth.writer import FrameRenderer, encode_frame
 
     camera = _camera(args.size)
     fields = args.fields or list(TEST_FIELDS)

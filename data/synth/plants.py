@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from data.synth.mesh import Mesh, cylinders, ellipsoid_area, ellipsoid_shell_points, leaves
-from data.synth.spec import WorldSpec, pergola_reach
+from segmin.data.synth.mesh import Mesh, cylinders, ellipsoid_area, ellipsoid_shell_points, leaves
+from segmin.data.synth.spec import WorldSpec, pergola_reach
 
 # Leaves per plant at the finest level (TinyRenderer pays ~1.5 us per visible triangle), and
 # how many times fewer (bigger) leaves each coarser level of detail has.

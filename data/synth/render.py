@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 import pybullet as p
 
-from data.synth.camera import CameraModel
-from data.synth.world import World
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.world import World
 
 
 @dataclass

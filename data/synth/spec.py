@@ -1,7 +1,7 @@
 """World specs: every number that shapes a procedural field, validated before anything is built.
 
 A spec is a YAML file in `configs/worlds/` loaded strictly (unknown keys are errors, see
-`segmin.config`). Geometry is in metres and degrees; ranges are `[low, high]` pairs that the
+`segmin.common.config`). Geometry is in metres and degrees; ranges are `[low, high]` pairs that the
 world builder samples per plant. Validation raises an error naming the field, so a typo or an
 impossible field (negative spacing, rows that would intersect) fails before pybullet starts.
 """
@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from segmin.config import ConfigError, apply_overrides, from_dict, read_yaml
+from segmin.common.config import ConfigError, apply_overrides, from_dict, read_yaml
+from segmin.common.shipped import resolve_config
 
 TEST_FIELDS: tuple[str, ...] = (
     "straight_vineyard",
@@ -23,7 +24,6 @@ TEST_FIELDS: tuple[str, ...] = (
     "high_trees",
 )
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "worlds"
 
 Range = tuple[float, float]
 
@@ -284,20 +284,9 @@ class WorldSpec:
         return self.rows.eval_gap if self.rows.eval_gap >= 0 else (self.rows.count - 1) // 2
 
 
-def resolve_world_path(name_or_path: str | Path) -> Path:
-    """A bare name (no suffix, no slash) means `configs/worlds/<name>.yaml`."""
-    text = str(name_or_path)
-    if "/" not in text and not text.endswith((".yaml", ".yml")):
-        return CONFIG_DIR / f"{text}.yaml"
-    return Path(text)
-
-
 def load_world_spec(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> WorldSpec:
-    """Load and validate a world spec; errors name the file and the field."""
-    path = resolve_world_path(name_or_path)
-    if not path.is_file():
-        known = sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
-        raise ConfigError(f"{path}: world spec not found (known worlds: {', '.join(known)})")
+    """Load and validate a world spec (a shipped name or a YAML path); errors name the file and the field."""
+    path = resolve_config("worlds", name_or_path)
     raw = apply_overrides(read_yaml(path), list(overrides))
     return from_dict(WorldSpec, raw, where=str(path))
 
@@ -327,6 +316,5 @@ __all__ = [
     "WorldSpec",
     "load_world_spec",
     "pergola_reach",
-    "resolve_world_path",
     "spec_from_dict",
 ]

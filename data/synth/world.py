@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pybullet as p
 
-from data.synth.mesh import Mesh, blades, cylinders, grid_surface
-from data.synth.plants import LOD_FACTORS, Plant, make_plant
-from data.synth.spec import WorldSpec
-from data.synth.textures import TextureSet
+from segmin.data.synth.mesh import Mesh, blades, cylinders, grid_surface
+from segmin.data.synth.plants import LOD_FACTORS, Plant, make_plant
+from segmin.data.synth.spec import WorldSpec
+from segmin.data.synth.textures import TextureSet
 
 CENTRELINE_STEP = 0.1  # metres between centreline points
 GROUND_TILE = 6.0

@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from data.synth.camera import CameraModel
-from data.synth.spec import WorldSpec
-from segmin.atomic import write_bytes, write_json
-from segmin.config import to_dict
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.spec import WorldSpec
+from segmin.common.atomic import write_bytes, write_json
+from segmin.common.config import to_dict
 
 FORMAT = "segmin-synth/1"
 
@@ -171,10 +171,10 @@ def write_frame(paths: dict[str, Path], data: dict[str, bytes]) -> None:
 
     Each file is written into a hidden staging folder beside its `ImageN/` folder, which is
     then renamed into place (a rename is atomic): `ImageN/` appears complete or not at all.
-    Depth and mask go first, the RGB image last. Unlike `segmin.atomic`, the files are not
+    Depth and mask go first, the RGB image last. Unlike `segmin.common.atomic`, the files are not
     fsync'ed one by one: three fsyncs per frame cost more than rendering it, and what they
     protect against (power loss, not a killed process) a rerun repairs by re-rendering frames
-    whose files fail to decode. Files replaced in an existing folder go through `segmin.atomic`.
+    whose files fail to decode. Files replaced in an existing folder go through `segmin.common.atomic`.
     """
     for kind in ("depths", "masks", "images"):
         final = paths[kind]
@@ -239,8 +239,8 @@ class FrameRenderer:
                  noisy_depth: bool) -> None:
         import pybullet as p
 
-        from data.synth.render import Renderer
-        from data.synth.world import build_world
+        from segmin.data.synth.render import Renderer
+        from segmin.data.synth.world import build_world
 
         self.client = p.connect(p.DIRECT)
         self.world = build_world(spec, self.client)
@@ -301,7 +301,7 @@ def _fingerprint(job: RenderJob) -> dict:
 def write_meta(job: RenderJob, world) -> list[Path]:
     """One meta.json per subset: the spec, camera intrinsics, seeds and every frame's poses.
     Its content depends only on the job, so shards writing it concurrently agree byte for byte."""
-    from data.synth.render import camera_pose
+    from segmin.data.synth.render import camera_pose
 
     fp = _fingerprint(job)
     written = []
@@ -359,7 +359,7 @@ def render_dataset(job: RenderJob) -> dict:
     # Ground truth for the meta files, from a world built in a private client of this process.
     import pybullet as p
 
-    from data.synth.world import build_world
+    from segmin.data.synth.world import build_world
 
     client = p.connect(p.DIRECT)
     try:

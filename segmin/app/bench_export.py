@@ -31,8 +31,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from export.bench import run_benchmark
-    from nav_eval.runtime_bench import perception_step_candidates
+    from segmin.export.bench import run_benchmark
+    from segmin.nav_eval.runtime_bench import perception_step_candidates
 
     run_benchmark(
         checkpoint=args.checkpoint,

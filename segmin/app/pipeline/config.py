@@ -4,7 +4,8 @@ The paper trains one model per crop family and tests it on that family's fields:
 model drives the high-tree and pear rows, the vineyards model the three vineyards. A profile
 lists, per family, the training worlds, the held-out validation worlds (rendered with another
 seed, so they are never the worlds the training frames came from), the training config and the
-test fields. Paths inside a profile are relative to the project root.
+test fields. Training and nav configs are shipped names or YAML paths (relative to the
+working folder).
 """
 
 from __future__ import annotations
@@ -12,10 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from segmin.config import load_config
+from segmin.common.config import load_config
+from segmin.common.shipped import resolve_config
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-PROFILES_DIR = PROJECT_ROOT / "configs" / "pipeline"
 STAGES: tuple[str, ...] = ("render", "train", "export", "nav-eval", "report")
 
 
@@ -26,7 +26,7 @@ class FamilyPlan:
     train_worlds: list[str]
     val_worlds: list[str]
     fields: list[str]
-    train_config: Path = Path("configs/train/quick.yaml")
+    train_config: str = "quick"  # a shipped training config or a YAML path
     train_overrides: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -69,7 +69,7 @@ class ExportPlan:
 class NavPlan:
     """Closed-loop evaluation: nav config, methods, runs; the oracle runs beside the model."""
 
-    config: Path = Path("configs/nav/default.yaml")
+    config: str = "default"  # a shipped nav config or a YAML path
     overrides: list[str] = field(default_factory=list)
     methods: list[str] = field(default_factory=lambda: ["segmin", "segmind", "segzeros"])
     runs: int = 1
@@ -101,22 +101,6 @@ class PipelineConfig:
             raise ValueError("families: name at least one crop family")
 
 
-def resolve_profile(name_or_path: str | Path) -> Path:
-    """A bare profile name means `configs/pipeline/<name>.yaml`."""
-    path = Path(name_or_path)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return path
-    return PROFILES_DIR / f"{name_or_path}.yaml"
-
-
-def project_path(path: str | Path) -> Path:
-    """A path from a profile: absolute, relative to the working folder if it exists there, else to the project."""
-    path = Path(path)
-    if path.is_absolute() or path.exists():
-        return path
-    return PROJECT_ROOT / path
-
-
 def load_pipeline_config(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> PipelineConfig:
     """Load a profile with dotted key=value overrides (e.g. `render.frames_per_world=50`)."""
-    return load_config(PipelineConfig, resolve_profile(name_or_path), overrides)
+    return load_config(PipelineConfig, resolve_config("pipeline", name_or_path), overrides)

@@ -14,18 +14,18 @@ import importlib
 import sys
 
 from segmin import __version__
-from segmin.config import ConfigError
+from segmin.common.config import ConfigError
 
 # Packages that contribute commands, in the order of the data flow.
 COMMAND_MODULES: tuple[str, ...] = (
-    "data.cli",
-    "data.synth.cli",
-    "train.cli",
-    "export.cli",
-    "segmin.bench_export",
-    "nav_eval.navigator_cli",
-    "nav_eval.cli",
-    "segmin.pipeline.cli",
+    "segmin.data.cli",
+    "segmin.data.synth.cli",
+    "segmin.train.cli",
+    "segmin.export.cli",
+    "segmin.app.bench_export",
+    "segmin.nav_eval.navigator_cli",
+    "segmin.nav_eval.cli",
+    "segmin.app.pipeline.cli",
 )
 
 

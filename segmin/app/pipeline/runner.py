@@ -14,10 +14,10 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from segmin.config import to_dict
-from segmin.pipeline import stages
-from segmin.pipeline.cache import StageCache, Timer, hash_inputs
-from segmin.pipeline.config import STAGES, PipelineConfig
+from segmin.common.config import to_dict
+from segmin.app.pipeline import stages
+from segmin.app.pipeline.cache import StageCache, Timer, hash_inputs
+from segmin.app.pipeline.config import STAGES, PipelineConfig
 
 
 class PipelineRunner:
@@ -79,7 +79,7 @@ class PipelineRunner:
             self._stage("nav-eval", "nav-eval/oracle", upstream["nav-eval/oracle"],
                         lambda folder, fresh: stages.nav_stage(config, "oracle", fields, folder, self.log))
 
-        from segmin.pipeline.report import write_pipeline_report
+        from segmin.app.pipeline.report import write_pipeline_report
 
         report_hash = hash_inputs("report", upstream, to_dict(config))
         report = self._stage("report", "report", report_hash,

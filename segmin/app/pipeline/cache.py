@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from segmin.atomic import write_json
+from segmin.common.atomic import write_json
 
 
 def hash_inputs(*parts: Any) -> str:

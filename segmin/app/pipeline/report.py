@@ -13,17 +13,17 @@ import re
 from pathlib import Path
 from typing import Any
 
-from segmin.atomic import atomic_path, write_text
-from segmin.pipeline.cache import StageCache
-from segmin.pipeline.config import PipelineConfig
-from segmin.pipeline.stages import load_results, read_metrics_csv
+from segmin.common.atomic import atomic_path, write_text
+from segmin.app.pipeline.cache import StageCache
+from segmin.app.pipeline.config import PipelineConfig
+from segmin.app.pipeline.stages import load_results, read_metrics_csv
 
 
 def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCache, log) -> dict[str, str]:
     """Write run_dir/report.md and run_dir/report.html; returns their paths."""
-    from export.onnx import git_commit
-    from nav_eval.report import table3_markdown
-    from segmin.pipeline.runner import machine_summary
+    from segmin.common.provenance import git_commit
+    from segmin.nav_eval.report import table3_markdown
+    from segmin.app.pipeline.runner import machine_summary
 
     families = list(config.families)
     curves = run_dir / "report" / "training_curves.png"
@@ -116,7 +116,7 @@ def _num(value: Any) -> str:
 
 def _comparison(results: list[Any]) -> list[str]:
     """One sentence per field: our SegMinD MAE against the paper's, and whether every run succeeded."""
-    from nav_eval.report import summarise
+    from segmin.nav_eval.report import summarise
 
     lines = []
     for entry in summarise(results):

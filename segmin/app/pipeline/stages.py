@@ -16,15 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from segmin.config import to_dict
-from segmin.pipeline.config import FamilyPlan, PipelineConfig, project_path
+from segmin.common.config import to_dict
+from segmin.app.pipeline.config import FamilyPlan, PipelineConfig
 
 
 def resolve_backbone(config: PipelineConfig, log) -> str:
     """`auto` means ImageNet when its file is cached (and say so), else training from scratch."""
     if config.backbone_weights != "auto":
         return config.backbone_weights
-    from models.lraspp import imagenet_weights_cached, imagenet_weights_path
+    from segmin.models.lraspp import imagenet_weights_cached, imagenet_weights_path
 
     if imagenet_weights_cached():
         log(f"using the cached ImageNet backbone weights at {imagenet_weights_path()}")
@@ -38,7 +38,7 @@ def resolve_backbone(config: PipelineConfig, log) -> str:
 
 def world_specs(config: PipelineConfig) -> dict[str, dict[str, Any]]:
     """Every world to render, per family and split, as loaded specs (so YAML edits change the hash)."""
-    from data.synth.spec import load_world_spec
+    from segmin.data.synth.spec import load_world_spec
 
     specs: dict[str, dict[str, Any]] = {}
     for family, plan in config.families.items():
@@ -53,7 +53,7 @@ def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]
     """Validation worlds are the same kind of field grown from another seed, under their own domain."""
     if split == "train":
         return []
-    from data.synth.spec import load_world_spec
+    from segmin.data.synth.spec import load_world_spec
 
     base = load_world_spec(name)
     stem = base.name[len("train_"):] if base.name.startswith("train_") else base.name
@@ -62,9 +62,9 @@ def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]
 
 def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) -> dict[str, Any]:
     """Render training and held-out validation frames in the AgriSeg layout, plus a contact sheet."""
-    from data.synth.camera import CameraModel
-    from data.synth.spec import load_world_spec
-    from data.synth.writer import RenderJob, render_dataset
+    from segmin.data.synth.camera import CameraModel
+    from segmin.data.synth.spec import load_world_spec
+    from segmin.data.synth.writer import RenderJob, render_dataset
 
     camera = CameraModel(width=config.render.size, height=config.render.size)
     outputs: dict[str, Any] = {"domains": {}}
@@ -89,8 +89,8 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
 def _contact_sheet(config: PipelineConfig, camera, path: Path) -> None:
     import cv2
 
-    from data.synth.cli import preview_sheet
-    from segmin.atomic import write_bytes
+    from segmin.data.synth.cli import preview_sheet
+    from segmin.common.atomic import write_bytes
 
     worlds = [w for plan in config.families.values() for w in plan.train_worlds]
     sheet = preview_sheet(worlds, config.render.contact_sheet_frames, camera)
@@ -106,7 +106,7 @@ def _contact_sheet(config: PipelineConfig, camera, path: Path) -> None:
 def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, render_dir: Path,
                      domains: dict[str, list[str]], backbone: str):
     """The family's training config, pointed at this run's rendered frames."""
-    from train.config import load_train_config
+    from segmin.train.config import load_train_config
 
     overrides = [
         f"family={family}",
@@ -117,12 +117,12 @@ def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, rend
         f"backbone_weights={backbone}",
         *plan.train_overrides,
     ]
-    return load_train_config(project_path(plan.train_config), overrides)
+    return load_train_config(plan.train_config, overrides)
 
 
 def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, Any]:
     """Train one family; `resume` continues from the folder's last checkpoint."""
-    from train.run import train_model
+    from segmin.train.run import train_model
 
     log(f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
         f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}")
@@ -158,7 +158,7 @@ def read_metrics_csv(path: Path) -> list[dict[str, float]]:
 
 def export_stage(config: PipelineConfig, checkpoint: Path, out: Path, val_root: Path, log) -> dict[str, Any]:
     """Export and verify one family's ONNX model, then time it with the runtime the robot uses."""
-    from export.pipeline import ExportOptions, export_checkpoint
+    from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     log(f"export: {checkpoint} -> {out}")
     report = export_checkpoint(ExportOptions(
@@ -175,7 +175,7 @@ def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2
     """Median and p95 of one `OnnxSegmenter.segment` call on rendered validation frames."""
     import cv2
 
-    from nav_eval.segmenter import OnnxSegmenter
+    from segmin.nav_eval.segmenter import OnnxSegmenter
 
     paths = sorted(frames_root.rglob("images/*/*.png"))[:count]
     if not paths:
@@ -197,14 +197,14 @@ def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2
 
 
 def nav_config(config: PipelineConfig):
-    from nav_eval.eval_config import load_nav_config
+    from segmin.nav_eval.eval_config import load_nav_config
 
-    return load_nav_config(project_path(config.nav.config), config.nav.overrides)
+    return load_nav_config(config.nav.config, config.nav.overrides)
 
 
 def nav_stage(config: PipelineConfig, model: str, fields: list[str], folder: Path, log) -> dict[str, Any]:
     """Drive every method through `fields` with `model` (an ONNX path or 'oracle')."""
-    from nav_eval.evaluate import run_evaluation
+    from segmin.nav_eval.evaluate import run_evaluation
 
     log(f"nav-eval: {model} on {', '.join(fields)} with {', '.join(config.nav.methods)}, "
         f"{config.nav.runs} run(s) each")
@@ -219,7 +219,7 @@ def load_results(path: Path) -> list[Any]:
     """RunResult objects back from a results.json (for a report over cached stages)."""
     import json
 
-    from nav_eval.evaluate import RunResult
+    from segmin.nav_eval.evaluate import RunResult
 
     names = {f.name for f in dataclasses.fields(RunResult)} - {"trajectory", "commands"}
     rows = json.loads(path.read_text())["rows"]

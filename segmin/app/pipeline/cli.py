@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from segmin.pipeline.config import STAGES
+from segmin.app.pipeline.config import STAGES
 
 
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
@@ -28,8 +28,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 def _pipeline(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from segmin.pipeline.config import load_pipeline_config
-    from segmin.pipeline.runner import PipelineRunner
+    from segmin.app.pipeline.config import load_pipeline_config
+    from segmin.app.pipeline.runner import PipelineRunner
 
     config = load_pipeline_config(args.config, args.overrides)
     out = Path(args.out) if args.out else Path("runs") / config.profile
