@@ -8,7 +8,6 @@ onnxruntime fp32 median <= 6 ms and <= 0.35x eager; OnnxSegmenter + Navigator.st
 
 from __future__ import annotations
 
-import json
 import tempfile
 import time
 from pathlib import Path

@@ -63,7 +63,7 @@ def untrained_onnx(folder: Path, size: int = 224) -> Path:
 def bench_one_run(model: str, field: str, method: str, seconds: float, config: Any, threads: int = 1,
                   seed: int = 0) -> dict[str, Any]:
     """Drive `seconds` of simulated time and return the timing breakdown."""
-    from segmin.nav_eval.evaluate import FieldContext, make_navigator, make_segmenter
+    from segmin.nav_eval.factories import FieldContext, make_navigator, make_segmenter
     from segmin.nav_eval.sim import RowEnv, run_episode
 
     config = dataclasses.replace(config, run=dataclasses.replace(

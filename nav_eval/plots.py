@@ -119,7 +119,7 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
 
 def make_field_figures(out: Path, results: list[Any], fields: list[str], config: Any, model: str) -> list[str]:
     """Both figures for every field; returns their paths relative to `out`. Never raises."""
-    from segmin.nav_eval.evaluate import FieldContext, field_label
+    from segmin.nav_eval.factories import FieldContext, field_label
     from segmin.nav_eval.sim import RowEnv
 
     written: list[str] = []
@@ -149,7 +149,7 @@ def make_field_figures(out: Path, results: list[Any], fields: list[str], config:
 def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any, segmenters: dict[str, Any],
                         model: str) -> None:
     """Render the centreline view a few metres into the row and draw the histogram figure."""
-    from segmin.nav_eval.evaluate import make_segmenter
+    from segmin.nav_eval.factories import make_segmenter
     from segmin.nav_eval.oracle import segment_frame
     from segmin.nav_eval.sim import point_on_polyline
 

@@ -1,5 +1,8 @@
-"""The data flow is one way: data -> train (uses models) -> export -> nav_eval. No package imports
-one downstream of it; `segmin` (the command line and the pipeline) is the only place that joins them.
+"""segmin's layers and their one-way data flow, checked on the source.
+
+common -> data -> models -> train -> export -> nav_eval -> app: a module may import its own layer
+and the layers before it, never one after it, and no set of modules may import one another in a
+cycle. Imports inside functions count: a lazy import is still a dependency.
 """
 
 from __future__ import annotations
@@ -10,38 +13,177 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-# For each package: the project packages it must never import.
-FORBIDDEN = {
-    "data": {"models", "train", "export", "nav_eval"},
-    "models": {"data", "train", "export", "nav_eval"},
-    "train": {"export", "nav_eval"},
-    "export": {"train", "nav_eval"},
-    "nav_eval": {"train"},
+# Installed package -> folder in the repository (the package-dir mapping of pyproject.toml).
+PACKAGE_DIRS: dict[str, str] = {
+    "segmin": "segmin",
+    "segmin.data": "data",
+    "segmin.models": "models",
+    "segmin.train": "train",
+    "segmin.export": "export",
+    "segmin.nav_eval": "nav_eval",
 }
+# The data flow, first to last. `segmin` alone (its __init__) and `segmin.common` are the ground.
+LAYERS: tuple[str, ...] = (
+    "segmin.common",
+    "segmin.data",
+    "segmin.models",
+    "segmin.train",
+    "segmin.export",
+    "segmin.nav_eval",
+    "segmin.app",
+)
+OLD_TOP_LEVELS = {"data", "models", "train", "export", "nav_eval"}
 
 
-def imported_top_levels(path: Path) -> set[str]:
+def module_files(root: Path, package_dirs: dict[str, str]) -> dict[str, Path]:
+    """Every module of the project, by its installed dotted name."""
+    modules: dict[str, Path] = {}
+    for package, folder in package_dirs.items():
+        for path in sorted((root / folder).rglob("*.py")):
+            parts = list(path.relative_to(root / folder).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            name = ".".join([package, *parts])
+            # segmin/ holds only its own modules; the mapped folders are not below it.
+            modules.setdefault(name, path)
+    return modules
+
+
+def imported_names(path: Path, module: str) -> set[str]:
+    """Every dotted name a module imports, anywhere in it (relative imports resolved)."""
     tree = ast.parse(path.read_text(), filename=str(path))
-    names = set()
+    is_package = path.name == "__init__.py"
+    names: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names.update(alias.name.split(".")[0] for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.add(node.module.split(".")[0])
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".")
+                base = base if is_package else base[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                prefix = ".".join(base + ([node.module] if node.module else []))
+            else:
+                prefix = node.module or ""
+            names.add(prefix)
+            names.update(f"{prefix}.{alias.name}" for alias in node.names)
     return names
 
 
-@pytest.mark.parametrize("package", sorted(FORBIDDEN))
-def test_no_package_imports_downstream(package: str) -> None:
+def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """Module -> the project modules it imports (a `from pkg import name` counts pkg and pkg.name)."""
+    graph: dict[str, set[str]] = {}
+    for module, path in modules.items():
+        graph[module] = {name for name in imported_names(path, module) if name in modules and name != module}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(graph.get(node, ())):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                top = stack.pop()
+                on_stack.discard(top)
+                component.append(top)
+                if top == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def layer_of(module: str) -> int:
+    """Position in the data flow; the bare `segmin` package is the ground like `segmin.common`."""
+    for position, layer in enumerate(LAYERS):
+        if module == layer or module.startswith(layer + "."):
+            return position
+    if module in ("segmin", "segmin.configs"):
+        return 0
+    raise AssertionError(f"{module}: not in any layer; add it to LAYERS")
+
+
+def against_the_flow(graph: dict[str, set[str]]) -> dict[str, list[str]]:
+    return {
+        module: sorted(target for target in targets if layer_of(target) > layer_of(module))
+        for module, targets in sorted(graph.items())
+        if any(layer_of(target) > layer_of(module) for target in targets)
+    }
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    return import_graph(module_files(ROOT, PACKAGE_DIRS))
+
+
+def test_no_module_imports_one_downstream_of_it(graph: dict[str, set[str]]) -> None:
+    assert against_the_flow(graph) == {}
+
+
+def test_no_import_cycles(graph: dict[str, set[str]]) -> None:
+    assert cycles(graph) == []
+
+
+def test_nothing_imports_the_old_top_level_names() -> None:
     offenders = {}
-    for path in sorted((ROOT / package).rglob("*.py")):
-        bad = imported_top_levels(path) & FORBIDDEN[package]
-        if bad:
-            offenders[str(path.relative_to(ROOT))] = sorted(bad)
+    for path in sorted(ROOT.rglob("*.py")):
+        if ".venv" in path.parts or "build" in path.parts:
+            continue
+        tops = {name.split(".")[0] for name in imported_names(path, "x")} & OLD_TOP_LEVELS
+        if tops:
+            offenders[str(path.relative_to(ROOT))] = sorted(tops)
     assert offenders == {}
 
 
-def test_the_check_sees_imports_inside_functions(tmp_path: Path) -> None:
-    module = tmp_path / "m.py"
-    module.write_text("def f():\n    from nav_eval.navigator import Navigator\n    import train.run\n")
-    assert imported_top_levels(module) == {"nav_eval", "train"}
+def test_every_module_lies_in_a_layer(graph: dict[str, set[str]]) -> None:
+    for module in graph:
+        layer_of(module)  # raises for a module outside the layers
+
+
+def _tree(tmp_path: Path, files: dict[str, str]) -> dict[str, set[str]]:
+    for name, text in files.items():
+        path = tmp_path / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return import_graph(module_files(tmp_path, {"segmin.nav_eval": "nav_eval", "segmin.train": "train"}))
+
+
+def test_the_checks_fail_on_a_cycle_through_a_function_import(tmp_path: Path) -> None:
+    graph = _tree(tmp_path, {
+        "nav_eval/__init__.py": "",
+        "nav_eval/evaluate.py": "from segmin.nav_eval.plots import figure\n",
+        "nav_eval/plots.py": "def figure():\n    from segmin.nav_eval import evaluate\n",
+        "nav_eval/sim.py": "from . import plots\n",
+    })
+    assert cycles(graph) == [["segmin.nav_eval.evaluate", "segmin.nav_eval.plots"]]
+    assert graph["segmin.nav_eval.sim"] == {"segmin.nav_eval", "segmin.nav_eval.plots"}  # `from . import` resolved
+
+
+def test_the_checks_fail_on_an_import_against_the_flow(tmp_path: Path) -> None:
+    graph = _tree(tmp_path, {
+        "train/__init__.py": "",
+        "train/run.py": "def f():\n    import segmin.nav_eval.navigator\n",
+        "nav_eval/__init__.py": "",
+        "nav_eval/navigator.py": "import segmin.train.run\n",
+    })
+    assert against_the_flow(graph) == {"segmin.train.run": ["segmin.nav_eval.navigator"]}

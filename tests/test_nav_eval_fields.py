@@ -11,7 +11,8 @@ import pytest
 
 from segmin.data.synth.spec import TEST_FIELDS
 from segmin.nav_eval.eval_config import load_nav_config
-from segmin.nav_eval.evaluate import FieldContext, Job, Worker, run_evaluation, run_seed
+from segmin.nav_eval.evaluate import Job, Worker, run_evaluation, run_seed
+from segmin.nav_eval.factories import FieldContext
 from segmin.nav_eval.oracle import OracleSegmenter
 from segmin.nav_eval.sim import RowEnv, run_episode
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from segmin.nav_eval.eval_config import NavEvalConfig, Perception, Rates, RunSettings
-from segmin.nav_eval.evaluate import make_navigator
+from segmin.nav_eval.factories import make_navigator
 from segmin.nav_eval.oracle import OracleSegmenter
 from segmin.nav_eval.sim import RowEnv, run_episode
 

@@ -59,15 +59,14 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    import os
-
+    from segmin.common.machine import load_average
     from segmin.train.bench import bench_train
 
     r = bench_train(args.root, image_size=args.size, batch_size=args.batch, threads=args.threads,
                     steps=args.steps, workers=args.workers, repeats=args.repeats, device=args.device)
     print(f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
           f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames; "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+          f"{load_average()}")
     print(f"  model step alone : {r['model_step_ips']:7.2f} images/s")
     print(f"  full pipeline    : {r['full_pipeline_ips']:7.2f} images/s")
     print(f"  ratio            : {r['ratio']:.3f}  (target >= 0.90)")

@@ -133,12 +133,12 @@ def _preview(args) -> int:
 
 
 def _bench(args) -> int:
-    import os
     import tempfile
 
     import numpy as np
     import pybullet as p
 
+    from segmin.common.machine import load_average
     from segmin.data.synth.render import Renderer
     from segmin.data.synth.spec import TEST_FIELDS, load_world_spec
     from segmin.data.synth.world import build_world
@@ -149,7 +149,7 @@ def _bench(args) -> int:
     camera = _camera(args.size)
     fields = args.fields or list(TEST_FIELDS)
     print(f"segmin bench synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
-          f"{args.frames} frames per run, {os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}")
+          f"{args.frames} frames per run, {load_average()}")
     print("frames/s: whole run (incl. building the world in each worker) and steady (after the first task);")
     print("cpu ms/frame: render + encode in one process (CPU time, independent of other load)")
     header = f"{'world':20s} " + " ".join(f"{f'{w}w run':>8s} {f'{w}w steady':>10s}" for w in args.workers)

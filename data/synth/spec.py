@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from segmin.common.config import ConfigError, apply_overrides, from_dict, read_yaml
+from segmin.common.config import apply_overrides, from_dict, read_yaml
 from segmin.common.shipped import resolve_config
 
 TEST_FIELDS: tuple[str, ...] = (

@@ -23,7 +23,7 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
     """Write run_dir/report.md and run_dir/report.html; returns their paths."""
     from segmin.common.provenance import git_commit
     from segmin.nav_eval.report import table3_markdown
-    from segmin.app.pipeline.runner import machine_summary
+    from segmin.common.machine import machine_summary
 
     families = list(config.families)
     curves = run_dir / "report" / "training_curves.png"

@@ -8,8 +8,6 @@ else. `--from STAGE` reruns that stage and every later one from scratch.
 
 from __future__ import annotations
 
-import platform
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -112,14 +110,3 @@ class PipelineRunner:
 
 def _default_log(message: str) -> None:
     print(f"[pipeline {time.strftime('%H:%M:%S')}] {message}", flush=True)
-
-
-def machine_summary() -> str:
-    """One line about where this ran (for the report)."""
-    import os
-
-    import torch
-
-    device = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
-    return (f"{platform.platform(terse=True)}, Python {sys.version.split()[0]}, {os.cpu_count()} CPU cores, "
-            f"{device}, torch {torch.__version__}")

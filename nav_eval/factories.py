@@ -1,0 +1,74 @@
+"""Factories for one closed-loop run: a field built in pybullet, its segmenter and its navigator.
+
+They live apart from `evaluate` (the matrix runner) so that figures, benches and the runner can
+all build the same objects without importing one another.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from segmin.nav_eval.eval_config import NavEvalConfig
+
+
+def field_label(field: str) -> str:
+    """Short name of a field for tables and files: the spec name for a path."""
+    p = Path(field)
+    return p.stem if p.suffix in (".yaml", ".yml") else field
+
+
+
+class FieldContext:
+    """A field built in its own pybullet DIRECT client, with its renderer."""
+
+    def __init__(self, field: str, config: NavEvalConfig) -> None:
+        import pybullet as p
+
+        from segmin.data.synth.camera import CameraModel
+        from segmin.data.synth.render import Renderer
+        from segmin.data.synth.spec import load_world_spec
+        from segmin.data.synth.world import build_world
+
+        self.spec = load_world_spec(field)
+        self.client = p.connect(p.DIRECT)
+        self.world = build_world(self.spec, self.client)
+        camera = CameraModel()
+        changes = {k: v for k, v in (("width", config.perception.width), ("height", config.perception.height)) if v}
+        if changes:
+            camera = dataclasses.replace(camera, **changes)
+        self.camera = camera
+        self.renderer = Renderer(self.world, camera)
+        self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
+        self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap
+
+    def close(self) -> None:
+        import pybullet as p
+
+        try:
+            p.disconnect(self.client)
+        except Exception:  # already gone
+            pass
+
+
+def make_segmenter(model: str, threads: int = 1) -> Any:
+    """'oracle' -> OracleSegmenter; otherwise an ONNX file -> nav_eval.segmenter.OnnxSegmenter."""
+    if str(model) == "oracle":
+        from segmin.nav_eval.oracle import OracleSegmenter
+
+        return OracleSegmenter()
+    path = Path(model)
+    if not path.is_file():
+        raise FileNotFoundError(f"--model: {path} not found (give an .onnx file or 'oracle')")
+    from segmin.nav_eval.segmenter import OnnxSegmenter
+
+    return OnnxSegmenter(str(path), threads=threads)
+
+
+def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
+    """The paper's navigator; fusion happens in the sim (see sim.py), so fuse_frames=1 here."""
+    from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+
+    return Navigator(NavigatorConfig(method=method, depth_threshold=depth_threshold, fuse_frames=1,
+                                     **config.navigator))

@@ -1,0 +1,21 @@
+"""One line about the machine a run or benchmark used: shared machines are noisy, so figures say where they came from."""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+
+
+def load_average() -> str:
+    """The 1-minute load average against the core count, e.g. "load 0.4 on 2 cores"."""
+    return f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+
+
+def machine_summary() -> str:
+    """One line about where this ran (for the report)."""
+    import torch
+
+    device = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
+    return (f"{platform.platform(terse=True)}, Python {sys.version.split()[0]}, {os.cpu_count()} CPU cores, "
+            f"{device}, torch {torch.__version__}")
