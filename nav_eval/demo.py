@@ -36,8 +36,14 @@ class DemoResult:
     valid: bool
 
 
-def run_demo(out_dir: str | Path, *, size: int = 224, settle_steps: int = 12) -> tuple[Path, Path, list[DemoResult]]:
-    """Render the demo scenes, run every method, write `navigator_demo.png` and `summary.txt`."""
+def run_demo(
+    out_dir: str | Path, *, size: int = 224, settle_steps: int = 12, figure: bool = True
+) -> tuple[Path | None, Path, list[DemoResult]]:
+    """Render the demo scenes, run every method, write `summary.txt` and (with `figure`) `navigator_demo.png`.
+
+    The figure needs matplotlib (the `[sim]` extra); the summary needs only numpy, so the robot
+    runtime install can run the demo with `figure=False`.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = [(scene, *render_scene(scene, size=size)) for scene in DEMO_SCENES]
@@ -46,8 +52,9 @@ def run_demo(out_dir: str | Path, *, size: int = 224, settle_steps: int = 12) ->
         for scene, mask, depth in frames
         for method in METHODS
     ]
-    figure_path = out_dir / "navigator_demo.png"
-    _draw_figure(frames, results, figure_path)
+    figure_path = out_dir / "navigator_demo.png" if figure else None
+    if figure_path is not None:
+        _draw_figure(frames, results, figure_path)
     summary_path = out_dir / "summary.txt"
     write_text(summary_path, format_summary(results, size))
     return figure_path, summary_path, results

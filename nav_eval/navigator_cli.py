@@ -14,6 +14,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     )
     demo.add_argument("--out", default="runs/demo", help="output folder (default: runs/demo)")
     demo.add_argument("--size", type=int, default=224, help="frame size in pixels (default: 224)")
+    demo.add_argument("--no-figure", action="store_true",
+                      help="only the text summary (the figure needs the [sim] extra's matplotlib)")
     demo.set_defaults(func=_navigate_demo)
 
     nav = bench.add_parser("navigator", help="time Navigator.step per method at 224 x 224 on one thread")
@@ -27,9 +29,10 @@ def _navigate_demo(args: argparse.Namespace) -> int:
 
     if args.size < 32:
         raise ValueError(f"--size must be at least 32 pixels, got {args.size}")
-    figure, summary, _ = run_demo(args.out, size=args.size)
+    figure, summary, _ = run_demo(args.out, size=args.size, figure=not args.no_figure)
     print(summary.read_text(), end="")
-    print(f"figure: {figure}")
+    if figure is not None:
+        print(f"figure: {figure}")
     print(f"summary: {summary}")
     return 0
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import subprocess
 import sys
 
@@ -57,3 +58,41 @@ def test_bench_navigator_prints_every_method(capsys: pytest.CaptureFixture[str])
     out = capsys.readouterr().out
     for method in ("segmin", "segmind", "segzeros"):
         assert f"{method}" in out and "median" in out and "p95" in out
+
+
+def test_configs_list_shows_every_shipped_kind(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["configs", "list"]) == 0
+    out = capsys.readouterr().out
+    for kind, name in (("worlds", "straight_vineyard"), ("train", "vineyards"), ("nav", "default"),
+                       ("pipeline", "quick")):
+        assert re.search(rf"^{kind}:.*\n  .*\b{name}\b", out, re.M), out
+
+
+def test_configs_copy_writes_an_editable_file_that_works_as_a_path(tmp_path, capsys) -> None:
+    from segmin.data.synth.spec import load_world_spec
+
+    assert main(["configs", "copy", "straight_vineyard", str(tmp_path)]) == 0
+    copied = tmp_path / "straight_vineyard.yaml"
+    assert load_world_spec(copied) == load_world_spec("straight_vineyard")
+    assert main(["configs", "copy", "straight_vineyard", str(tmp_path)]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert main(["configs", "copy", "quick", str(tmp_path)]) == 2  # both a train and a pipeline config
+    assert "pipeline/quick" in capsys.readouterr().err
+    assert main(["configs", "copy", "pipeline/quick", str(tmp_path)]) == 0
+
+
+def test_unknown_names_list_the_shipped_ones(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["synth", "preview", "--world", "no_such_world", "--out", "x.png"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "straight_vineyard" in err and "no_such_world" in err
+
+
+def test_an_os_error_is_one_line_and_debug_shows_the_traceback(tmp_path, capsys) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    args = ["configs", "copy", "straight_vineyard", str(blocker / "sub")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("segmin: error: ") and err.count("\n") == 1 and str(blocker) in err
+    assert main(["--debug", *args]) == 2
+    assert "Traceback" in capsys.readouterr().err

@@ -4,7 +4,8 @@ Each package keeps its command-line code in its own `cli.py` exposing
 `register(commands, bench)`: `commands` is the top-level subparser group, `bench` the group
 under `segmin bench`. A registered parser sets `func` (called with the parsed args, returns an
 exit code). Heavy imports (torch, pybullet, onnxruntime) happen inside those functions, so
-`segmin --help` stays fast.
+`segmin --help` stays fast and works on the bare robot install; a command whose optional
+dependencies are missing says which extra to install.
 """
 
 from __future__ import annotations
@@ -12,12 +13,15 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import traceback
 
 from segmin import __version__
 from segmin.common.config import ConfigError
+from segmin.common.extras import missing_extra_message
 
 # Packages that contribute commands, in the order of the data flow.
 COMMAND_MODULES: tuple[str, ...] = (
+    "segmin.app.configs_cli",
     "segmin.data.cli",
     "segmin.data.synth.cli",
     "segmin.train.cli",
@@ -27,6 +31,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.nav_eval.cli",
     "segmin.app.pipeline.cli",
 )
+# Errors that are the user's (bad input, a path that is not there or not writable): one line, exit 2.
+USER_ERRORS: tuple[type[BaseException], ...] = (ConfigError, ValueError, OSError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train, export and validate crop-segmentation navigation (SegMin / SegMinD).",
     )
     parser.add_argument("--version", action="version", version=f"segmin {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     bench_parser = commands.add_parser("bench", help="benchmarks that print speed figures")
     bench = bench_parser.add_subparsers(dest="bench_target", metavar="TARGET", required=True)
@@ -45,16 +52,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Parse arguments and run the chosen subcommand; user errors print one line, exit 2."""
+    """Parse arguments and run the chosen subcommand; user errors print one line and return 2."""
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ConfigError, FileNotFoundError, ValueError) as exc:
-        print(f"segmin: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("segmin: interrupted", file=sys.stderr)
         return 130
+    except ModuleNotFoundError as exc:
+        message = missing_extra_message(exc)
+        if message is None or args.debug:
+            raise
+        print(f"segmin: error: {message}", file=sys.stderr)
+        return 2
+    except USER_ERRORS as exc:
+        if args.debug:
+            traceback.print_exc()
+        print(f"segmin: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of a user error on one line; an OSError names its path and the reason."""
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text
 
 
 if __name__ == "__main__":

@@ -1,0 +1,32 @@
+"""Which install extra brings which optional dependency, so a missing one is named, not a traceback.
+
+`pip install segmin` is the robot runtime (numpy, OpenCV, onnxruntime, PyYAML). Simulation and
+figures come with `[sim]`, training and export with `[train]`; `[all]` is both. The table must
+follow pyproject.toml's extras (a test checks it).
+"""
+
+from __future__ import annotations
+
+# Top-level module -> the extra that installs it.
+EXTRA_OF_MODULE: dict[str, str] = {
+    "pybullet": "sim",
+    "matplotlib": "sim",
+    "markdown": "sim",
+    "tqdm": "sim",
+    "torch": "train",
+    "torchvision": "train",
+    "albumentations": "train",
+    "onnx": "train",
+    "onnxscript": "train",
+    "tensorboard": "train",
+}
+
+
+def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
+    """The one-line advice for a missing optional module, or None when it is not one of ours."""
+    top = (exc.name or "").split(".")[0]
+    extra = EXTRA_OF_MODULE.get(top)
+    if extra is None:
+        return None
+    return (f"this command needs the [{extra}] extra (module {top!r} is not installed): "
+            f"pip install 'segmin[{extra}]' (or 'segmin[all]')")

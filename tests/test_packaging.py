@@ -1,0 +1,94 @@
+"""The install a robot gets: the bare `pip install segmin` runs the navigator and the ONNX segmenter.
+
+The robot runtime must not need torch, pybullet or matplotlib. These tests run the runtime in a
+fresh interpreter, from an empty folder (so nothing is found through the working directory),
+with those modules blocked at import, which is what a machine without the extras looks like.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from importlib.metadata import requires
+from pathlib import Path
+
+import numpy as np
+
+from export_helpers import SIZE, shared_export
+from segmin.common.extras import EXTRA_OF_MODULE
+
+BLOCKED = ("torch", "torchvision", "pybullet", "matplotlib", "albumentations", "onnx", "onnxscript",
+           "tensorboard", "tqdm", "markdown")
+# Installs a finder that makes the blocked modules unimportable, then runs the given code.
+BLOCKER = """
+import importlib.abc, sys
+BLOCKED = {blocked!r}
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+        return None
+sys.meta_path.insert(0, Block())
+"""
+
+
+def run_lean(code: str, cwd: Path) -> subprocess.CompletedProcess:
+    script = BLOCKER.format(blocked=BLOCKED) + code
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180, cwd=cwd)
+
+
+def test_the_robot_runtime_runs_without_torch_pybullet_or_matplotlib(tmp_path_factory, tmp_path: Path) -> None:
+    model = shared_export(tmp_path_factory)[0]
+    rgb = np.random.default_rng(0).integers(0, 256, (SIZE + 16, SIZE, 3), dtype=np.uint8)
+    np.save(tmp_path / "rgb.npy", rgb)
+    code = f"""
+import json, numpy as np
+from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.segmenter import OnnxSegmenter
+segmenter = OnnxSegmenter({str(model)!r}, threads=1)
+mask = segmenter.segment(np.load("rgb.npy"))
+command = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(
+    mask, np.full(mask.shape, 3.0, np.float32))
+loaded = sorted(m for m in sys.modules if m.split(".")[0] in BLOCKED)
+print(json.dumps({{"shape": list(mask.shape), "v": command.v, "loaded": loaded}}))
+"""
+    result = run_lean(code, tmp_path)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["shape"] == [SIZE + 16, SIZE]
+    assert np.isfinite(report["v"])
+    assert report["loaded"] == []
+
+
+def test_robot_commands_run_and_the_others_name_their_extra(tmp_path: Path) -> None:
+    code = """
+from segmin.app.cli import main
+assert main(["navigate-demo", "--no-figure", "--out", "demo", "--size", "64"]) == 0
+assert main(["configs", "list"]) == 0
+code = main(["train", "--config", "quick", "--out", "run"])
+print("train exit", code)
+"""
+    result = run_lean(code, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "demo" / "summary.txt").is_file()
+    assert not (tmp_path / "demo" / "navigator_demo.png").exists()
+    assert "train exit 2" in result.stdout
+    error_lines = [line for line in result.stderr.splitlines() if line.startswith("segmin: error:")]
+    assert error_lines == [error_lines[0]] and "[train] extra" in error_lines[0], result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_the_extras_table_follows_the_package_metadata() -> None:
+    """Each module the error table names is a requirement of that extra in pyproject.toml."""
+    by_extra: dict[str, set[str]] = {}
+    for requirement in requires("segmin") or []:
+        match = re.search(r'extra == "(\w+)"', requirement)
+        if match:
+            name = re.split(r"[<>=!~ ;\[]", requirement, maxsplit=1)[0].lower()
+            by_extra.setdefault(match.group(1), set()).add(name)
+    for module, extra in EXTRA_OF_MODULE.items():
+        assert module in by_extra[extra], f"{module} is not in the [{extra}] extra"
+    base = {re.split(r"[<>=!~ ;\[]", r, maxsplit=1)[0].lower() for r in requires("segmin") or [] if "extra ==" not in r}
+    assert base == {"numpy", "opencv-python-headless", "onnxruntime", "pyyaml"}
