@@ -1,4 +1,4 @@
-"""`segmin train` and `segmin bench train`; also `torchrun --nproc-per-node N -m train.cli ...`."""
+"""`segmin train` and `segmin bench train`; also `torchrun --nproc-per-node N -m segmin.train.cli ...`."""
 
 from __future__ import annotations
 
@@ -93,7 +93,7 @@ def _bench_iou_bound(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry for `python -m train.cli` (what torchrun launches): the same arguments as `segmin train`."""
+    """Entry for `python -m segmin.train.cli` (what torchrun launches): the same arguments as `segmin train`."""
     parser = argparse.ArgumentParser(prog="segmin.train.cli", description="segmin training (torchrun entry)")
     _add_train_arguments(parser)
     args = parser.parse_args(argv)

@@ -1,6 +1,6 @@
 """torchrun / DDP helpers: one process per device, rank 0 writes, metrics reduced by sum.
 
-`torchrun --nproc-per-node N -m train.cli --config ...` sets RANK, WORLD_SIZE, LOCAL_RANK and
+`torchrun --nproc-per-node N -m segmin.train.cli --config ...` sets RANK, WORLD_SIZE, LOCAL_RANK and
 MASTER_ADDR/PORT; `init_distributed` reads them. Backend: nccl with CUDA, gloo on CPU.
 Without those variables everything runs as a single process (rank 0 of 1).
 """

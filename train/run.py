@@ -1,7 +1,7 @@
 """Fit a model: data -> sampler -> loader -> model -> optimizer -> resume -> epochs -> checkpoints.
 
 Reads top to bottom like torchvision's reference `train.py`. `train_model(config, out_dir)` is
-the entry point for other stages; `segmin train` and `torchrun -m train.cli` call `fit`.
+the entry point for other stages; `segmin train` and `torchrun -m segmin.train.cli` call `fit`.
 
 Run folder (written by rank 0 only): `best.pt` (best val IoU), `last.pt` (end of the last epoch,
 or the moment of a Ctrl-C, with the state for `--resume`), `metrics.csv`, `tensorboard/`,
