@@ -13,6 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from segmin.data.model_input import IMAGENET_MEAN, IMAGENET_STD
+
 SIZE = 64
 
 
@@ -46,8 +48,8 @@ def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: flo
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     model = build_model("none")
-    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
-    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
     optimizer = torch.optim.Adam(model.parameters(), lr=5e-3)
     model.eval()
     for _ in range(steps):
