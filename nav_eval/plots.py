@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from segmin.nav_eval.metrics import project_onto_polyline  # noqa: E402
 from segmin.common.atomic import write_bytes  # noqa: E402
+from segmin.data.overlay import GREEN, tint_mask  # noqa: E402
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
@@ -94,10 +95,7 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
         h = moving_average(column_histogram(mask, depth, method=method, depth_threshold=depth_threshold), 11)
         hists[method], targets[method] = h, histogram_minimum(h)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    img = np.asarray(frame.rgb, dtype=np.uint8).copy()
-    tint = mask.astype(bool)
-    img[tint] = (0.6 * img[tint] + 0.4 * np.array([0, 255, 0])).astype(np.uint8)
-    axes[0].imshow(img)
+    axes[0].imshow(tint_mask(frame.rgb, mask, GREEN, opacity=0.4))
     for method, x in targets.items():
         axes[0].axvline(x, color=COLOURS[method], lw=2, label=f"{method} target")
     axes[0].set_title(f"{field}: RGB + mask (green)")

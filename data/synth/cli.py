@@ -84,6 +84,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
     import numpy as np
     import pybullet as p
 
+    from segmin.data.overlay import MAGENTA, tint_mask
     from segmin.data.synth.render import Renderer
     from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.world import build_world
@@ -103,12 +104,11 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
                 if rng is not None:
                     renderer.randomize_appearance(rng)
                 f = renderer.render(x, y, yaw, rng=rng)
-                overlay = f.rgb.astype(np.float32)
-                overlay[f.mask] = overlay[f.mask] * 0.45 + np.array([255, 0, 200]) * 0.55
+                overlay = tint_mask(f.rgb, f.mask, MAGENTA, opacity=0.55)
                 d = np.clip(f.depth / 15.0, 0, 1)
                 depth = cv2.applyColorMap((255 - d * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[:, :, ::-1].copy()
                 depth[f.depth <= 0] = 0
-                row = np.concatenate([f.rgb, overlay.astype(np.uint8), depth], axis=1)
+                row = np.concatenate([f.rgb, overlay, depth], axis=1)
                 label = f"{spec.name}  s={s:.0f} m"
                 cv2.putText(row, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
                 cv2.putText(row, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
