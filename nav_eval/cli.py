@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from segmin.nav_eval.methods import METHODS
+
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None,
@@ -25,7 +27,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument("--model", required=True, help="exported .onnx file, or 'oracle' (exact masks)")
     parser.add_argument("--fields", default="all",
                         help="'all' (the five test fields), comma-separated names, or world spec YAML paths")
-    parser.add_argument("--methods", default="segmin,segmind,segzeros", help="comma-separated methods")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
