@@ -107,15 +107,22 @@ def _scan_image_mask_folder(root: Path, folder: Path, result: ScanResult) -> Non
     pair_frames(domain, subset, folder, img, msk, dep, result)
 
 
+def _frame_number(folder: Path, result: ScanResult) -> int | None:
+    """The N of an `ImageN` frame folder; None (and a problem naming it) when it has none."""
+    match = _FRAME_DIR.match(folder.name)
+    if not match:
+        result.problems.append(f"{folder}: folder name has no frame number (expected ImageN)")
+        return None
+    return int(match.group(1))
+
+
 def _per_frame_dirs(parent: Path, exts: tuple[str, ...], result: ScanResult) -> dict[int, Path]:
     """{N: the file inside parent/ImageN/}; duplicates and empty folders are problems."""
     found: dict[int, Path] = {}
     for sub in _subdirs(parent):
-        match = _FRAME_DIR.match(sub.name)
-        if not match:
-            result.problems.append(f"{sub}: folder name has no frame number (expected ImageN)")
+        n = _frame_number(sub, result)
+        if n is None:
             continue
-        n = int(match.group(1))
         files = sorted(p for p in sub.iterdir() if p.is_file() and p.suffix.lower() in exts)
         if not files:  # an empty frame folder is a missing file: counts as unpaired
             result.unpaired.append(f"{sub}: no {'/'.join(exts)} file in frame folder")
@@ -185,11 +192,9 @@ def _scan_distributed_subset(domain: str, subset_dir: Path, subset: str, result:
     msk: dict[int, Path] = {}
     dep: dict[int, Path] = {}
     for frame_dir in _subdirs(subset_dir):
-        match = _FRAME_DIR.match(frame_dir.name)
-        if not match:
-            result.problems.append(f"{frame_dir}: folder name has no frame number (expected ImageN)")
+        n = _frame_number(frame_dir, result)
+        if n is None:
             continue
-        n = int(match.group(1))
         for target, prefix, exts in ((img, "image", IMAGE_EXTS), (msk, "segmentation", IMAGE_EXTS),
                                      (dep, "depth", DEPTH_EXTS)):
             files = sorted(p for p in frame_dir.iterdir()

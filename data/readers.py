@@ -34,27 +34,28 @@ def _read_bytes_checked(path: Path) -> bytes:
     return data
 
 
+def _decode(path: Path, flags: int, what: str) -> np.ndarray:
+    """The checked bytes of `path` decoded by OpenCV; DatasetError "<path>: unreadable <what>" if not."""
+    import cv2
+
+    decoded = cv2.imdecode(np.frombuffer(_read_bytes_checked(path), np.uint8), flags)
+    if decoded is None:
+        raise DatasetError(f"{path}: unreadable {what}")
+    return decoded
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """RGB uint8 H x W x 3; raises DatasetError naming the file when unreadable or truncated."""
     import cv2
 
-    path = Path(path)
-    data = _read_bytes_checked(path)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if image is None:
-        raise DatasetError(f"{path}: unreadable image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(_decode(Path(path), cv2.IMREAD_COLOR, "image"), cv2.COLOR_BGR2RGB)
 
 
 def read_mask(path: str | Path) -> np.ndarray:
     """Binary uint8 H x W (1 = crop): single channel or RGB(A), any non-zero value is crop."""
     import cv2
 
-    path = Path(path)
-    data = _read_bytes_checked(path)
-    mask = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if mask is None:
-        raise DatasetError(f"{path}: unreadable mask")
+    mask = _decode(Path(path), cv2.IMREAD_UNCHANGED, "mask")
     if mask.ndim == 3:
         mask = mask[..., :3].max(axis=2) if mask.shape[2] >= 3 else mask[..., 0]
     return (mask > 0).astype(np.uint8)
@@ -75,10 +76,7 @@ def read_depth(path: str | Path) -> np.ndarray:
             )
         depth = depth[..., 0] if depth.ndim == 3 else depth
         return np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    data = _read_bytes_checked(path)
-    depth = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if depth is None:
-        raise DatasetError(f"{path}: unreadable depth image")
+    depth = _decode(path, cv2.IMREAD_UNCHANGED, "depth image")
     depth = depth[..., 0] if depth.ndim == 3 else depth
     if depth.dtype.kind == "f":
         return depth.astype(np.float32)
