@@ -42,8 +42,6 @@ from segmin.nav_eval.metrics import Trajectory, polyline_length, project_onto_po
 from segmin.nav_eval.oracle import segment_frame
 from segmin.nav_eval.robot import Robot, footprint_distances
 
-REASONS = ("success", "collision", "left_row", "stalled", "timeout", "error")
-
 
 @dataclasses.dataclass
 class Observation:
