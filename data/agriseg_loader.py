@@ -16,13 +16,16 @@ without torch; that one is loaded on first use, so importing this facade never p
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from segmin.data.domains import FAMILIES, available_domains, find_frames, resolve_domains
 from segmin.data.frames import DEPTH_EXTS, IMAGE_EXTS, DatasetError, Frame, ScanResult, frame_id_of
 from segmin.data.layouts import CROP_DOMAINS, scan
 from segmin.data.readers import load_frame, read_depth, read_image, read_mask
 from segmin.data.splits import load_split, make_splits, save_split
+
+if TYPE_CHECKING:  # at run time it comes from __getattr__, so torch loads only when needed
+    from segmin.data.dataset import AgriSegDataset
 
 __all__ = [
     "CROP_DOMAINS", "DEPTH_EXTS", "FAMILIES", "IMAGE_EXTS", "AgriSegDataset", "DatasetError", "Frame",

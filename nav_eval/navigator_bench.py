@@ -19,7 +19,7 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     rows = []
     for method in METHODS:
         navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
-        ms = time_calls(lambda frame: navigator.step(*frame), runs=steps, warmup=warmup, inputs=frames) * 1e3
+        ms = time_calls(lambda frame, nav=navigator: nav.step(*frame), runs=steps, warmup=warmup, inputs=frames) * 1e3
         rows.append({"method": method, "median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95))})
     return rows
 
