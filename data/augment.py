@@ -17,8 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
+from segmin.data.model_input import IMAGENET_MEAN, IMAGENET_STD
 
 
 @dataclass

@@ -15,6 +15,8 @@ from typing import Callable
 
 import numpy as np
 
+from segmin.common.timing import time_calls
+
 TARGET_ORT_MS = 6.0
 TARGET_RATIO = 0.35
 TARGET_STEP_MS = 7.0
@@ -43,12 +45,7 @@ def interleaved(candidates: dict[str, Callable[[], object]], runs: int, rounds: 
     per_round = max(1, runs // rounds)
     for _ in range(rounds):
         for name, call in candidates.items():
-            for _ in range(min(3, per_round)):
-                call()
-            for _ in range(per_round):
-                start = time.perf_counter()
-                call()
-                samples[name].append((time.perf_counter() - start) * 1e3)
+            samples[name].extend(time_calls(call, runs=per_round, warmup=min(3, per_round)) * 1e3)
     return {
         name: {
             "median_ms": float(np.median(s)),

@@ -30,10 +30,9 @@ from torch import nn
 
 import segmin
 from segmin.common.provenance import git_commit
+from segmin.data.model_input import IMAGENET_MEAN, IMAGENET_STD
 from segmin.export import metadata as md
 
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
 EXPORTERS = ("dynamo", "legacy")
 DEFAULT_OPSET = {"dynamo": 18, "legacy": 17}
 

@@ -15,12 +15,12 @@ its mask IoU and latency, and recommended only when the measured latency is lowe
 from __future__ import annotations
 
 import tempfile
-import time
-from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
+from segmin.common.timing import Latency, time_calls
 from segmin.export.verify import Agreement, compare, make_session, run_session
 
 # fp16 is compared with the fp32 export, not with PyTorch: half precision cannot meet 1e-4.
@@ -85,37 +85,6 @@ def quantize_int8(src: str | Path, dst: str | Path, frames: np.ndarray) -> None:
         )
 
 
-@dataclass(frozen=True)
-class Latency:
-    """Per-frame latency of one model, milliseconds."""
-
-    median_ms: float
-    p95_ms: float
-    runs: int
-
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
-
-
-def time_calls(call, runs: int = 50, warmup: int = 5) -> Latency:
-    """Median and 95th percentile wall time of `call()`."""
-    for _ in range(warmup):
-        call()
-    times = np.empty(runs)
-    for i in range(runs):
-        start = time.perf_counter()
-        call()
-        times[i] = time.perf_counter() - start
-    return Latency(float(np.median(times) * 1e3), float(np.percentile(times, 95) * 1e3), int(runs))
-
-
-def session_latency(path: str | Path, frame: np.ndarray, threads: int = 2, runs: int = 50) -> Latency:
-    """Latency of one uint8 1 x H x W x 3 frame through an onnxruntime session."""
-    session = make_session(path, threads=threads)
-    feed = {session.get_inputs()[0].name: frame}
-    return time_calls(lambda: session.run(None, feed), runs=runs)
-
-
 def compare_with_fp32(path: str | Path, fp32_probs: np.ndarray, frames: np.ndarray, threshold: float) -> Agreement:
     """Agreement of a reduced-precision file with the fp32 export's probabilities."""
     return compare(run_session(make_session(path), frames), fp32_probs, threshold)
@@ -131,13 +100,5 @@ def interleaved_latency(
     for _ in range(rounds):
         for name, session in sessions.items():
             feed = {session.get_inputs()[0].name: frame}
-            for _ in range(3):
-                session.run(None, feed)
-            for _ in range(per_round):
-                start = time.perf_counter()
-                session.run(None, feed)
-                samples[name].append(time.perf_counter() - start)
-    return {
-        name: Latency(float(np.median(s) * 1e3), float(np.percentile(s, 95) * 1e3), len(s))
-        for name, s in samples.items()
-    }
+            samples[name].extend(time_calls(partial(session.run, None, feed), runs=per_round, warmup=3))
+    return {name: Latency.of_seconds(s) for name, s in samples.items()}

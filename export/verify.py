@@ -15,6 +15,10 @@ from typing import Callable
 
 import numpy as np
 
+from segmin.data.agriseg_loader import find_frames
+from segmin.data.model_input import resize_to_input
+from segmin.data.readers import read_image
+
 log = logging.getLogger(__name__)
 
 MAX_ABS_DIFF = 1e-4
@@ -45,17 +49,6 @@ class Agreement:
 # ----------------------------------------------------------------------------- frames
 
 
-def _resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    import cv2
-
-    height, width = size
-    if image.shape[:2] == (height, width):
-        return image
-    shrinking = image.shape[0] >= height and image.shape[1] >= width
-    interp = cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR
-    return cv2.resize(image, (width, height), interpolation=interp)
-
-
 def _image_files(folder: Path) -> list[Path]:
     files = []
     for path in sorted(folder.rglob("*")):
@@ -71,24 +64,10 @@ def _image_files(folder: Path) -> list[Path]:
 def _agriseg_images(root: Path, domains: list[str] | None = None) -> list[Path]:
     """Image paths of an AgriSeg-layout root via data.agriseg_loader, [] when it is not one."""
     try:
-        from segmin.data.agriseg_loader import find_frames
-    except ImportError:
-        return []
-    try:
         return [frame.image_path for frame in find_frames(root, domains, skip_unpaired=True)]
     except (ValueError, OSError) as exc:  # not an AgriSeg layout (or an empty one): plain folder
         log.debug("%s is not an AgriSeg layout (%s); reading it as a folder of images", root, exc)
         return []
-
-
-def _read_rgb(path: Path) -> np.ndarray:
-    import cv2
-
-    data = np.fromfile(str(path), dtype=np.uint8)
-    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
-    if image is None:
-        raise ValueError(f"{path}: unreadable image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 def load_frames(
@@ -96,7 +75,7 @@ def load_frames(
 ) -> np.ndarray:
     """Up to `limit` real frames from `source`, as uint8 N x H x W x 3 at the model input size.
 
-    `source` is an AgriSeg-layout root (read with data.agriseg_loader when available) or any
+    `source` is an AgriSeg-layout root (read with data.agriseg_loader) or any
     folder of PNG/JPG images (searched recursively; mask and depth folders are skipped);
     `domains` restricts an AgriSeg root to those domains (the training run's choice). Frames
     are picked evenly spaced over the sorted list, so the choice is deterministic.
@@ -116,7 +95,7 @@ def load_frames(
     if len(paths) > limit:
         picks = np.linspace(0, len(paths) - 1, limit).round().astype(int)
         paths = [paths[i] for i in picks]
-    frames = [_resize(_read_rgb(path), input_size) for path in paths]
+    frames = [resize_to_input(read_image(path), input_size) for path in paths]
     return np.stack(frames).astype(np.uint8, copy=False)
 
 

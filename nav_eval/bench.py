@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.cli_args import overrides_of
+
 
 class _Timed:
     """Wraps one method of an object and accumulates its wall time."""
@@ -96,7 +98,7 @@ def bench_nav_eval(args: argparse.Namespace) -> None:
     from segmin.nav_eval.eval_config import load_nav_config
     from segmin.nav_eval.evaluate import run_evaluation
 
-    config = load_nav_config(args.config, args.overrides)
+    config = load_nav_config(args.config, overrides_of(args))
     with tempfile.TemporaryDirectory() as tmp:
         model = args.model
         if model is None:

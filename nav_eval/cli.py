@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.nav_eval.methods import METHODS
+
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None,
                         help="evaluation config YAML (default: configs/nav/default.yaml)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="config override, repeatable (e.g. --set run.length_m=10)")
+    add_overrides(parser, example="run.length_m=10")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the start noise (default 0)")
 
 
@@ -25,7 +27,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument("--model", required=True, help="exported .onnx file, or 'oracle' (exact masks)")
     parser.add_argument("--fields", default="all",
                         help="'all' (the five test fields), comma-separated names, or world spec YAML paths")
-    parser.add_argument("--methods", default="segmin,segmind,segzeros", help="comma-separated methods")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
@@ -55,7 +57,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
     from segmin.nav_eval.evaluate import run_evaluation
     from segmin.nav_eval.report import table3_markdown
 
-    config = load_nav_config(args.config, args.overrides)
+    config = load_nav_config(args.config, overrides_of(args))
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     results = run_evaluation(args.model, args.fields, args.methods, args.runs, args.out, args.workers, config,

@@ -18,7 +18,6 @@ from segmin.nav_eval.navigator import (
     Navigator,
     NavigatorConfig,
     column_histogram,
-    control_law,
     moving_average,
 )
 from segmin.common.atomic import atomic_path, write_text
@@ -123,8 +122,3 @@ def _draw_figure(frames: list, results: list[DemoResult], path: Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
-
-
-def unsmoothed_command(x_h: float, width: int, method: str, depth_threshold: float) -> tuple[float, float]:
-    """The control law alone, for readers who want the per-frame command without the EMA."""
-    return control_law(x_h, width, NavigatorConfig(method=method, depth_threshold=depth_threshold))

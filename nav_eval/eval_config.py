@@ -16,8 +16,6 @@ from segmin.nav_eval.robot import RobotConfig
 
 DEFAULT_CONFIG = "default"  # the shipped configs/nav/default.yaml
 
-METHODS = ("segmin", "segmind", "segzeros")
-
 
 @dataclasses.dataclass
 class Rates:

@@ -27,9 +27,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from segmin.nav_eval.eval_config import METHODS, NavEvalConfig, load_nav_config
+from segmin.nav_eval.eval_config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.factories import FieldContext, field_label, make_navigator, make_segmenter
 from segmin.nav_eval.metrics import Trajectory, compute_metrics
+from segmin.nav_eval.methods import METHODS
 from segmin.common.config import from_dict, to_dict
 
 METRIC_KEYS = ("clearance_time", "mae", "mse", "heading_avg", "v_avg", "omega_std", "collisions",

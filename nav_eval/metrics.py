@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.angles import wrap_angle
+
 
 def project_onto_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Project points (N, 2) onto a polyline (K, 2).
@@ -65,10 +67,6 @@ def project_onto_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.
 def polyline_length(polyline: np.ndarray) -> float:
     line = np.asarray(polyline, dtype=float)
     return float(np.hypot(*np.diff(line, axis=0).T).sum())
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 @dataclasses.dataclass

@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-METHODS: tuple[str, ...] = ("segmin", "segmind", "segzeros")
+from segmin.nav_eval.methods import METHODS
+
 # SegZeros: a free corridor must be wider than 3 columns (Aghi et al. 2021).
 ZEROS_MIN_WIDTH = 4
 

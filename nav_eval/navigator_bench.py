@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 
+from segmin.common.timing import time_calls
 from segmin.nav_eval.demo_scenes import DEMO_SCENES, render_scene
 from segmin.nav_eval.navigator import METHODS, Navigator, NavigatorConfig
 
@@ -19,14 +19,7 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     rows = []
     for method in METHODS:
         navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
-        times = np.empty(steps)
-        for i in range(warmup + steps):
-            mask, depth = frames[i % len(frames)]
-            start = time.perf_counter()
-            navigator.step(mask, depth)
-            if i >= warmup:
-                times[i - warmup] = time.perf_counter() - start
-        ms = times * 1e3
+        ms = time_calls(lambda frame, nav=navigator: nav.step(*frame), runs=steps, warmup=warmup, inputs=frames) * 1e3
         rows.append({"method": method, "median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95))})
     return rows
 

@@ -24,7 +24,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from segmin.nav_eval.metrics import project_onto_polyline  # noqa: E402
-from segmin.common.atomic import write_bytes  # noqa: E402
+from segmin.common.atomic import atomic_path, write_bytes  # noqa: E402
+from segmin.data.overlay import GREEN, tint_mask  # noqa: E402
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
@@ -94,10 +95,7 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
         h = moving_average(column_histogram(mask, depth, method=method, depth_threshold=depth_threshold), 11)
         hists[method], targets[method] = h, histogram_minimum(h)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    img = np.asarray(frame.rgb, dtype=np.uint8).copy()
-    tint = mask.astype(bool)
-    img[tint] = (0.6 * img[tint] + 0.4 * np.array([0, 255, 0])).astype(np.uint8)
-    axes[0].imshow(img)
+    axes[0].imshow(tint_mask(frame.rgb, mask, GREEN, opacity=0.4))
     for method, x in targets.items():
         axes[0].axvline(x, color=COLOURS[method], lw=2, label=f"{method} target")
     axes[0].set_title(f"{field}: RGB + mask (green)")
@@ -163,35 +161,37 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
 
 
+class _NoMp4Encoder(Exception):
+    """OpenCV here cannot write MP4; raised inside `atomic_path` so its temporary file is removed."""
+
+
+def _write_mp4(path: Path, frames: list[np.ndarray], fps: float) -> None:
+    import cv2
+
+    height, width = np.asarray(frames[0]).shape[:2]
+    with atomic_path(path, suffix=".mp4") as tmp:  # VideoWriter picks the container from the name
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
+        if not writer.isOpened():
+            raise _NoMp4Encoder(path)
+        for frame in frames:
+            writer.write(cv2.cvtColor(np.asarray(frame, dtype=np.uint8), cv2.COLOR_RGB2BGR))
+        writer.release()
+        if tmp.stat().st_size == 0:
+            raise _NoMp4Encoder(path)
+
+
 def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> Path:
     """The camera view as MP4 (OpenCV, mp4v) or, when the suffix is .gif or MP4 cannot be
     written, an animated GIF (Pillow). Written atomically; returns the path actually written."""
-    import os
-    import tempfile
-
     path = Path(path)
     if not frames:
         return path
-    height, width = np.asarray(frames[0]).shape[:2]
     if path.suffix.lower() == ".mp4":
-        import cv2
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
-        os.close(fd)
         try:
-            writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
-            if writer.isOpened():
-                for frame in frames:
-                    writer.write(cv2.cvtColor(np.asarray(frame, dtype=np.uint8), cv2.COLOR_RGB2BGR))
-                writer.release()
-                if os.path.getsize(tmp) > 0:
-                    os.replace(tmp, path)
-                    return path
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        path = path.with_suffix(".gif")          # no MP4 encoder here: fall back to GIF
+            _write_mp4(path, frames, fps)
+            return path
+        except _NoMp4Encoder:
+            path = path.with_suffix(".gif")      # no MP4 encoder here: fall back to GIF
     from PIL import Image
 
     images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]

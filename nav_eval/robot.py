@@ -18,6 +18,8 @@ from typing import Callable
 
 import numpy as np
 
+from segmin.common.angles import wrap_angle
+
 
 @dataclasses.dataclass
 class RobotConfig:
@@ -25,7 +27,7 @@ class RobotConfig:
 
     length: float = 0.51          # footprint along the heading, m
     width: float = 0.43           # footprint across, m
-    wheel_radius: float = 0.098   # m (for the record and the wheel-speed view)
+    wheel_radius: float = 0.098   # m (for the record: the unicycle model does not use it)
     max_v: float = 2.0            # hardware speed limit, m/s
     max_omega: float = 4.0        # hardware turn-rate limit, rad/s
     max_lin_acc: float = 1.0      # m/s^2
@@ -93,16 +95,10 @@ class Robot:
         ground = v_mid * math.cos(s.pitch) * dt
         s.x += ground * math.cos(yaw_mid)
         s.y += ground * math.sin(yaw_mid)
-        s.yaw = _wrap(s.yaw + w_mid * dt)
+        s.yaw = wrap_angle(s.yaw + w_mid * dt)
         s.v, s.omega = v_new, w_new
         self._follow_terrain()
         return s
-
-    def wheel_speeds(self) -> tuple[float, float]:
-        """Left and right wheel angular speeds (rad/s) of the equivalent differential drive."""
-        s, c = self.state, self.config
-        half = 0.5 * c.width
-        return ((s.v - s.omega * half) / c.wheel_radius, (s.v + s.omega * half) / c.wheel_radius)
 
     def _follow_terrain(self) -> None:
         s = self.state
@@ -122,10 +118,6 @@ def _actuate(current: float, target: float, dt: float, tau: float, max_acc: floa
     desired = target if tau <= 0 else current + (target - current) * (1.0 - math.exp(-dt / tau))
     step = float(np.clip(desired - current, -max_acc * dt, max_acc * dt))
     return current + step
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def footprint_distances(

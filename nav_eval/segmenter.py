@@ -3,8 +3,8 @@
 `OnnxSegmenter` runs a file written by `segmin export` with onnxruntime only (no torch, no
 training code: this module is what runs on the robot computer). The file's metadata says the
 input size and threshold; the graph itself does the /255 and ImageNet normalisation, so the only
-preprocessing here is a resize to the model size (INTER_AREA when shrinking, INTER_LINEAR when
-enlarging). The mask is computed at the model size and resized back to the frame size with
+preprocessing here is a resize to the model size (`data.model_input.resize_to_input`, shared with
+export verification: INTER_AREA when shrinking, INTER_LINEAR when enlarging). The mask is computed at the model size and resized back to the frame size with
 nearest neighbour, so it stays boolean and its edges do not move by more than one model pixel;
 `probabilities` is resized back bilinearly.
 
@@ -21,6 +21,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from segmin.data.model_input import resize_to_input
 from segmin.export import metadata as md
 
 # Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter).
@@ -125,15 +126,9 @@ class OnnxSegmenter:
         A caller that overlaps segmentation with other work runs this on its own thread and
         `segment_prepared` on a helper: the helper then releases the GIL at its first step.
         """
-        import cv2
-
         rgb = check_rgb(rgb)
-        height, width = self.input_size
         frame_shape = (int(rgb.shape[0]), int(rgb.shape[1]))
-        if frame_shape != (height, width):
-            shrinking = rgb.shape[0] >= height and rgb.shape[1] >= width
-            rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
-        return PreparedFrame(rgb[None], frame_shape)
+        return PreparedFrame(resize_to_input(rgb, self.input_size)[None], frame_shape)
 
     def _model_probabilities(self, prepared: PreparedFrame) -> np.ndarray:
         """Probabilities at the model input size (float32 h x w)."""

@@ -36,12 +36,11 @@ from typing import Any
 
 import numpy as np
 
+from segmin.data.overlay import GREEN, tint_mask
 from segmin.nav_eval.eval_config import NavEvalConfig
 from segmin.nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
 from segmin.nav_eval.oracle import segment_frame
 from segmin.nav_eval.robot import Robot, footprint_distances
-
-REASONS = ("success", "collision", "left_row", "stalled", "timeout", "error")
 
 
 @dataclasses.dataclass
@@ -314,10 +313,7 @@ def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video
 
 def overlay(rgb: np.ndarray, mask: np.ndarray | None, column: float | None) -> np.ndarray:
     """Camera view with the mask tinted green and the chosen column drawn in red."""
-    img = np.asarray(rgb, dtype=np.uint8).copy()
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool)
-        img[m] = (0.55 * img[m] + 0.45 * np.array([0, 255, 0])).astype(np.uint8)
+    img = np.asarray(rgb, dtype=np.uint8).copy() if mask is None else tint_mask(rgb, mask, GREEN, opacity=0.45)
     if column is not None and np.isfinite(column):
         c = int(round(float(column)))
         c = min(max(c, 0), img.shape[1] - 1)

@@ -1,4 +1,4 @@
-"""Shared by tests/test_export*.py and tests/test_segmenter*.py: a tiny trained checkpoint and frames.
+"""Builders for the export and segmenter tests: a tiny trained checkpoint and toy frames (conftest shares them).
 
 The checkpoint is LR-ASPP MobileNetV3 with random init trained for a few Adam steps on synthetic
 64 x 64 "field" images (green row bands on soil under a sky), so its probabilities are spread out
@@ -12,6 +12,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from segmin.data.model_input import IMAGENET_MEAN, IMAGENET_STD
 
 SIZE = 64
 
@@ -46,8 +48,8 @@ def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: flo
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     model = build_model("none")
-    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
-    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
     optimizer = torch.optim.Adam(model.parameters(), lr=5e-3)
     model.eval()
     for _ in range(steps):
@@ -75,40 +77,3 @@ def write_frames(folder: Path, count: int = 6, height: int = 72, width: int = 96
         suffix = ".jpg" if i % 3 == 2 else ".png"
         cv2.imwrite(str(folder / f"frame{i}{suffix}"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     return folder
-
-
-# One tiny checkpoint and one full export per test session, shared by the export and segmenter
-# test modules (each takes seconds on 2 cores; building them once keeps the suite short).
-_SESSION_CACHE: dict[str, object] = {}
-
-
-def shared_checkpoint(tmp_path_factory) -> Path:
-    if "checkpoint" not in _SESSION_CACHE:
-        folder = tmp_path_factory.mktemp("tiny_checkpoint")
-        _SESSION_CACHE["checkpoint"] = make_checkpoint(folder / "tiny.pt")
-        _SESSION_CACHE["frames"] = write_frames(folder / "frames", count=6)
-    return _SESSION_CACHE["checkpoint"]  # type: ignore[return-value]
-
-
-def shared_frames(tmp_path_factory) -> Path:
-    shared_checkpoint(tmp_path_factory)
-    return _SESSION_CACHE["frames"]  # type: ignore[return-value]
-
-
-def shared_export(tmp_path_factory) -> tuple[Path, dict]:
-    """model.onnx (default dynamo exporter) with fp16 and int8 variants, and its report."""
-    if "export" not in _SESSION_CACHE:
-        from segmin.export.pipeline import ExportOptions, export_checkpoint
-
-        out = tmp_path_factory.mktemp("tiny_export") / "model.onnx"
-        report = export_checkpoint(
-            ExportOptions(
-                checkpoint=shared_checkpoint(tmp_path_factory),
-                out=out,
-                calib_data=shared_frames(tmp_path_factory),
-                fp16=True,
-                int8=True,
-            )
-        )
-        _SESSION_CACHE["export"] = (out, report)
-    return _SESSION_CACHE["export"]  # type: ignore[return-value]

@@ -23,7 +23,7 @@ from segmin.export.verify import (
     make_session,
     run_session,
 )
-from export_helpers import SIZE, field_image, shared_checkpoint, shared_export, shared_frames, write_frames
+from export_helpers import SIZE, field_image, write_frames
 from segmin.models.checkpoint import load_model
 from segmin.app.cli import main as segmin_main
 
@@ -31,22 +31,6 @@ from segmin.app.cli import main as segmin_main
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("export")
-
-
-@pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory) -> Path:
-    return shared_checkpoint(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def frames_dir(tmp_path_factory) -> Path:
-    return shared_frames(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory) -> tuple[Path, dict]:
-    """One full export with both variants (dynamo exporter, the default), shared by the tests."""
-    return shared_export(tmp_path_factory)
 
 
 def _torch_probs(checkpoint: Path, frames: np.ndarray) -> np.ndarray:

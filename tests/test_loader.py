@@ -366,3 +366,14 @@ def test_root_may_be_a_single_subset_folder(tmp_path):
     assert [(f.domain, f.subset, f.frame_id) for f in frames] == [("pear", "part_a", 1), ("pear", "part_a", 10)]
     formatted = make_formatted(tmp_path / "fmt", "vineyard", ids=(2, 3))
     assert {(f.domain, f.subset) for f in find_frames(formatted)} == {("vineyard", "vineyard_1")}
+
+
+def test_scanning_and_readers_import_without_torch():
+    """The robot runtime has no torch: everything but the Dataset must import without it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from segmin.data.agriseg_loader import find_frames, read_image, read_mask, scan, make_splits\n"
+            "import segmin.data.layouts, segmin.data.readers, segmin.data.splits, segmin.data.domains\n")
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -13,12 +13,7 @@ from segmin.models.lraspp import imagenet_weights_path
 WEIGHTS_FILE = "mobilenet_v3_large-8738ca79.pth"
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture()

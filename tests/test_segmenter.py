@@ -11,19 +11,19 @@ import torch
 
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper
-from export_helpers import SIZE, field_image, shared_checkpoint, shared_export
+from export_helpers import SIZE, field_image
 from segmin.models.checkpoint import load_model
 from segmin.nav_eval.segmenter import OnnxSegmenter, Segmenter
 
 
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory) -> Path:
-    return shared_export(tmp_path_factory)[0]
+def model_path(exported) -> Path:
+    return exported[0]
 
 
 @pytest.fixture(scope="module")
-def torch_wrapper(tmp_path_factory):
-    model, _ = load_model(shared_checkpoint(tmp_path_factory))
+def torch_wrapper(checkpoint):
+    model, _ = load_model(checkpoint)
     return DeployWrapper(model).eval()
 
 

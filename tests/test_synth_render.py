@@ -47,30 +47,26 @@ def test_mask_is_exactly_the_plant_bodies(scene):
     assert rgb_changed[frame.mask].mean() > 0.97, "mask pixels whose colour did not change"
 
 
-def test_depth_matches_an_analytic_ground_plane():
+def test_depth_matches_an_analytic_ground_plane(bullet_client):
     raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0], "grass_tufts": 0.0},
                structures={"poles": False})
-    client = p.connect(p.DIRECT)
-    try:
-        world = build_world(spec_from_dict(raw), client)
-        camera = CameraModel(width=64, height=48)
-        renderer = Renderer(world, camera)
-        x, y, yaw = world.gap_pose(world.eval_gap, 1.0)
-        frame = renderer.render(x, y, yaw, pose_offset=(0.0, 0.0, -0.7, 0.05))  # look down, slight roll
-        ground = {b for c in world.chunks if c.kind == "ground" for b in c.bodies}
-        is_ground = np.isin(frame.body_ids, list(ground))
-        assert is_ground.mean() > 0.3
-        k = camera.intrinsics()
-        v, u = np.mgrid[0:48, 0:64]
-        rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"], np.ones_like(u, float)], -1)
-        pose = frame.camera_pose
-        world_dirs = rays @ pose[:3, :3].T
-        expect = -pose[2, 3] / world_dirs[..., 2]  # planar depth: rays have z = 1 in camera frame
-        rel = np.abs(frame.depth[is_ground] - expect[is_ground]) / expect[is_ground]
-        assert rel.max() <= 1e-3, f"max relative depth error {rel.max():.2e}"
-        assert np.all(frame.depth[frame.body_ids < 0] == 0)
-    finally:
-        p.disconnect(client)
+    world = build_world(spec_from_dict(raw), bullet_client)
+    camera = CameraModel(width=64, height=48)
+    renderer = Renderer(world, camera)
+    x, y, yaw = world.gap_pose(world.eval_gap, 1.0)
+    frame = renderer.render(x, y, yaw, pose_offset=(0.0, 0.0, -0.7, 0.05))  # look down, slight roll
+    ground = {b for c in world.chunks if c.kind == "ground" for b in c.bodies}
+    is_ground = np.isin(frame.body_ids, list(ground))
+    assert is_ground.mean() > 0.3
+    k = camera.intrinsics()
+    v, u = np.mgrid[0:48, 0:64]
+    rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"], np.ones_like(u, float)], -1)
+    pose = frame.camera_pose
+    world_dirs = rays @ pose[:3, :3].T
+    expect = -pose[2, 3] / world_dirs[..., 2]  # planar depth: rays have z = 1 in camera frame
+    rel = np.abs(frame.depth[is_ground] - expect[is_ground]) / expect[is_ground]
+    assert rel.max() <= 1e-3, f"max relative depth error {rel.max():.2e}"
+    assert np.all(frame.depth[frame.body_ids < 0] == 0)
 
 
 def test_camera_mount_follows_the_paper():

@@ -11,13 +11,6 @@ from segmin.data.synth.world import build_world
 from synth_helpers import tiny
 
 
-@pytest.fixture
-def client():
-    c = p.connect(p.DIRECT)
-    yield c
-    p.disconnect(c)
-
-
 def _signed_lateral(centreline: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Signed distance (+ = left of the travel direction) from each point to the polyline."""
     a, b = centreline[:-1], centreline[1:]
@@ -36,10 +29,10 @@ ARC = [[12.0 * np.sin(t), 12.0 * (1 - np.cos(t))] for t in np.linspace(0, 0.8, 4
 
 
 @pytest.mark.parametrize("curve, polyline", [(0.0, []), (12.0, []), (0.0, ARC)])
-def test_centreline_lies_midway_between_the_rows(client, curve, polyline):
+def test_centreline_lies_midway_between_the_rows(bullet_client, curve, polyline):
     spec = spec_from_dict(tiny(rows={"count": 4, "curve_radius": curve, "curve_start": 1.0, "length": 8.0,
                                      "polyline": [[float(a), float(b)] for a, b in polyline]}))
-    world = build_world(spec, client)
+    world = build_world(spec, bullet_client)
     assert len(world.centrelines) == 3 and len(world.gap_half_widths) == 3
     half = spec.rows.spacing / 2
     tol = 4 * spec.rows.lateral_jitter + 1e-6
@@ -59,21 +52,21 @@ def test_centreline_lies_midway_between_the_rows(client, curve, polyline):
         assert last[1] > 1.0  # bends left
 
 
-def test_pergola_centreline_is_the_free_band(client):
+def test_pergola_centreline_is_the_free_band(bullet_client):
     raw = tiny(crop="pergola", rows={"spacing": 6.0, "count": 3},
                plants={"spacing": 1.5, "height": [2.8, 3.0], "trunk_height": [2.3, 2.5], "canopy_bottom": [1.5, 1.8]},
                structures={"pergola": True, "pergola_height": 2.5, "free_band_width": 1.4,
                            "free_band_offset": 0.5, "wire_heights": []})
     spec = spec_from_dict(raw)
-    world = build_world(spec, client)
+    world = build_world(spec, bullet_client)
     # Gap 0 lies between rows at y = -6 and 0; its band centre is 0.5 m left of the middle (-3).
     assert np.allclose(world.centrelines[0][:, 1], -2.5, atol=1e-6)
     assert world.gap_half_widths[0] < 3.0
 
 
-def test_terrain_normal_matches_height_gradient(client):
+def test_terrain_normal_matches_height_gradient(bullet_client):
     spec = spec_from_dict(tiny(terrain={"roughness": 0.1, "slope": [0.02, -0.01]}))
-    world = build_world(spec, client)
+    world = build_world(spec, bullet_client)
     xs, ys = np.array([0.3, 2.0, 4.5]), np.array([-1.0, 0.2, 1.3])
     h = world.terrain_height(xs, ys)
     assert h.shape == (3,) and isinstance(world.terrain_height(1.0, 2.0), float)
@@ -88,9 +81,9 @@ def test_terrain_normal_matches_height_gradient(client):
     assert np.std(world.terrain_height(np.linspace(0, 6, 50), np.zeros(50))) > 0.01  # uneven
 
 
-def test_collision_circles_and_vegetation_ids(client):
+def test_collision_circles_and_vegetation_ids(bullet_client):
     spec = spec_from_dict(tiny())
-    world = build_world(spec, client)
+    world = build_world(spec, bullet_client)
     assert world.plant_circles.shape[1] == 3 and len(world.plant_circles) >= 3 * 4
     assert np.all(world.plant_circles[:, 2] > 0)
     assert len(world.obstacle_circles) >= 3 * 2  # poles

@@ -55,13 +55,7 @@ def tiny_config(root: Path, **overrides) -> TrainConfig:
     return from_dict(TrainConfig, raw)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One torch thread: the 2 shared cores are oversubscribed otherwise (and results must not depend on it)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # conftest: one torch thread per test
 
 
 @pytest.fixture(scope="module")

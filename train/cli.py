@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+from segmin.common.cli_args import add_overrides, overrides_of
+
 
 def _add_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="configs/train/<family>.yaml")
-    parser.add_argument("overrides", nargs="*", metavar="key=value",
-                        help="dotted overrides, e.g. epochs=5 data.root=/data/agriseg batch_size=16")
+    add_overrides(parser, alias=False, example="epochs=5 data.root=/data/agriseg batch_size=16")
     parser.add_argument("--out", default=None, help="run folder (default runs/train/<config name>)")
     parser.add_argument("--resume", action="store_true", help="continue exactly from <out>/last.pt")
 
@@ -47,7 +48,7 @@ def _train(args: argparse.Namespace) -> int:
     from segmin.train.config import load_train_config
     from segmin.train.run import fit
 
-    config = load_train_config(args.config, args.overrides)
+    config = load_train_config(args.config, overrides_of(args))
     out = Path(args.out) if args.out else Path("runs/train") / Path(args.config).stem
     result = fit(config, out, resume=args.resume)
     if result.interrupted:

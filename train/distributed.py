@@ -18,6 +18,8 @@ from torch.utils.data import Sampler
 
 @dataclass(frozen=True)
 class DistInfo:
+    """This process's place in the torchrun group (rank 0 of 1 without torchrun) and its device."""
+
     rank: int
     world_size: int
     local_rank: int
@@ -60,28 +62,22 @@ def init_distributed(device_spec: str = "auto") -> DistInfo:
 
 
 def cleanup() -> None:
+    """Leave the process group, if one was joined, so the next run in this process can join anew."""
     if dist.is_available() and dist.is_initialized():
         dist.destroy_process_group()
 
 
 def barrier() -> None:
+    """Wait for every rank (no-op alone), so no rank starts the next epoch while rank 0 still writes."""
     if dist.is_available() and dist.is_initialized():
         dist.barrier()
 
 
 def all_reduce_sum(tensor: torch.Tensor) -> torch.Tensor:
+    """Sum `tensor` in place over the DDP ranks (a no-op without a process group): metrics are sums."""
     if dist.is_available() and dist.is_initialized():
         dist.all_reduce(tensor)
     return tensor
-
-
-def broadcast_flag(flag: bool, device: torch.device) -> bool:
-    """True on every rank when it is true on any (e.g. one rank was interrupted)."""
-    if not (dist.is_available() and dist.is_initialized()):
-        return flag
-    value = torch.tensor([1.0 if flag else 0.0], device=device)
-    dist.all_reduce(value, op=dist.ReduceOp.MAX)
-    return bool(value.item() > 0)
 
 
 class EpochSampler(Sampler):

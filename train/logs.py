@@ -46,6 +46,7 @@ class RunLogger:
         import cv2
 
         from segmin.data.augment import denormalize
+        from segmin.data.overlay import GREEN, tint_mask
 
         rows = []
         for image, mask, prob in samples:
@@ -53,9 +54,7 @@ class RunLogger:
             truth = (mask[0].numpy() > 0.5).astype(np.uint8) * 255
             p = prob[0].float().numpy()
             prob_img = (np.clip(p, 0, 1) * 255).astype(np.uint8)
-            overlay = rgb.copy()
-            pred = p > threshold
-            overlay[pred] = (0.5 * overlay[pred] + 0.5 * np.array([0, 255, 0])).astype(np.uint8)
+            overlay = tint_mask(rgb, p > threshold, GREEN, opacity=0.5)
             gray = [np.repeat(x[..., None], 3, axis=2) for x in (truth, prob_img)]
             rows.append(np.concatenate([rgb, gray[0], gray[1], overlay], axis=1))
         grid = np.concatenate(rows, axis=0)

@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from segmin.train.distributed import all_reduce_sum
 from segmin.train.metrics import SegMetrics
 
 
@@ -105,8 +106,7 @@ def train_one_epoch(
         if progress is not None:
             progress.update(1)
             progress.set_postfix(loss=f"{per_sample.mean().item():.4f}")
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        torch.distributed.all_reduce(total)
+    all_reduce_sum(total)
     return {"loss": (total[0] / total[1]).item() if total[1] > 0 else float("nan")}
 
 

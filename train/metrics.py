@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import torch
 
+from segmin.train.distributed import all_reduce_sum
+
 _FIELDS = ("intersection", "union", "correct", "pixels", "loss_sum", "samples")
 
 
@@ -37,8 +39,7 @@ class SegMetrics:
 
     def all_reduce(self) -> None:
         """Sum the accumulators over DDP ranks (no-op without a process group)."""
-        if torch.distributed.is_available() and torch.distributed.is_initialized():
-            torch.distributed.all_reduce(self.sums)
+        all_reduce_sum(self.sums)
 
     def compute(self) -> dict[str, float]:
         s = dict(zip(_FIELDS, self.sums.tolist()))

@@ -6,6 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
+from segmin.common.cli_args import NamesThenOverrides, add_overrides, overrides_of
+
 
 def register(commands, bench) -> None:
     synth = commands.add_parser("synth", help="procedural orchard/vineyard worlds: render datasets, previews")
@@ -25,12 +27,12 @@ def register(commands, bench) -> None:
     r.set_defaults(func=_render)
 
     pv = sub.add_parser("preview", help="contact sheet (RGB | mask overlay | depth) of a few frames per world")
-    pv.add_argument("--world", nargs="+", required=True, help="world names or YAML paths")
+    pv.add_argument("--world", nargs="+", required=True, action=NamesThenOverrides,
+                    help="world names or YAML paths (KEY=VALUE tokens after them are overrides)")
     pv.add_argument("--out", type=Path, required=True, help="PNG file to write")
     pv.add_argument("--frames", type=int, default=2, help="frames per world (default 2)")
     pv.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
-    pv.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a spec field, e.g. rows.length=10")
+    add_overrides(pv, example="rows.length=10")
     pv.set_defaults(func=_preview)
 
     b = bench.add_parser("synth", help="frames/s written per test field (1 and 2 workers); 20 m vs 200 m rows")
@@ -43,8 +45,7 @@ def register(commands, bench) -> None:
 
 def _world_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--world", required=True, help="world name (configs/worlds/<name>.yaml) or YAML path")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a spec field, e.g. rows.length=10 (repeatable)")
+    add_overrides(p, example="rows.length=10")
     p.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
 
 
@@ -66,7 +67,7 @@ def _render(args) -> int:
     from segmin.data.synth.writer import RenderJob, check_writable, parse_shard, render_dataset
 
     check_writable(args.out)  # before loading anything heavy
-    spec = load_world_spec(args.world, args.overrides)
+    spec = load_world_spec(args.world, overrides_of(args))
     job = RenderJob(
         spec=spec, out=args.out, frames=args.frames, camera=_camera(args.size), seed=args.seed,
         frames_per_subset=args.frames_per_subset, noisy_depth=not args.exact_depth, workers=args.workers,
@@ -84,6 +85,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
     import numpy as np
     import pybullet as p
 
+    from segmin.data.overlay import MAGENTA, tint_mask
     from segmin.data.synth.render import Renderer
     from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.world import build_world
@@ -103,12 +105,11 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
                 if rng is not None:
                     renderer.randomize_appearance(rng)
                 f = renderer.render(x, y, yaw, rng=rng)
-                overlay = f.rgb.astype(np.float32)
-                overlay[f.mask] = overlay[f.mask] * 0.45 + np.array([255, 0, 200]) * 0.55
+                overlay = tint_mask(f.rgb, f.mask, MAGENTA, opacity=0.55)
                 d = np.clip(f.depth / 15.0, 0, 1)
                 depth = cv2.applyColorMap((255 - d * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[:, :, ::-1].copy()
                 depth[f.depth <= 0] = 0
-                row = np.concatenate([f.rgb, overlay.astype(np.uint8), depth], axis=1)
+                row = np.concatenate([f.rgb, overlay, depth], axis=1)
                 label = f"{spec.name}  s={s:.0f} m"
                 cv2.putText(row, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
                 cv2.putText(row, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
@@ -123,7 +124,7 @@ def _preview(args) -> int:
 
     from segmin.common.atomic import write_bytes
 
-    sheet = preview_sheet(args.world, args.frames, _camera(args.size), args.overrides)
+    sheet = preview_sheet(args.world, args.frames, _camera(args.size), overrides_of(args))
     ok, png = cv2.imencode(".png", sheet[:, :, ::-1])
     if not ok:
         raise RuntimeError("PNG encoding failed")

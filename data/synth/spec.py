@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from segmin.common.angles import wrap_angle
 from segmin.common.config import apply_overrides, from_dict, read_yaml
 from segmin.common.shipped import resolve_config
 
@@ -94,7 +95,7 @@ class RowsSpec:
         for i in range(1, len(pts) - 1):
             a = math.atan2(pts[i][1] - pts[i - 1][1], pts[i][0] - pts[i - 1][0])
             b = math.atan2(pts[i + 1][1] - pts[i][1], pts[i + 1][0] - pts[i][0])
-            turn = abs((b - a + math.pi) % (2 * math.pi) - math.pi)
+            turn = abs(wrap_angle(b - a))
             if turn > 1e-9 and 0.5 * (seg[i - 1] + seg[i]) / turn <= half_width + 1.0:
                 raise ValueError(
                     f"rows.polyline: turns too sharply at point {i} for rows {half_width:.1f} m either side; "

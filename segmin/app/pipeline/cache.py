@@ -56,10 +56,6 @@ class StageCache:
         except (json.JSONDecodeError, TypeError) as exc:
             raise ValueError(f"{path}: unreadable stage record ({exc}); remove it to rerun the stage") from exc
 
-    def is_done(self, stage: str, input_hash: str) -> bool:
-        record = self.record(stage)
-        return record is not None and record.finished and record.input_hash == input_hash
-
     def started(self, stage: str, input_hash: str) -> None:
         write_json(self.folder(stage) / "stage.json",
                    {"name": stage, "input_hash": input_hash, "finished": False, "seconds": 0.0, "outputs": None})

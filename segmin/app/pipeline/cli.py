@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from segmin.app.pipeline.config import STAGES
+from segmin.common.cli_args import add_overrides, overrides_of
 
 
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
@@ -20,8 +21,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument("--out", default=None, help="run folder (default: runs/<profile>)")
     parser.add_argument("--from", dest="from_stage", choices=STAGES, default=None,
                         help="rerun this stage and every later one from scratch")
-    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
-                        help="profile overrides, e.g. render.frames_per_world=100 nav.runs=3")
+    add_overrides(parser, alias=False, example="render.frames_per_world=100 nav.runs=3")
     parser.set_defaults(func=_pipeline)
 
 
@@ -31,7 +31,7 @@ def _pipeline(args: argparse.Namespace) -> int:
     from segmin.app.pipeline.config import load_pipeline_config
     from segmin.app.pipeline.runner import PipelineRunner
 
-    config = load_pipeline_config(args.config, args.overrides)
+    config = load_pipeline_config(args.config, overrides_of(args))
     out = Path(args.out) if args.out else Path("runs") / config.profile
     report = PipelineRunner(config, out, from_stage=args.from_stage).run()
     print(f"report: {report} (and {report.with_suffix('.html')})")

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from segmin.common.config import load_config
 from segmin.common.shipped import resolve_config
+from segmin.nav_eval.methods import METHODS
 
 STAGES: tuple[str, ...] = ("render", "train", "export", "nav-eval", "report")
 
@@ -71,7 +72,7 @@ class NavPlan:
 
     config: str = "default"  # a shipped nav config or a YAML path
     overrides: list[str] = field(default_factory=list)
-    methods: list[str] = field(default_factory=lambda: ["segmin", "segmind", "segzeros"])
+    methods: list[str] = field(default_factory=lambda: list(METHODS))
     runs: int = 1
     workers: int = 2
     oracle: bool = True

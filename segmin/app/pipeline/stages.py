@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import statistics
-import time
 from pathlib import Path
 from typing import Any
 
@@ -173,23 +171,17 @@ def export_stage(config: PipelineConfig, checkpoint: Path, out: Path, val_root: 
 
 def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2) -> dict[str, float]:
     """Median and p95 of one `OnnxSegmenter.segment` call on rendered validation frames."""
-    import cv2
-
+    from segmin.common.timing import time_calls
+    from segmin.data.readers import read_image
     from segmin.nav_eval.segmenter import OnnxSegmenter
 
     paths = sorted(frames_root.rglob("images/*/*.png"))[:count]
     if not paths:
         raise FileNotFoundError(f"{frames_root}: no rendered images to time the model on")
-    images = [cv2.imread(str(p))[:, :, ::-1].copy() for p in paths]
+    images = [read_image(p) for p in paths]
     segmenter = OnnxSegmenter(model, threads=threads)
-    for image in images[:3]:
-        segmenter.segment(image)
-    times = []
-    for image in images:
-        start = time.perf_counter()
-        segmenter.segment(image)
-        times.append((time.perf_counter() - start) * 1e3)
-    return {"median": float(statistics.median(times)), "p95": float(np.percentile(times, 95)),
+    times = time_calls(segmenter.segment, runs=len(images), warmup=min(3, len(images)), inputs=images) * 1e3
+    return {"median": float(np.median(times)), "p95": float(np.percentile(times, 95)),
             "threads": threads, "frames": len(times), "frame_size": list(images[0].shape[:2])}
 
 
