@@ -323,3 +323,28 @@ def test_bench_iou_bound_rejects_bad_input_with_one_line(dataset_root, capsys, e
     assert main(["bench", "iou-bound", "--root", str(dataset_root), "--steps", "1", *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("segmin: error:") and message in err and len(err.splitlines()) == 1
+
+
+def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp_path, capsys):
+    """Issue 13.1: a rerun on an existing --out used to overwrite best.pt/last.pt/metrics.csv silently."""
+    import yaml
+
+    from segmin.app.cli import main
+    from segmin.common.config import to_dict
+    from segmin.train.run import fit
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(to_dict(tiny_config(dataset_root, epochs=1, tensorboard=False))))
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(config), "--out", str(out)]) == 0
+    before = (out / "last.pt").read_bytes(), (out / "metrics.csv").read_text()
+    capsys.readouterr()
+    with pytest.raises(FileExistsError, match="--force") as info:
+        fit(tiny_config(dataset_root, epochs=1, tensorboard=False), out)
+    assert "--resume" in str(info.value) and str(out) in str(info.value)
+    assert main(["train", "--config", str(config), "--out", str(out), "--force", "--resume"]) == 2
+    assert ((out / "last.pt").read_bytes(), (out / "metrics.csv").read_text()) == before
+    (out / "previews" / "stale.png").write_bytes(b"old")
+    assert main(["train", "--config", str(config), "--out", str(out), "--force", "seed=1"]) == 0
+    assert not (out / "previews" / "stale.png").exists()  # --force starts over: old outputs are gone
+    assert (out / "last.pt").read_bytes() != before[0]

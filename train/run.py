@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import random
 import time
 from dataclasses import dataclass, field
@@ -48,9 +49,9 @@ class FitResult:
     world_size: int = 1
 
 
-def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> Path:
+def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force: bool = False) -> Path:
     """Train and return the path of the best checkpoint (by validation IoU)."""
-    result = fit(config, out_dir, resume=resume)
+    result = fit(config, out_dir, resume=resume, force=force)
     if result.interrupted:
         raise KeyboardInterrupt(f"training interrupted; resume with --resume from {result.last_path}")
     return result.best_path
@@ -121,10 +122,44 @@ def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame]
 # ----------------------------------------------------------------------------- fit
 
 
-def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> FitResult:
+# What a training run leaves in its folder; a new run must not silently replace them.
+RUN_OUTPUTS: tuple[str, ...] = ("best.pt", "last.pt", "metrics.csv", "previews", "tensorboard")
+
+
+def claim_run_folder(out_dir: Path, *, resume: bool, force: bool) -> None:
+    """Refuse to start a fresh run over an earlier one unless told to continue or to start over.
+
+    Like `segmin export`: overwriting best.pt / last.pt / metrics.csv of a finished run loses
+    work, so that needs `--force` (which removes the old outputs first, so a new run that is
+    interrupted early cannot leave a stale best.pt behind) or `--resume` (continue it).
+    """
+    if resume and force:
+        raise ValueError("--resume and --force contradict each other: continue the run or start over, not both")
+    if resume:
+        return
+    existing = [name for name in RUN_OUTPUTS[:3] if (out_dir / name).exists()]
+    if not existing:
+        return
+    if not force:
+        raise FileExistsError(f"{out_dir}: already holds a training run ({', '.join(existing)}); "
+                              "pass --resume to continue it or --force to start over")
+    import shutil
+
+    for name in RUN_OUTPUTS:
+        target = out_dir / name
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+
+
+def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force: bool = False) -> FitResult:
+    """Train per `config` in `out_dir`; `resume` continues last.pt, `force` replaces an earlier run."""
     import cv2
 
     out_dir = Path(out_dir)
+    if int(os.environ.get("RANK", "0")) == 0:
+        claim_run_folder(out_dir, resume=resume, force=force)
     if config.threads:
         torch.set_num_threads(config.threads)
     cv2.setNumThreads(1)  # in-process loading (num_workers=0) must not start a second thread pool
