@@ -73,6 +73,11 @@ class TrainConfig:
     num_workers: int = 2
     prefetch_factor: int = 2
     max_steps_per_epoch: int | None = None
+    # Mid-epoch checkpoints (last.pt, resumable): every N steps and/or every M minutes of
+    # training, so a kill -9 during a long (first) epoch loses at most that much work. Ctrl-C and
+    # epoch ends always save. null turns either trigger off.
+    checkpoint_every_steps: int | None = None
+    checkpoint_every_minutes: float | None = 10.0
     eval_batch_size: int | None = None
     preview_images: int = 4
     tensorboard: bool = True
@@ -95,6 +100,10 @@ class TrainConfig:
             raise ValueError(f"threshold={self.threshold}: must be in (0, 1)")
         if self.num_workers < 0:
             raise ValueError(f"num_workers={self.num_workers}: must be >= 0")
+        if self.checkpoint_every_steps is not None and self.checkpoint_every_steps < 1:
+            raise ValueError(f"checkpoint_every_steps={self.checkpoint_every_steps}: must be >= 1 or null")
+        if self.checkpoint_every_minutes is not None and not self.checkpoint_every_minutes > 0:
+            raise ValueError(f"checkpoint_every_minutes={self.checkpoint_every_minutes}: must be > 0 or null")
         if self.max_steps_per_epoch is not None and self.max_steps_per_epoch < 1:
             raise ValueError(f"max_steps_per_epoch={self.max_steps_per_epoch}: must be >= 1 or null")
 

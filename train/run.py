@@ -4,7 +4,8 @@ Reads top to bottom like torchvision's reference `train.py`. `train_model(config
 the entry point for other stages; `segmin train` and `torchrun -m train.cli` call `fit`.
 
 Run folder (written by rank 0 only): `best.pt` (best val IoU), `last.pt` (end of the last epoch,
-or the moment of a Ctrl-C, with the state for `--resume`), `metrics.csv`, `tensorboard/`,
+the step boundary of a Ctrl-C, or a mid-epoch checkpoint every `checkpoint_every_steps` steps /
+`checkpoint_every_minutes` minutes; with the state for `--resume`), `metrics.csv`, `tensorboard/`,
 `previews/epoch_NNN.png`, `split.json` (the exact frames of each split), `config.yaml`.
 """
 
@@ -248,6 +249,21 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
 
     interrupted = False
     last_metrics: dict[str, float] = history[-1] if history else {}
+    saved_at = time.monotonic()
+
+    def after_step(step: int) -> None:
+        """Record progress; write a mid-epoch last.pt when one is due (rank 0; no collectives)."""
+        nonlocal saved_at
+        progress.update(step=step)
+        if not dist.is_main:
+            return
+        every, minutes = config.checkpoint_every_steps, config.checkpoint_every_minutes
+        due = (every is not None and step % every == 0) or \
+              (minutes is not None and time.monotonic() - saved_at >= 60.0 * minutes)
+        if due and step < steps_per_epoch:  # the epoch end saves anyway, with its metrics
+            save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
+            saved_at = time.monotonic()
+
     steps_per_epoch = len(train_loader)
     if config.max_steps_per_epoch is not None:
         steps_per_epoch = min(steps_per_epoch, config.max_steps_per_epoch)
@@ -260,7 +276,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
             bar = tqdm(total=max(0, steps_per_epoch - skip), desc=f"epoch {epoch + 1}/{config.epochs}",
                        disable=not (config.progress and dist.is_main), leave=False)
             train = train_one_epoch(ctx, train_loader, max_steps=steps_per_epoch - skip,
-                                    on_step=lambda s, skip=skip: progress.update(step=skip + s), progress=bar)
+                                    on_step=lambda s, skip=skip: after_step(skip + s), progress=bar)
             bar.close()
             keep = config.preview_images if dist.is_main else 0
             bar = tqdm(total=len(val_loader), desc="validate", disable=not (config.progress and dist.is_main),
