@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
 from segmin.data.augment import eval_transform, train_transform
+from segmin.data.frame_check import require_sound_frames, worker_error_line
 from segmin.models import build_model
 from segmin.common.atomic import write_text
 from segmin.common.config import to_dict
@@ -182,6 +183,10 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
 
     _seed_everything(config.seed)
     train_frames, val_frames = select_frames(config)
+    # Decode every frame once now: a corrupt one must stop the run here, naming the file, not
+    # as a worker traceback hours in (or never, when the sampler happens not to pick it).
+    require_sound_frames(train_frames + val_frames, out_dir / "frame_check.json" if dist.is_main else None,
+                         threads=max(1, config.num_workers))
     train_loader, sampler, val_loader = build_loaders(config, dist, train_frames, val_frames)
 
     model = build_model(config.backbone_weights)
@@ -306,6 +311,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
                       f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
                       f"({row['seconds']:.0f} s){'  *best*' if improved else ''}", flush=True)
             barrier()
+    except DatasetError as exc:  # from a loader worker: its message is the worker's whole traceback
+        raise DatasetError(worker_error_line(exc)) from None
     except KeyboardInterrupt:
         interrupted = True
         if dist.is_main:
