@@ -35,6 +35,7 @@ from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import WorldSpec
 from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
+from segmin.common.lock import writer_lock
 
 FORMAT = "segmin-synth/1"
 
@@ -344,9 +345,32 @@ def write_meta(job: RenderJob, world) -> list[Path]:
 
 
 # --------------------------------------------------------------------------------- run
+def lock_path(job: RenderJob) -> Path:
+    """The dataset's writer lock: one per domain and shard (shards of one job run side by side).
+
+    It sits beside the domain folder, not inside it, so `--overwrite` removing the folder keeps it.
+    """
+    shard, n_shards = job.shard
+    suffix = "" if n_shards == 1 else f".shard-{shard}-of-{n_shards}"
+    return job.out / f".{job.spec.domain}{suffix}.render.lock"
+
+
 def render_dataset(job: RenderJob) -> dict:
-    """Render the job's frames (this shard's part), skipping finished ones; returns a summary."""
+    """Render the job's frames (this shard's part), skipping finished ones; returns a summary.
+
+    Holds the dataset's writer lock throughout: a second writer of the same dataset (and shard)
+    is refused (LockHeldError naming the holder) instead of deleting the first one's staging
+    folders in its clean-up; the lock of a killed writer is taken over.
+    """
     check_writable(job.out)
+    with writer_lock(lock_path(job), f"dataset {job.out / job.spec.domain}") as previous:
+        if previous and job.progress:
+            print(f"{lock_path(job)}: taking over the lock of pid {previous.get('pid')} on "
+                  f"{previous.get('host')}, which has stopped; resuming its work")
+        return _render_locked(job)
+
+
+def _render_locked(job: RenderJob) -> dict:
     domain = job.spec.domain
     shard, n_shards = job.shard
     if job.overwrite and n_shards == 1 and (job.out / domain).exists():
