@@ -165,3 +165,18 @@ def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_pa
     assert render_dataset(job)["written"] == 2  # stale lock taken over
     assert not staging.exists()  # and now the clean-up of the dead writer's leftovers is right
     assert not lock_path(job).exists()  # released
+
+
+def test_a_rerun_with_fewer_frames_is_refused_and_more_frames_extend(tmp_path):
+    """Issue 13.2: --frames 3 after --frames 5 exited 0 and rewrote meta.json for 3 frames."""
+    domain = tmp_path / "synth_tiny_vineyard"
+    render_dataset(_job(tmp_path, frames=5))
+    meta = domain / "synth_tiny_vineyard_1" / "meta.json"
+    before = meta.read_bytes()
+    with pytest.raises(ValueError, match="already holds 5 frames.*--frames 5"):
+        render_dataset(_job(tmp_path, frames=3))
+    assert meta.read_bytes() == before
+    summary = render_dataset(_job(tmp_path, frames=7))  # an extension: resumed, two new frames
+    assert (summary["written"], summary["skipped"]) == (2, 5)
+    assert sorted(json.loads(meta.read_text())["frames"], key=int) == [str(n) for n in range(7)]
+    assert render_dataset(_job(tmp_path, frames=2, overwrite=True))["written"] == 2

@@ -370,11 +370,38 @@ def render_dataset(job: RenderJob) -> dict:
         return _render_locked(job)
 
 
+def rendered_frame_count(out: Path, domain: str) -> int:
+    """How many frames the dataset's meta files describe (highest frame id + 1; 0 when none)."""
+    count = 0
+    for meta_path in sorted((Path(out) / domain).glob("*/meta.json")):
+        try:
+            frames = json.loads(meta_path.read_text()).get("frames", {})
+        except (OSError, ValueError, AttributeError) as exc:
+            raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
+        ids = [int(k) for k in frames if str(k).isdigit()]
+        count = max([count, *(i + 1 for i in ids)])
+    return count
+
+
+def check_frame_count(job: RenderJob) -> None:
+    """A rerun may extend a dataset (more frames: the missing ones are rendered) or continue it
+    (the same count), never shrink it: rewriting meta.json for fewer frames would drop the
+    poses of frames that stay on disk."""
+    existing = rendered_frame_count(job.out, job.spec.domain)
+    if existing > job.frames:
+        raise ValueError(
+            f"{job.out / job.spec.domain}: already holds {existing} frames, --frames {job.frames} would drop "
+            f"the metadata of {existing - job.frames}; pass --frames {existing} (or more, to extend it), "
+            "another --out, or --overwrite to start over")
+
+
 def _render_locked(job: RenderJob) -> dict:
     domain = job.spec.domain
     shard, n_shards = job.shard
     if job.overwrite and n_shards == 1 and (job.out / domain).exists():
         shutil.rmtree(job.out / domain)
+    if not job.overwrite:
+        check_frame_count(job)
 
     def owns(frame: int) -> bool:
         return frame % n_shards == shard
