@@ -31,6 +31,7 @@ from segmin.nav_eval.eval_config import METHODS, NavEvalConfig, load_nav_config
 from segmin.nav_eval.factories import FieldContext, field_label, make_navigator, make_segmenter
 from segmin.nav_eval.metrics import Trajectory, compute_metrics
 from segmin.common.config import from_dict, to_dict
+from segmin.common.outputs import check_output_dir
 
 METRIC_KEYS = ("clearance_time", "mae", "mse", "heading_avg", "v_avg", "omega_std", "collisions",
                "min_plant_distance", "distance")
@@ -273,7 +274,7 @@ def run_evaluation(
     if runs < 1:
         raise ValueError(f"--runs must be >= 1, got {runs}")
     preflight(str(model), field_list, method_list, config)
-    out = Path(out_dir) if out_dir is not None else None
+    out = check_output_dir(out_dir, "--out") if out_dir is not None else None
     jobs = []
     for f in field_list:
         for r in range(runs):

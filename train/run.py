@@ -30,6 +30,7 @@ from segmin.data.augment import eval_transform, train_transform
 from segmin.data.frame_check import require_sound_frames, worker_error_line
 from segmin.models import build_model
 from segmin.common.atomic import write_text
+from segmin.common.outputs import check_output_dir
 from segmin.common.config import to_dict
 from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
 from segmin.train.config import TrainConfig
@@ -159,7 +160,7 @@ def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force
     """Train per `config` in `out_dir`; `resume` continues last.pt, `force` replaces an earlier run."""
     import cv2
 
-    out_dir = Path(out_dir)
+    out_dir = check_output_dir(out_dir, "--out")
     if int(os.environ.get("RANK", "0")) == 0:
         claim_run_folder(out_dir, resume=resume, force=force)
     if config.threads:

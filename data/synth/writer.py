@@ -36,6 +36,7 @@ from segmin.data.synth.spec import WorldSpec
 from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
 from segmin.common.lock import writer_lock
+from segmin.common.outputs import check_output_dir
 
 FORMAT = "segmin-synth/1"
 
@@ -120,7 +121,7 @@ def frame_done(paths: dict[str, Path]) -> bool:
 
 def check_writable(out: Path) -> None:
     """Fail before any rendering when `out` cannot be created or written."""
-    out = Path(out)
+    out = check_output_dir(out, "--out")
     try:
         out.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".segmin_probe_", dir=out)
