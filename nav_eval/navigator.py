@@ -29,6 +29,7 @@ state only in the `Navigator` instance.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -325,7 +326,8 @@ def _check_method(method: str) -> None:
 
 
 def _check_threshold(value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    # numbers.Real, not (int, float): a threshold read from numpy (np.float32) is a fine number.
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"depth_threshold must be a finite number of metres > 0, got {value!r}")
 
 
@@ -335,5 +337,5 @@ def _check_window(value: int) -> None:
 
 
 def _check_positive(name: str, value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")

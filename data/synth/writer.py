@@ -314,7 +314,10 @@ def write_meta(job: RenderJob, world) -> list[Path]:
         sub = subset_dir(job.out, job.spec.domain, first, job.frames_per_subset)
         meta_path = sub / "meta.json"
         if meta_path.is_file() and not job.overwrite:
-            old = json.loads(meta_path.read_text())
+            try:
+                old = json.loads(meta_path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
             old_fp = {key: old.get(key) for key in fp}
             if json.loads(json.dumps(old_fp)) != json.loads(json.dumps(fp)):
                 changed = sorted(key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True))
