@@ -405,3 +405,27 @@ def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp
     _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "killed" / "last.pt")
     with pytest.raises(ConfigError, match="checkpoint_every_steps"):
         tiny_config(dataset_root, checkpoint_every_steps=0)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("threads=-1", "threads=-1"),
+    ("device=gpu", "device='gpu'"),
+])
+def test_bad_runtime_settings_are_refused_by_the_config(override, message):
+    """Issue 13.8: threads=-1 and device=gpu failed (or not) deep inside torch."""
+    with pytest.raises(ConfigError, match=message):
+        load_train_config(CONFIGS / "quick.yaml", [override])
+
+
+def test_missing_imagenet_weights_are_reported_before_any_data_is_read(tmp_path, monkeypatch, capsys):
+    """Issue 13.8: the shipped trees/vineyards configs use imagenet; without the cached file the
+    run scanned and checked the whole dataset first, then failed with a traceback."""
+    from segmin.app.cli import main
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
+    code = main(["train", "--config", str(CONFIGS / "trees.yaml"), "--out", str(tmp_path / "run"),
+                 "data.root=/nonexistent/data"])  # reading data would fail with another message
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "mobilenet_v3_large-8738ca79.pth" in err and "$TORCH_HOME/hub/checkpoints/" in err
+    assert "/nonexistent" not in err

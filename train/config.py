@@ -7,12 +7,16 @@ LR schedule exist but are off by default.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from segmin.data.augment import AugmentConfig
 from segmin.common.config import load_config
+
+
+_DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 
 
 @dataclass
@@ -98,6 +102,10 @@ class TrainConfig:
             raise ValueError(f"bn_momentum={self.bn_momentum}: must be in (0, 1] or null")
         if not 0 < self.threshold < 1:
             raise ValueError(f"threshold={self.threshold}: must be in (0, 1)")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads={self.threads}: must be >= 1 or null (torch's default)")
+        if not _DEVICE.fullmatch(self.device):
+            raise ValueError(f"device={self.device!r}: expected auto, cpu, cuda or cuda:N")
         if self.num_workers < 0:
             raise ValueError(f"num_workers={self.num_workers}: must be >= 0")
         if self.checkpoint_every_steps is not None and self.checkpoint_every_steps < 1:

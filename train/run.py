@@ -29,6 +29,7 @@ from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find
 from segmin.data.augment import eval_transform, train_transform
 from segmin.data.frame_check import require_sound_frames, worker_error_line
 from segmin.models import build_model
+from segmin.models.lraspp import check_backbone_weights
 from segmin.common.atomic import write_text
 from segmin.common.outputs import check_output_dir
 from segmin.common.config import to_dict
@@ -161,6 +162,7 @@ def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force
     import cv2
 
     out_dir = check_output_dir(out_dir, "--out")
+    check_backbone_weights(config.backbone_weights)  # before any data is read: names the file to place
     if int(os.environ.get("RANK", "0")) == 0:
         claim_run_folder(out_dir, resume=resume, force=force)
     if config.threads:
