@@ -5,6 +5,8 @@ then shows up as a multi-line worker traceback, hours in, or never (another batc
 seed). `verify_frames` decodes every frame once up front instead; a small JSON cache keyed by
 each file's size and mtime makes the check of an unchanged dataset nearly free on a rerun.
 `worker_error_line` turns the DataLoader's re-raised worker error back into one line.
+`promise_problems` compares each rendered subset's meta.json with the frames on disk (a killed
+render leaves a meta file listing every planned frame and only part of them).
 """
 
 from __future__ import annotations
@@ -118,3 +120,24 @@ def worker_error_line(exc: BaseException) -> str:
     last = next((line for line in reversed(text.splitlines()) if line.strip()), text)
     head, sep, message = last.partition(": ")
     return message if sep and " " not in head else last
+
+
+def promise_problems(root: str | Path, frames: Sequence[Frame]) -> list[str]:
+    """One line per meta.json under `root` that lists frames not present (paired) on disk."""
+    present: dict[tuple[str, str], set[int]] = {}
+    for frame in frames:
+        present.setdefault((frame.domain, frame.subset), set()).add(frame.frame_id)
+    problems = []
+    for meta_path in sorted(Path(root).rglob("meta.json")):
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            promised = {int(k) for k in meta["frames"]}
+            key = (str(meta["domain"]), str(meta["subset"]))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            problems.append(f"{meta_path}: unreadable dataset meta file ({type(exc).__name__}: {exc})")
+            continue
+        missing = sorted(promised - present.get(key, set()))
+        if missing:
+            problems.append(f"{meta_path}: lists {len(promised)} frames, {len(missing)} of them are not on disk "
+                            f"(e.g. Image{missing[0]}): an interrupted render? rerun it to finish the dataset")
+    return problems
