@@ -11,13 +11,14 @@ def register(commands, bench) -> None:  # noqa: ARG001 - bench unused: data has 
     sub = data.add_subparsers(dest="data_command", metavar="ACTION", required=True)
     inspect = sub.add_parser("inspect", help="frames per domain and subset, and every problem found")
     inspect.add_argument("root", help="dataset root folder")
-    inspect.add_argument("--no-decode", action="store_true",
-                         help="only check the folder structure (skip reading every image and mask)")
+    inspect.add_argument("--quick", "--no-decode", dest="quick", action="store_true",
+                         help="only pair file names (skip decoding every image, mask and depth file)")
     inspect.set_defaults(func=_inspect)
 
 
 def _inspect(args: argparse.Namespace) -> int:
-    from segmin.data.agriseg_loader import DatasetError, load_frame, scan
+    from segmin.data.agriseg_loader import scan
+    from segmin.data.frame_check import promise_problems, verify_frames
 
     result = scan(args.root)
     problems = list(result.problems) + list(result.unpaired)
@@ -34,16 +35,13 @@ def _inspect(args: argparse.Namespace) -> int:
         if len(subsets) > 1:
             total = sum(counts[domain, s] for s in subsets)
             print(f"{domain:<28} {'(all)':<32} {total:>7}")
-    if not args.no_decode:
-        for frame in result.frames:
-            try:
-                load_frame(frame)
-            except DatasetError as exc:
-                problems.append(str(exc))
+    problems += promise_problems(args.root, result.frames)
+    if not args.quick:  # every file reported on is decoded: image, mask and depth (sizes checked)
+        problems += verify_frames(result.frames, depth=True)
     if problems:
         print(f"{len(problems)} problem(s):")
         for message in problems:
             print(f"  {message}")
         return 1
-    print("no problems found" + (" (structure only)" if args.no_decode else ""))
+    print("no problems found" + (" (names paired only, files not decoded: --quick)" if args.quick else ""))
     return 0

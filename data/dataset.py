@@ -60,6 +60,8 @@ class AgriSegDataset(Dataset):
         self.split = split
         self.seed = seed
         self.image_size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+        if len(self.image_size) != 2 or not all(isinstance(v, int) and v >= 1 for v in self.image_size):
+            raise ValueError(f"image_size={image_size!r}: expected a side or (height, width) of integers >= 1")
         if transform is None:
             from segmin.data.augment import eval_transform
 

@@ -55,8 +55,8 @@ def load_split(path: str | Path, frames: Sequence[Frame]) -> dict[str, list[Fram
     """Re-select `frames` by a saved split file; a listed frame that is missing is an error."""
     path = Path(path)
     try:
-        content = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        content = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # ValueError: bad JSON or not UTF-8 text at all
         raise DatasetError(f"{path}: cannot read split file ({exc})") from exc
     if not isinstance(content, dict) or content.get("format") != "segmin-split-v1":
         raise DatasetError(f"{path}: not a segmin split file")
@@ -65,7 +65,10 @@ def load_split(path: str | Path, frames: Sequence[Frame]) -> dict[str, list[Fram
     for name in ("train", "val"):
         chosen = []
         for key in content.get(name, []):
-            key = (str(key[0]), str(key[1]), int(key[2]))
+            try:
+                key = (str(key[0]), str(key[1]), int(key[2]))
+            except (TypeError, ValueError, IndexError, KeyError):
+                raise DatasetError(f"{path}: {name} entry {key!r} is not [domain, subset, frame_id]") from None
             if key not in index:
                 raise DatasetError(f"{path}: {name} frame {key} is not in the dataset")
             chosen.append(index[key])

@@ -68,6 +68,9 @@ def check_metadata(meta: Mapping[str, str], source: str) -> None:
             "not supported (expected NHWC / RGB)"
         )
     parse_input_size(meta[KEY_INPUT_SIZE])
-    threshold = float(meta[KEY_THRESHOLD])
+    try:
+        threshold = float(meta[KEY_THRESHOLD])
+    except ValueError:
+        raise ValueError(f"{source}: metadata {KEY_THRESHOLD}={meta[KEY_THRESHOLD]!r} is not a number") from None
     if not 0.0 < threshold < 1.0:
         raise ValueError(f"{source}: metadata threshold {threshold} is not in (0, 1)")

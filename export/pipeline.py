@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.outputs import check_output_file
 from segmin.export import metadata as md
 from segmin.export import quantize as quant
 from segmin.export.onnx import (
@@ -146,6 +147,8 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
 
     from segmin.models.checkpoint import load_model
 
+    for planned in planned_outputs(options):
+        check_output_file(planned, "--out")
     existing = [str(p) for p in planned_outputs(options) if p.exists()]
     if existing and not options.force:
         raise OutputExistsError(f"{', '.join(existing)}: already exists; pass --force to overwrite")

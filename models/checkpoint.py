@@ -45,9 +45,26 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     for key in ("model", "model_info"):
         if key not in payload:
             raise ValueError(f"{path}: checkpoint has no {key!r} entry")
-    if payload["model_info"].get("architecture") != ARCHITECTURE:
-        raise ValueError(f"{path}: architecture {payload['model_info'].get('architecture')!r} is not {ARCHITECTURE!r}")
+    if not isinstance(payload["model"], dict):
+        raise ValueError(f"{path}: 'model' is a {type(payload['model']).__name__}, expected a state dict")
+    check_model_info(payload["model_info"], path)
     return payload
+
+
+def check_model_info(info: Any, path: str | Path) -> None:
+    """The `model_info` entry has the shape export and the segmenters rely on; ValueError naming
+    the file and the field (a hand-edited or foreign file must not fail later with a KeyError)."""
+    if not isinstance(info, dict):
+        raise ValueError(f"{path}: model_info is a {type(info).__name__}, expected a mapping")
+    if info.get("architecture") != ARCHITECTURE:
+        raise ValueError(f"{path}: architecture {info.get('architecture')!r} is not {ARCHITECTURE!r}")
+    size = info.get("input_size")
+    if not (isinstance(size, (list, tuple)) and len(size) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise ValueError(f"{path}: model_info.input_size is {size!r}, expected [height, width] > 0")
+    threshold = info.get("threshold", 0.5)
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 < threshold < 1.0:
+        raise ValueError(f"{path}: model_info.threshold is {threshold!r}, expected a number in (0, 1)")
 
 
 def load_model(path: str | Path) -> tuple[SegmentationNet, dict[str, Any]]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import NoReturn
 
 import torch
 from torch import nn
@@ -20,8 +21,12 @@ ARCHITECTURE = "lraspp_mobilenet_v3_large"
 IMAGENET_WEIGHTS = MobileNet_V3_Large_Weights.IMAGENET1K_V1
 
 
-class WeightsUnavailableError(RuntimeError):
-    """ImageNet weights are neither cached nor downloadable; the message says what to do."""
+class WeightsUnavailableError(FileNotFoundError):
+    """ImageNet weights are neither cached nor downloadable; the message says what to do.
+
+    A FileNotFoundError (the file to place is missing or unusable), so the command line reports
+    it as one line like any other missing input.
+    """
 
 
 class SegmentationNet(nn.Module):
@@ -70,16 +75,40 @@ def build_model(backbone_weights: str | os.PathLike = "imagenet", *, allow_downl
     return model
 
 
+def check_backbone_weights(backbone_weights: str | os.PathLike, *, allow_download: bool = False) -> None:
+    """Fail now, naming the file, when `build_model(backbone_weights)` would fail for want of it.
+
+    Cheap (no weights are read): training calls it before reading any data, so a missing
+    ImageNet file is reported at once rather than after the dataset scan and frame check.
+    """
+    spec = str(backbone_weights)
+    if spec == "none":
+        return
+    if spec == "imagenet":
+        if not imagenet_weights_path().is_file() and not allow_download:
+            _missing_imagenet()
+        return
+    if not Path(spec).is_file():
+        raise FileNotFoundError(
+            f"backbone_weights={spec!r}: no such file (expected 'imagenet', 'none' or a state-dict path)"
+        )
+
+
+def _missing_imagenet() -> NoReturn:
+    cached = imagenet_weights_path()
+    digest = IMAGENET_WEIGHTS.url.rsplit("-", 1)[-1].split(".")[0]
+    raise WeightsUnavailableError(
+        f"backbone_weights=imagenet: ImageNet backbone weights are not cached. Place torchvision's file "
+        f"{cached.name} in $TORCH_HOME/hub/checkpoints/ (here: {cached}; sha256 starts with {digest}; from "
+        f"{IMAGENET_WEIGHTS.url}), or use backbone_weights=none to train from scratch."
+    )
+
+
 def _with_imagenet_backbone(allow_download: bool) -> nn.Module:
     cached = imagenet_weights_path()
     digest = IMAGENET_WEIGHTS.url.rsplit("-", 1)[-1].split(".")[0]
     if not cached.is_file() and not allow_download:
-        raise WeightsUnavailableError(
-            f"ImageNet backbone weights are not cached. Place torchvision's file at {cached} "
-            f"(sha256 starts with {digest}; from {IMAGENET_WEIGHTS.url}), "
-            "set TORCH_HOME to a folder holding hub/checkpoints/ with it, allow the download, "
-            "or use backbone_weights=none to train from scratch."
-        )
+        _missing_imagenet()
     try:
         return lraspp_mobilenet_v3_large(weights=None, weights_backbone=IMAGENET_WEIGHTS, num_classes=1)
     except Exception as exc:  # URLError (OSError); corrupt files raise RuntimeError or UnpicklingError

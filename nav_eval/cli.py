@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from segmin.common.cli_args import add_overrides, overrides_of
@@ -68,6 +69,10 @@ def _nav_eval(args: argparse.Namespace) -> int:
     for r in failed:
         print(f"run raised: {r.field}/{r.method}/{r.run}: {r.error.splitlines()[0]}")
     print(f"outputs: {args.out}/report.md, results.csv, results.json")
+    if failed:  # runs that raised are errors, not results: the evaluation did not succeed
+        print(f"segmin: error: {len(failed)} of {len(results)} run(s) raised (see above and "
+              f"{args.out}/results.csv); the table is incomplete", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -32,6 +32,7 @@ from segmin.nav_eval.factories import FieldContext, field_label, make_navigator,
 from segmin.nav_eval.metrics import Trajectory, compute_metrics
 from segmin.nav_eval.methods import METHODS
 from segmin.common.config import from_dict, to_dict
+from segmin.common.outputs import check_output_dir
 
 METRIC_KEYS = ("clearance_time", "mae", "mse", "heading_avg", "v_avg", "omega_std", "collisions",
                "min_plant_distance", "distance")
@@ -110,6 +111,48 @@ def run_seed(base_seed: int, field: str, run: int) -> int:
     """Seed of run `run` in `field` (the same for every method: paired starts)."""
     key = zlib.crc32(field_label(field).encode())
     return int(np.random.SeedSequence([int(base_seed), key, int(run)]).generate_state(1)[0])
+
+
+class RunErrors(RuntimeError):
+    """Some runs raised (a bug or a broken setup, not bad driving): their numbers are not results."""
+
+    def __init__(self, errored: list["RunResult"], total: int, where: str = "") -> None:
+        first = errored[0]
+        detail = first.error.splitlines()[0] if first.error else "no message"
+        super().__init__(f"{where + ': ' if where else ''}{len(errored)} of {total} run(s) raised, e.g. "
+                         f"{first.field}/{first.method}/run {first.run}: {detail}")
+        self.errored = errored
+
+
+def raise_for_errors(results: list["RunResult"], where: str = "") -> None:
+    """RunErrors when any run raised. A run that fails by driving badly (collision, timeout,
+    stall) is a result and passes; a run whose code raised is an error and must not be
+    reported, cached or scored as if it were one."""
+    errored = [r for r in results if r.reason == "error"]
+    if errored:
+        raise RunErrors(errored, len(results), where)
+
+
+def preflight(model: str, fields: list[str], methods: list[str], config: NavEvalConfig) -> None:
+    """Check the model and every field's navigator settings before the first run.
+
+    Without this a foreign ONNX file, `navigator.v_max=-1` or a bad depth threshold makes every
+    run raise inside the workers, which only shows up as a table of error rows at the end.
+    Raises ValueError naming the file or the setting.
+    """
+    from segmin.data.synth.spec import load_world_spec
+
+    if str(model) != "oracle":
+        make_segmenter(str(model), threads=1)  # loads and checks the file: metadata, graph in/out
+    for f in fields:
+        spec = load_world_spec(f)
+        threshold = config.depth_threshold(spec.name, spec.family)
+        for method in methods:
+            try:
+                make_navigator(method, threshold, config)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"navigator settings for {field_label(f)} / {method} (depth threshold "
+                                 f"{threshold!r}, navigator {config.navigator}): {exc}") from exc
 
 
 def parse_methods(methods: str | list[str] | tuple[str, ...]) -> list[str]:
@@ -231,7 +274,8 @@ def run_evaluation(
     method_list = parse_methods(methods)
     if runs < 1:
         raise ValueError(f"--runs must be >= 1, got {runs}")
-    out = Path(out_dir) if out_dir is not None else None
+    preflight(str(model), field_list, method_list, config)
+    out = check_output_dir(out_dir, "--out") if out_dir is not None else None
     jobs = []
     for f in field_list:
         for r in range(runs):

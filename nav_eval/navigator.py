@@ -29,6 +29,7 @@ state only in the `Navigator` instance.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -313,11 +314,40 @@ def _validated_frame(mask: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, n
         raise ValueError(f"mask must not be empty, got shape {mask.shape}")
     if mask.shape != depth.shape:
         raise ValueError(f"mask and depth must have the same shape, got mask {mask.shape} and depth {depth.shape}")
-    if mask.dtype != bool:
-        if not (np.issubdtype(mask.dtype, np.integer) or np.issubdtype(mask.dtype, np.floating)):
-            raise ValueError(f"mask must be bool or numeric 0/1 (or 0/255), got dtype {mask.dtype}")
-        mask = mask != 0
-    return mask, to_metres(depth)
+    return _bool_mask(mask), to_metres(depth)
+
+
+_THRESHOLD_HINT = "threshold it first, e.g. mask = probabilities > 0.5"
+
+
+def _bool_mask(mask: np.ndarray) -> np.ndarray:
+    """A bool mask from bool, {0, 1} or {0, 255} integers; anything else is refused.
+
+    `mask != 0` on a probability map would call every pixel above 0 vegetation and steer on a
+    silently wrong mask. Two reductions (min, max) keep the check cheap (other integer types
+    than uint8 pay one more pass for a 0/255 mask).
+    """
+    if mask.dtype == bool:
+        return mask
+    if not np.issubdtype(mask.dtype, np.integer):
+        raise ValueError(f"mask dtype is {mask.dtype}: expected bool or an integer 0/1 or 0/255 mask "
+                         f"(a probability map? {_THRESHOLD_HINT})")
+    if mask.dtype == np.uint8:
+        # Seen as int8, 255 is -1: {0, 1} spans 0..1 and {0, 255} spans -1..0, and any other
+        # byte widens the span, so min and max alone decide.
+        signed = mask.view(np.int8)
+        low, high = int(signed.min()), int(signed.max())
+        if low >= 0 and high <= 1:
+            return mask.view(bool)
+        if low >= -1 and high <= 0:
+            return mask != 0
+        low, high = int(mask.min()), int(mask.max())
+    else:
+        low, high = int(mask.min()), int(mask.max())
+        if low >= 0 and (high <= 1 or (high == 255 and np.count_nonzero(mask) == np.count_nonzero(mask == 255))):
+            return mask != 0
+    raise ValueError(f"mask values range over {low}..{high}: expected only 0/1 or 0/255 "
+                     f"(a label or probability map? {_THRESHOLD_HINT})")
 
 
 def _check_method(method: str) -> None:
@@ -326,7 +356,8 @@ def _check_method(method: str) -> None:
 
 
 def _check_threshold(value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    # numbers.Real, not (int, float): a threshold read from numpy (np.float32) is a fine number.
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"depth_threshold must be a finite number of metres > 0, got {value!r}")
 
 
@@ -336,5 +367,5 @@ def _check_window(value: int) -> None:
 
 
 def _check_positive(name: str, value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")

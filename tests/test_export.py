@@ -304,3 +304,28 @@ def test_conv_flops_counts_grouped_and_strided_convolutions(tmp_path) -> None:
     summary = floor_summary(flops=2_000_000_000, ort_ms=20.0, eager_ms=40.0, peak_gflops=200.0)
     assert summary["floor_ms"] == pytest.approx(10.0) and summary["floor_ratio_to_eager"] == pytest.approx(0.25)
     assert summary["achieved_gflops"] == pytest.approx(100.0) and summary["fraction_of_peak"] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("model_info, field", [
+    ([1, 2, 3], "model_info is a list"),
+    ({"architecture": "lraspp_mobilenet_v3_large", "input_size": "64"}, "input_size"),
+    ({"input_size": [64, 64], "threshold": "abc"}, "threshold"),
+])
+def test_a_malformed_model_info_is_refused_naming_the_file(workdir, checkpoint, frames_dir, capsys,
+                                                          model_info, field) -> None:
+    """Issue 13.10: `model_info` a list crashed export with a traceback."""
+    import torch
+
+    from segmin.models.lraspp import ARCHITECTURE
+
+    payload = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    if isinstance(model_info, dict):
+        model_info = {**payload["model_info"], **model_info, "architecture": ARCHITECTURE}
+    payload["model_info"] = model_info
+    bad = workdir / "bad_info.pt"
+    torch.save(payload, bad)
+    out = workdir / "bad_info.onnx"
+    code = segmin_main(["export", "--checkpoint", str(bad), "--out", str(out), "--calib-data", str(frames_dir)])
+    err = capsys.readouterr().err
+    assert code == 2 and "bad_info.pt" in err and field in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

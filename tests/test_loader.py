@@ -377,3 +377,35 @@ def test_scanning_and_readers_import_without_torch():
             "from segmin.data.agriseg_loader import find_frames, read_image, read_mask, scan, make_splits\n"
             "import segmin.data.layouts, segmin.data.readers, segmin.data.splits, segmin.data.domains\n")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_inspect_decodes_depth_files_and_quick_only_pairs_names(tmp_path, capsys):
+    """Issue 13.5: random bytes or a wrong-size depth file passed `data inspect`."""
+    from segmin.app.cli import main
+
+    sub = make_formatted(tmp_path, "vineyard", ids=(1, 2, 3), depth=True)
+    assert main(["data", "inspect", str(tmp_path)]) == 0
+    capsys.readouterr()
+    depths = sorted((sub / "depths").rglob("*.png"))
+    depths[0].write_bytes(np.random.default_rng(0).bytes(300))
+    _write(depths[1], np.zeros((5, 7), np.uint16))
+    assert main(["data", "inspect", str(tmp_path)]) == 1
+    out = capsys.readouterr().out
+    assert "2 problem(s)" in out and f"{depths[0]}: truncated PNG" in out
+    assert f"{depths[1]}: depth size 7x5 does not match" in out
+    assert main(["data", "inspect", "--quick", str(tmp_path)]) == 0
+    assert "files not decoded: --quick" in capsys.readouterr().out
+
+
+def test_inspect_reports_a_half_written_rendered_dataset(tmp_path, capsys):
+    """Issue 13.5: a killed render (meta.json lists every planned frame) reported "no problems"."""
+    import json
+
+    from segmin.app.cli import main
+
+    sub = make_formatted(tmp_path, "synth_vineyard", ids=(0, 1))
+    meta = {"domain": "synth_vineyard", "subset": sub.name, "frames": {str(n): {} for n in range(5)}}
+    (sub / "meta.json").write_text(json.dumps(meta))
+    assert main(["data", "inspect", "--quick", str(tmp_path)]) == 1
+    out = capsys.readouterr().out
+    assert "meta.json: lists 5 frames, 3 of them are not on disk (e.g. Image2)" in out

@@ -89,11 +89,12 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
     videos = list((tmp_path / "videos").iterdir())
     assert len(videos) == 1 and videos[0].suffix in (".mp4", ".gif") and videos[0].stat().st_size > 1000
     assert not list(tmp_path.rglob("*.tmp"))          # atomic writes leave no temporaries
-    # An invalid navigator value fails inside each run: failure rows, no crash.
+    # An invalid navigator value is refused before the first run (it used to make every run raise).
     bad = load_nav_config(overrides=TINY + ["navigator.smooth_window=4"])
-    rows = run_evaluation("oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad,
-                          progress=False, plots=False)
-    assert [r.reason for r in rows] == ["error", "error"] and "smooth_window" in rows[0].error
+    with pytest.raises(ValueError, match="smooth_window"):
+        run_evaluation("oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad,
+                       progress=False, plots=False)
+    assert not (tmp_path / "bad" / "results.json").exists()
 
 
 def test_cli_refuses_training_worlds_bad_methods_and_missing_models(tmp_path, capsys) -> None:

@@ -196,7 +196,7 @@ def test_ema_matches_hand_computed_values() -> None:
         (np.zeros((0, 3), bool), np.zeros((0, 3)), "must not be empty"),
         (np.zeros((4, 3), bool), np.zeros((3, 4)), "same shape"),
         (np.zeros((4, 3), bool), np.zeros((4, 3), np.int32), "uint16 millimetres"),
-        (np.array([["a"]]), np.zeros((1, 1)), "mask must be bool"),
+        (np.array([["a"]]), np.zeros((1, 1)), "expected bool or an integer"),
     ],
 )
 def test_bad_frames_raise_value_errors(mask: np.ndarray, depth: np.ndarray, message: str) -> None:
@@ -302,3 +302,26 @@ def test_ema_converges_to_the_constant_command(frame, method, lam) -> None:
         command = navigator.step(mask, depth)
     assert command.v == pytest.approx(v_target, abs=1e-6)
     assert command.omega == pytest.approx(omega_target, abs=1e-6)
+
+
+@pytest.mark.parametrize("mask, message", [
+    (np.full((H, W), 0.3, np.float32), "dtype is float32.*threshold it first"),
+    (np.full((H, W), 0.3, np.float64), "probability map"),
+    (np.arange(H * W, dtype=np.int32).reshape(H, W) % 7, "range over 0..6"),
+    (np.where(np.eye(H, W, dtype=bool), 255, 128).astype(np.uint8), "0/255"),
+    (np.full((H, W), -1, np.int16), "range over -1..-1"),
+])
+def test_a_mask_that_is_not_binary_is_refused_with_the_hint(mask, message) -> None:
+    """Issue 13.4: a probability map was taken as a mask (every pixel > 0 counted as vegetation)."""
+    with pytest.raises(ValueError, match=message):
+        Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0)).step(mask, depth_frame())
+
+
+def test_binary_integer_masks_equal_bool_masks() -> None:
+    mask = two_rows()
+    expected = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(mask, depth_frame())
+    for values in (mask.astype(np.uint8), mask.astype(np.uint8) * 255, mask.astype(np.int64)):
+        got = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(values, depth_frame())
+        assert got.target_column == expected.target_column and got.v == expected.v
+    zeros = np.zeros((H, W), np.uint8)
+    Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0)).step(zeros, depth_frame())

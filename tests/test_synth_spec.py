@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from segmin.data.synth.spec import TEST_FIELDS, load_world_spec, spec_from_dict
@@ -81,3 +83,25 @@ def test_overrides_and_default_domain(tmp_path):
     assert spec.rows.length == 9.5
     assert spec.domain == "synth_tiny_vineyard"
     assert spec.eval_gap == 1
+
+
+def test_a_sharp_corner_between_long_segments_is_refused():
+    """Issue 13.6: the turn check averaged the segment lengths, so a 60 degree corner between
+    30 m segments passed although the rows cross at the corner."""
+    corner = [[0, 0], [30, 0], [30 + 30 * math.cos(math.pi / 3), 30 * math.sin(math.pi / 3)]]
+    with pytest.raises(ConfigError, match=r"rows.polyline: turns by 60.0 deg at point 1"):
+        spec_from_dict(tiny(rows={"polyline": corner, "length": 20.0}))
+    arc = [[40.0 * math.sin(t), 40.0 * (1 - math.cos(t))] for t in np.linspace(0, 0.6, 60)]
+    spec_from_dict(tiny(rows={"polyline": arc, "length": 20.0}))  # a smooth bend stays fine
+
+
+def test_a_gap_narrower_than_the_robot_is_refused():
+    """Issue 13.6: rows.spacing=0.3 (less than the robot's width) was accepted."""
+    from segmin.data.synth.spec import MIN_GAP_WIDTH
+    from segmin.nav_eval.robot import RobotConfig
+
+    assert MIN_GAP_WIDTH > RobotConfig().width  # the constant data keeps agrees with the robot
+    with pytest.raises(ConfigError, match="rows.spacing: 0.3 m leaves a free gap"):
+        spec_from_dict(tiny(rows={"spacing": 0.3}))
+    with pytest.raises(ConfigError, match="rows.spacing"):  # hedges 0.6 m wide leave 0.5 m
+        spec_from_dict(tiny(rows={"spacing": 1.1}, plants={"canopy_width": [0.5, 0.6]}))

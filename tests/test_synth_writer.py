@@ -140,3 +140,43 @@ def test_rerun_with_other_settings_is_refused_unless_overwrite(tmp_path):
     assert summary["written"] == 2 and summary["skipped"] == 0
     again = render_dataset(_job(tmp_path, frames=3, seed=77))
     assert again["written"] == 1 and again["skipped"] == 2
+
+
+def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_path):
+    """Issue 13.14: a second render on the same --out deleted the first one's staging folders."""
+    from segmin.common.lock import LockHeldError
+    from segmin.data.synth.writer import lock_path
+
+    job = _job(tmp_path, frames=2)
+    staging = tmp_path / "synth_tiny_vineyard" / "synth_tiny_vineyard_1" / "images" / ".Image0.abc.staging"
+    staging.mkdir(parents=True)  # the first writer's frame in flight
+    code = ("import sys, time\nfrom segmin.common.lock import writer_lock\n"
+            "with writer_lock(sys.argv[1], 'test'):\n    print('held', flush=True)\n    time.sleep(60)\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(lock_path(job))], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(LockHeldError, match=f"pid {holder.pid} on "):
+            render_dataset(job)
+        assert staging.is_dir()  # untouched
+    finally:
+        holder.kill()  # like kill -9: no clean-up, the lock file still names it
+        holder.wait()
+    assert f'"pid": {holder.pid}' in lock_path(job).read_text()
+    assert render_dataset(job)["written"] == 2  # stale lock taken over
+    assert not staging.exists()  # and now the clean-up of the dead writer's leftovers is right
+    assert not lock_path(job).exists()  # released
+
+
+def test_a_rerun_with_fewer_frames_is_refused_and_more_frames_extend(tmp_path):
+    """Issue 13.2: --frames 3 after --frames 5 exited 0 and rewrote meta.json for 3 frames."""
+    domain = tmp_path / "synth_tiny_vineyard"
+    render_dataset(_job(tmp_path, frames=5))
+    meta = domain / "synth_tiny_vineyard_1" / "meta.json"
+    before = meta.read_bytes()
+    with pytest.raises(ValueError, match="already holds 5 frames.*--frames 5"):
+        render_dataset(_job(tmp_path, frames=3))
+    assert meta.read_bytes() == before
+    summary = render_dataset(_job(tmp_path, frames=7))  # an extension: resumed, two new frames
+    assert (summary["written"], summary["skipped"]) == (2, 5)
+    assert sorted(json.loads(meta.read_text())["frames"], key=int) == [str(n) for n in range(7)]
+    assert render_dataset(_job(tmp_path, frames=2, overwrite=True))["written"] == 2

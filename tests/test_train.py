@@ -317,3 +317,109 @@ def test_bench_iou_bound_rejects_bad_input_with_one_line(dataset_root, capsys, e
     assert main(["bench", "iou-bound", "--root", str(dataset_root), "--steps", "1", *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("segmin: error:") and message in err and len(err.splitlines()) == 1
+
+
+def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp_path, capsys):
+    """Issue 13.1: a rerun on an existing --out used to overwrite best.pt/last.pt/metrics.csv silently."""
+    import yaml
+
+    from segmin.app.cli import main
+    from segmin.common.config import to_dict
+    from segmin.train.run import fit
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(to_dict(tiny_config(dataset_root, epochs=1, tensorboard=False))))
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(config), "--out", str(out)]) == 0
+    before = (out / "last.pt").read_bytes(), (out / "metrics.csv").read_text()
+    capsys.readouterr()
+    with pytest.raises(FileExistsError, match="--force") as info:
+        fit(tiny_config(dataset_root, epochs=1, tensorboard=False), out)
+    assert "--resume" in str(info.value) and str(out) in str(info.value)
+    assert main(["train", "--config", str(config), "--out", str(out), "--force", "--resume"]) == 2
+    assert ((out / "last.pt").read_bytes(), (out / "metrics.csv").read_text()) == before
+    (out / "previews" / "stale.png").write_bytes(b"old")
+    assert main(["train", "--config", str(config), "--out", str(out), "--force", "seed=1"]) == 0
+    assert not (out / "previews" / "stale.png").exists()  # --force starts over: old outputs are gone
+    assert (out / "last.pt").read_bytes() != before[0]
+
+
+def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(dataset_root, tmp_path, monkeypatch):
+    """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
+    used to save "k steps done" with the weights of k+1, so --resume ran a step twice."""
+    import signal
+
+    import segmin.train.loop as loop_module
+    from segmin.train.run import fit
+
+    config = tiny_config(dataset_root, epochs=2, tensorboard=False)
+    fit(config, tmp_path / "straight")
+    real_step = loop_module.train_step
+    calls = {"n": 0}
+
+    def step_then_sigint(*args, **kwargs):
+        result = real_step(*args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 3:  # first step of epoch 2: its weight update is done, the count is not yet
+            signal.raise_signal(signal.SIGINT)
+        return result
+
+    monkeypatch.setattr(loop_module, "train_step", step_then_sigint)
+    assert fit(config, tmp_path / "cut").interrupted
+    state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
+    assert (state["epoch"], state["step"]) == (1, 1)  # the step in flight was finished and counted
+    monkeypatch.setattr(loop_module, "train_step", real_step)
+    assert not fit(config, tmp_path / "cut", resume=True).interrupted
+    _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
+
+
+def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp_path, monkeypatch):
+    """Issue 13.13: a kill -9 during the first epoch left nothing to resume from."""
+    import segmin.train.loop as loop_module
+    from segmin.train.run import fit
+
+    config = tiny_config(dataset_root, epochs=1, batch_size=2, tensorboard=False, checkpoint_every_steps=1)
+    fit(config, tmp_path / "straight")
+    real_step = loop_module.train_step
+    calls = {"n": 0}
+
+    def dying_step(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3:  # like kill -9: no handler runs, nothing is saved at this point
+            raise SystemExit("killed")
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(loop_module, "train_step", dying_step)
+    with pytest.raises(SystemExit):
+        fit(config, tmp_path / "killed")
+    state = torch.load(tmp_path / "killed" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
+    assert (state["epoch"], state["step"]) == (0, 2)
+    monkeypatch.setattr(loop_module, "train_step", real_step)
+    fit(config, tmp_path / "killed", resume=True)
+    _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "killed" / "last.pt")
+    with pytest.raises(ConfigError, match="checkpoint_every_steps"):
+        tiny_config(dataset_root, checkpoint_every_steps=0)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("threads=-1", "threads=-1"),
+    ("device=gpu", "device='gpu'"),
+])
+def test_bad_runtime_settings_are_refused_by_the_config(override, message):
+    """Issue 13.8: threads=-1 and device=gpu failed (or not) deep inside torch."""
+    with pytest.raises(ConfigError, match=message):
+        load_train_config(CONFIGS / "quick.yaml", [override])
+
+
+def test_missing_imagenet_weights_are_reported_before_any_data_is_read(tmp_path, monkeypatch, capsys):
+    """Issue 13.8: the shipped trees/vineyards configs use imagenet; without the cached file the
+    run scanned and checked the whole dataset first, then failed with a traceback."""
+    from segmin.app.cli import main
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
+    code = main(["train", "--config", str(CONFIGS / "trees.yaml"), "--out", str(tmp_path / "run"),
+                 "data.root=/nonexistent/data"])  # reading data would fail with another message
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "mobilenet_v3_large-8738ca79.pth" in err and "$TORCH_HOME/hub/checkpoints/" in err
+    assert "/nonexistent" not in err

@@ -13,6 +13,8 @@ def _add_train_arguments(parser: argparse.ArgumentParser) -> None:
     add_overrides(parser, alias=False, example="epochs=5 data.root=/data/agriseg batch_size=16")
     parser.add_argument("--out", default=None, help="run folder (default runs/train/<config name>)")
     parser.add_argument("--resume", action="store_true", help="continue exactly from <out>/last.pt")
+    parser.add_argument("--force", action="store_true",
+                        help="start over in an --out that already holds a run (its checkpoints and logs are removed)")
 
 
 def register(commands, bench) -> None:
@@ -50,7 +52,7 @@ def _train(args: argparse.Namespace) -> int:
 
     config = load_train_config(args.config, overrides_of(args))
     out = Path(args.out) if args.out else Path("runs/train") / Path(args.config).stem
-    result = fit(config, out, resume=args.resume)
+    result = fit(config, out, resume=args.resume, force=args.force)
     if result.interrupted:
         return 130
     if result.rank == 0:

@@ -7,12 +7,16 @@ LR schedule exist but are off by default.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from segmin.data.augment import AugmentConfig
 from segmin.common.config import load_config
+
+
+_DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 
 
 @dataclass
@@ -73,6 +77,11 @@ class TrainConfig:
     num_workers: int = 2
     prefetch_factor: int = 2
     max_steps_per_epoch: int | None = None
+    # Mid-epoch checkpoints (last.pt, resumable): every N steps and/or every M minutes of
+    # training, so a kill -9 during a long (first) epoch loses at most that much work. Ctrl-C and
+    # epoch ends always save. null turns either trigger off.
+    checkpoint_every_steps: int | None = None
+    checkpoint_every_minutes: float | None = 10.0
     eval_batch_size: int | None = None
     preview_images: int = 4
     tensorboard: bool = True
@@ -93,8 +102,16 @@ class TrainConfig:
             raise ValueError(f"bn_momentum={self.bn_momentum}: must be in (0, 1] or null")
         if not 0 < self.threshold < 1:
             raise ValueError(f"threshold={self.threshold}: must be in (0, 1)")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads={self.threads}: must be >= 1 or null (torch's default)")
+        if not _DEVICE.fullmatch(self.device):
+            raise ValueError(f"device={self.device!r}: expected auto, cpu, cuda or cuda:N")
         if self.num_workers < 0:
             raise ValueError(f"num_workers={self.num_workers}: must be >= 0")
+        if self.checkpoint_every_steps is not None and self.checkpoint_every_steps < 1:
+            raise ValueError(f"checkpoint_every_steps={self.checkpoint_every_steps}: must be >= 1 or null")
+        if self.checkpoint_every_minutes is not None and not self.checkpoint_every_minutes > 0:
+            raise ValueError(f"checkpoint_every_minutes={self.checkpoint_every_minutes}: must be > 0 or null")
         if self.max_steps_per_epoch is not None and self.max_steps_per_epoch < 1:
             raise ValueError(f"max_steps_per_epoch={self.max_steps_per_epoch}: must be >= 1 or null")
 

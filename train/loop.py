@@ -11,6 +11,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from segmin.train.distributed import all_reduce_sum
+from segmin.train.interrupt import StepGuard
 from segmin.train.metrics import SegMetrics
 
 
@@ -91,21 +92,25 @@ def train_one_epoch(
 ) -> dict[str, float]:
     """Train over `batches`; returns {"loss": mean over samples (reduced over ranks)}.
 
-    `on_step(step)` is called after each step (used to record mid-epoch progress for Ctrl-C).
+    `on_step(step)` is called after each step (used to record mid-epoch progress for Ctrl-C and
+    for mid-epoch checkpoints). A Ctrl-C during a step is raised once the step and its `on_step`
+    are done (see train.interrupt), so the recorded progress always matches the weights.
     """
     ctx.model.train()
     total = torch.zeros(2, dtype=torch.float64, device=ctx.device)
-    for step, (images, masks) in enumerate(batches):
-        if max_steps is not None and step >= max_steps:
-            break
-        per_sample = train_step(ctx, images, masks)
-        total += torch.stack([per_sample.double().sum(), torch.tensor(float(per_sample.numel()),
-                                                                     dtype=torch.float64, device=ctx.device)])
-        if on_step is not None:
-            on_step(step + 1)
-        if progress is not None:
-            progress.update(1)
-            progress.set_postfix(loss=f"{per_sample.mean().item():.4f}")
+    with StepGuard() as guard:
+        for step, (images, masks) in enumerate(batches):
+            if max_steps is not None and step >= max_steps:
+                break
+            with guard.step():
+                per_sample = train_step(ctx, images, masks)
+                total += torch.stack([per_sample.double().sum(), torch.tensor(
+                    float(per_sample.numel()), dtype=torch.float64, device=ctx.device)])
+                if on_step is not None:
+                    on_step(step + 1)
+            if progress is not None:
+                progress.update(1)
+                progress.set_postfix(loss=f"{per_sample.mean().item():.4f}")
     all_reduce_sum(total)
     return {"loss": (total[0] / total[1]).item() if total[1] > 0 else float("nan")}
 

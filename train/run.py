@@ -4,7 +4,8 @@ Reads top to bottom like torchvision's reference `train.py`. `train_model(config
 the entry point for other stages; `segmin train` and `torchrun -m segmin.train.cli` call `fit`.
 
 Run folder (written by rank 0 only): `best.pt` (best val IoU), `last.pt` (end of the last epoch,
-or the moment of a Ctrl-C, with the state for `--resume`), `metrics.csv`, `tensorboard/`,
+the step boundary of a Ctrl-C, or a mid-epoch checkpoint every `checkpoint_every_steps` steps /
+`checkpoint_every_minutes` minutes; with the state for `--resume`), `metrics.csv`, `tensorboard/`,
 `previews/epoch_NNN.png`, `split.json` (the exact frames of each split), `config.yaml`.
 """
 
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import random
 import time
 from dataclasses import dataclass, field
@@ -25,8 +27,11 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
 from segmin.data.augment import eval_transform, train_transform
+from segmin.data.frame_check import require_sound_frames, worker_error_line
 from segmin.models import build_model
+from segmin.models.lraspp import check_backbone_weights
 from segmin.common.atomic import write_text
+from segmin.common.outputs import check_output_dir
 from segmin.common.config import to_dict
 from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
 from segmin.train.config import TrainConfig
@@ -48,9 +53,9 @@ class FitResult:
     world_size: int = 1
 
 
-def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> Path:
+def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force: bool = False) -> Path:
     """Train and return the path of the best checkpoint (by validation IoU)."""
-    result = fit(config, out_dir, resume=resume)
+    result = fit(config, out_dir, resume=resume, force=force)
     if result.interrupted:
         raise KeyboardInterrupt(f"training interrupted; resume with --resume from {result.last_path}")
     return result.best_path
@@ -121,10 +126,45 @@ def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame]
 # ----------------------------------------------------------------------------- fit
 
 
-def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False) -> FitResult:
+# What a training run leaves in its folder; a new run must not silently replace them.
+RUN_OUTPUTS: tuple[str, ...] = ("best.pt", "last.pt", "metrics.csv", "previews", "tensorboard")
+
+
+def claim_run_folder(out_dir: Path, *, resume: bool, force: bool) -> None:
+    """Refuse to start a fresh run over an earlier one unless told to continue or to start over.
+
+    Like `segmin export`: overwriting best.pt / last.pt / metrics.csv of a finished run loses
+    work, so that needs `--force` (which removes the old outputs first, so a new run that is
+    interrupted early cannot leave a stale best.pt behind) or `--resume` (continue it).
+    """
+    if resume and force:
+        raise ValueError("--resume and --force contradict each other: continue the run or start over, not both")
+    if resume:
+        return
+    existing = [name for name in RUN_OUTPUTS[:3] if (out_dir / name).exists()]
+    if not existing:
+        return
+    if not force:
+        raise FileExistsError(f"{out_dir}: already holds a training run ({', '.join(existing)}); "
+                              "pass --resume to continue it or --force to start over")
+    import shutil
+
+    for name in RUN_OUTPUTS:
+        target = out_dir / name
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+
+
+def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force: bool = False) -> FitResult:
+    """Train per `config` in `out_dir`; `resume` continues last.pt, `force` replaces an earlier run."""
     import cv2
 
-    out_dir = Path(out_dir)
+    out_dir = check_output_dir(out_dir, "--out")
+    check_backbone_weights(config.backbone_weights)  # before any data is read: names the file to place
+    if int(os.environ.get("RANK", "0")) == 0:
+        claim_run_folder(out_dir, resume=resume, force=force)
     if config.threads:
         torch.set_num_threads(config.threads)
     cv2.setNumThreads(1)  # in-process loading (num_workers=0) must not start a second thread pool
@@ -146,6 +186,10 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
 
     _seed_everything(config.seed)
     train_frames, val_frames = select_frames(config)
+    # Decode every frame once now: a corrupt one must stop the run here, naming the file, not
+    # as a worker traceback hours in (or never, when the sampler happens not to pick it).
+    require_sound_frames(train_frames + val_frames, out_dir / "frame_check.json" if dist.is_main else None,
+                         threads=max(1, config.num_workers))
     train_loader, sampler, val_loader = build_loaders(config, dist, train_frames, val_frames)
 
     model = build_model(config.backbone_weights)
@@ -213,6 +257,21 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
 
     interrupted = False
     last_metrics: dict[str, float] = history[-1] if history else {}
+    saved_at = time.monotonic()
+
+    def after_step(step: int) -> None:
+        """Record progress; write a mid-epoch last.pt when one is due (rank 0; no collectives)."""
+        nonlocal saved_at
+        progress.update(step=step)
+        if not dist.is_main:
+            return
+        every, minutes = config.checkpoint_every_steps, config.checkpoint_every_minutes
+        due = (every is not None and step % every == 0) or \
+              (minutes is not None and time.monotonic() - saved_at >= 60.0 * minutes)
+        if due and step < steps_per_epoch:  # the epoch end saves anyway, with its metrics
+            save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
+            saved_at = time.monotonic()
+
     steps_per_epoch = len(train_loader)
     if config.max_steps_per_epoch is not None:
         steps_per_epoch = min(steps_per_epoch, config.max_steps_per_epoch)
@@ -225,7 +284,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
             bar = tqdm(total=max(0, steps_per_epoch - skip), desc=f"epoch {epoch + 1}/{config.epochs}",
                        disable=not (config.progress and dist.is_main), leave=False)
             train = train_one_epoch(ctx, train_loader, max_steps=steps_per_epoch - skip,
-                                    on_step=lambda s, skip=skip: progress.update(step=skip + s), progress=bar)
+                                    on_step=lambda s, skip=skip: after_step(skip + s), progress=bar)
             bar.close()
             keep = config.preview_images if dist.is_main else 0
             bar = tqdm(total=len(val_loader), desc="validate", disable=not (config.progress and dist.is_main),
@@ -255,6 +314,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
                       f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
                       f"({row['seconds']:.0f} s){'  *best*' if improved else ''}", flush=True)
             barrier()
+    except DatasetError as exc:  # from a loader worker: its message is the worker's whole traceback
+        raise DatasetError(worker_error_line(exc)) from None
     except KeyboardInterrupt:
         interrupted = True
         if dist.is_main:

@@ -123,7 +123,11 @@ def _preview(args) -> int:
     import cv2
 
     from segmin.common.atomic import write_bytes
+    from segmin.common.outputs import check_output_file
 
+    check_output_file(args.out, "--out")  # before rendering anything
+    if args.frames < 1:
+        raise ValueError(f"--frames: must be >= 1, got {args.frames}")
     sheet = preview_sheet(args.world, args.frames, _camera(args.size), overrides_of(args))
     ok, png = cv2.imencode(".png", sheet[:, :, ::-1])
     if not ok:

@@ -28,6 +28,16 @@ TEST_FIELDS: tuple[str, ...] = (
 
 Range = tuple[float, float]
 
+# The narrowest free gap a world may have: the evaluation robot's footprint (a Clearpath Jackal,
+# 0.43 m wide, see nav_eval.robot.RobotConfig; data must not import nav_eval) plus 0.1 m either
+# side. A narrower gap is a field no run can drive, so every run would "collide" by construction.
+MIN_GAP_WIDTH = 0.63
+# Rows are offset lines of the reference polyline, which the world follows point by point
+# (linear between vertices). At a vertex turning by theta the offset line at distance h on the
+# inner side folds back over itself by 2 h tan(theta / 2): beyond a few centimetres the
+# inner rows cross themselves and their neighbours, whatever the segment lengths.
+MAX_POLYLINE_FOLD = 0.1
+
 
 def _check_range(name: str, value: Range, *, low: float | None = 0.0, strict: bool = False) -> None:
     a, b = value
@@ -92,11 +102,21 @@ class RowsSpec:
             raise ValueError("rows.polyline: repeated point")
         if sum(seg) < self.length:
             raise ValueError(f"rows.polyline: {sum(seg):.1f} m long, shorter than rows.length {self.length}")
+        reach = half_width + 1.0  # outermost row line plus its canopy and a margin
         for i in range(1, len(pts) - 1):
             a = math.atan2(pts[i][1] - pts[i - 1][1], pts[i][0] - pts[i - 1][0])
             b = math.atan2(pts[i + 1][1] - pts[i][1], pts[i + 1][0] - pts[i][0])
             turn = abs(wrap_angle(b - a))
-            if turn > 1e-9 and 0.5 * (seg[i - 1] + seg[i]) / turn <= half_width + 1.0:
+            # The corner itself, as built (no smoothing): how far the inner rows fold back.
+            fold = 2 * reach * math.tan(min(turn, math.pi * 0.999) / 2)
+            if fold > MAX_POLYLINE_FOLD:
+                raise ValueError(
+                    f"rows.polyline: turns by {math.degrees(turn):.1f} deg at point {i} {list(pts[i])}; the rows "
+                    f"{half_width:.1f} m either side would cross there (fold {fold:.2f} m > {MAX_POLYLINE_FOLD} m): "
+                    "add points to round the corner"
+                )
+            # A run of small turns over short segments: the local radius of the bend.
+            if turn > 1e-9 and 0.5 * (seg[i - 1] + seg[i]) / turn <= reach:
                 raise ValueError(
                     f"rows.polyline: turns too sharply at point {i} for rows {half_width:.1f} m either side; "
                     "the inner rows would intersect"
@@ -269,11 +289,33 @@ class WorldSpec:
                 f"rows.spacing: {self.rows.spacing} m is too small, neighbouring rows would intersect "
                 f"(trunks and jitter need > {trunk_clearance:.2f} m)"
             )
+        free = self.free_gap_width
+        if free <= MIN_GAP_WIDTH:
+            raise ValueError(
+                f"rows.spacing: {self.rows.spacing} m leaves a free gap of {free:.2f} m between the rows "
+                f"(canopy and trunks subtracted); the robot needs more than {MIN_GAP_WIDTH} m"
+            )
         if self.structures.pergola and self.structures.free_band_width / 2 + abs(self.structures.free_band_offset) >= self.rows.spacing / 2:
             raise ValueError(
                 "structures.free_band_width: the free band (with its offset) must fit between the rows "
                 f"({self.structures.free_band_width} + 2*{abs(self.structures.free_band_offset)} >= {self.rows.spacing})"
             )
+
+    @property
+    def free_gap_width(self) -> float:
+        """Free width of a gap at the robot's height: spacing minus what reaches in from both rows.
+
+        Hedge crops (vineyard, pear) fill the gap from the canopy down; trees and pergolas
+        leave the trunk line (plus jitter and low branches) as the obstacle at robot height.
+        """
+        p, r = self.plants, self.rows
+        if self.crop in ("vineyard", "pear"):
+            reach = 0.5 * p.canopy_width[1]
+        else:
+            reach = p.trunk_radius[1] + 2 * r.lateral_jitter
+            if p.low_branches[1] > 0:
+                reach += p.low_branch_reach
+        return r.spacing - 2 * reach
 
     @property
     def n_gaps(self) -> int:
@@ -307,6 +349,8 @@ def pergola_reach(spec: WorldSpec) -> tuple[float, float]:
 
 
 __all__ = [
+    "MAX_POLYLINE_FOLD",
+    "MIN_GAP_WIDTH",
     "TEST_FIELDS",
     "AppearanceSpec",
     "PlantsSpec",

@@ -35,6 +35,8 @@ from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import WorldSpec
 from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
+from segmin.common.lock import writer_lock
+from segmin.common.outputs import check_output_dir
 
 FORMAT = "segmin-synth/1"
 
@@ -119,7 +121,7 @@ def frame_done(paths: dict[str, Path]) -> bool:
 
 def check_writable(out: Path) -> None:
     """Fail before any rendering when `out` cannot be created or written."""
-    out = Path(out)
+    out = check_output_dir(out, "--out")
     try:
         out.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".segmin_probe_", dir=out)
@@ -312,7 +314,10 @@ def write_meta(job: RenderJob, world) -> list[Path]:
         sub = subset_dir(job.out, job.spec.domain, first, job.frames_per_subset)
         meta_path = sub / "meta.json"
         if meta_path.is_file() and not job.overwrite:
-            old = json.loads(meta_path.read_text())
+            try:
+                old = json.loads(meta_path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
             old_fp = {key: old.get(key) for key in fp}
             if json.loads(json.dumps(old_fp)) != json.loads(json.dumps(fp)):
                 changed = sorted(key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True))
@@ -344,13 +349,63 @@ def write_meta(job: RenderJob, world) -> list[Path]:
 
 
 # --------------------------------------------------------------------------------- run
+def lock_path(job: RenderJob) -> Path:
+    """The dataset's writer lock: one per domain and shard (shards of one job run side by side).
+
+    It sits beside the domain folder, not inside it, so `--overwrite` removing the folder keeps it.
+    """
+    shard, n_shards = job.shard
+    suffix = "" if n_shards == 1 else f".shard-{shard}-of-{n_shards}"
+    return job.out / f".{job.spec.domain}{suffix}.render.lock"
+
+
 def render_dataset(job: RenderJob) -> dict:
-    """Render the job's frames (this shard's part), skipping finished ones; returns a summary."""
+    """Render the job's frames (this shard's part), skipping finished ones; returns a summary.
+
+    Holds the dataset's writer lock throughout: a second writer of the same dataset (and shard)
+    is refused (LockHeldError naming the holder) instead of deleting the first one's staging
+    folders in its clean-up; the lock of a killed writer is taken over.
+    """
     check_writable(job.out)
+    with writer_lock(lock_path(job), f"dataset {job.out / job.spec.domain}") as previous:
+        if previous and job.progress:
+            print(f"{lock_path(job)}: taking over the lock of pid {previous.get('pid')} on "
+                  f"{previous.get('host')}, which has stopped; resuming its work")
+        return _render_locked(job)
+
+
+def rendered_frame_count(out: Path, domain: str) -> int:
+    """How many frames the dataset's meta files describe (highest frame id + 1; 0 when none)."""
+    count = 0
+    for meta_path in sorted((Path(out) / domain).glob("*/meta.json")):
+        try:
+            frames = json.loads(meta_path.read_text()).get("frames", {})
+        except (OSError, ValueError, AttributeError) as exc:
+            raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
+        ids = [int(k) for k in frames if str(k).isdigit()]
+        count = max([count, *(i + 1 for i in ids)])
+    return count
+
+
+def check_frame_count(job: RenderJob) -> None:
+    """A rerun may extend a dataset (more frames: the missing ones are rendered) or continue it
+    (the same count), never shrink it: rewriting meta.json for fewer frames would drop the
+    poses of frames that stay on disk."""
+    existing = rendered_frame_count(job.out, job.spec.domain)
+    if existing > job.frames:
+        raise ValueError(
+            f"{job.out / job.spec.domain}: already holds {existing} frames, --frames {job.frames} would drop "
+            f"the metadata of {existing - job.frames}; pass --frames {existing} (or more, to extend it), "
+            "another --out, or --overwrite to start over")
+
+
+def _render_locked(job: RenderJob) -> dict:
     domain = job.spec.domain
     shard, n_shards = job.shard
     if job.overwrite and n_shards == 1 and (job.out / domain).exists():
         shutil.rmtree(job.out / domain)
+    if not job.overwrite:
+        check_frame_count(job)
 
     def owns(frame: int) -> bool:
         return frame % n_shards == shard

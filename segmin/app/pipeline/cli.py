@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from segmin.app.pipeline.config import STAGES
 from segmin.common.cli_args import add_overrides, overrides_of
@@ -31,8 +32,14 @@ def _pipeline(args: argparse.Namespace) -> int:
     from segmin.app.pipeline.config import load_pipeline_config
     from segmin.app.pipeline.runner import PipelineRunner
 
+    from segmin.nav_eval.evaluate import RunErrors
+
     config = load_pipeline_config(args.config, overrides_of(args))
     out = Path(args.out) if args.out else Path("runs") / config.profile
-    report = PipelineRunner(config, out, from_stage=args.from_stage).run()
+    try:
+        report = PipelineRunner(config, out, from_stage=args.from_stage).run()
+    except RunErrors as exc:  # the stage stays unfinished; a rerun does it again
+        print(f"segmin: error: {exc}", file=sys.stderr)
+        return 1
     print(f"report: {report} (and {report.with_suffix('.html')})")
     return 0

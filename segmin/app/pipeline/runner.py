@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from segmin.common.config import to_dict
+from segmin.common.outputs import check_output_dir
 from segmin.app.pipeline import stages
 from segmin.app.pipeline.cache import StageCache, Timer, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig
@@ -35,6 +36,7 @@ class PipelineRunner:
 
     def run(self) -> Path:
         """Run every stage; returns the path of report.md."""
+        check_output_dir(self.run_dir, "--out")
         self.run_dir.mkdir(parents=True, exist_ok=True)
         config = self.config
         backbone = stages.resolve_backbone(config, self.log)

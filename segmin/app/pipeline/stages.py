@@ -119,12 +119,16 @@ def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, rend
 
 
 def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, Any]:
-    """Train one family; `resume` continues from the folder's last checkpoint."""
+    """Train one family; `resume` continues from the folder's last checkpoint.
+
+    The stage folder belongs to the pipeline: a stage that is not resumed is rerun because its
+    inputs changed (or --from), so earlier outputs there are replaced (force).
+    """
     from segmin.train.run import train_model
 
     log(f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
         f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}")
-    best = train_model(train_config, folder, resume=resume)
+    best = train_model(train_config, folder, resume=resume, force=not resume)
     history = read_metrics_csv(folder / "metrics.csv")
     best_row = max(history, key=lambda r: r.get("val_iou", -1.0)) if history else {}
     return {"checkpoint": str(best), "epochs": len(history), "best_val_iou": best_row.get("val_iou"),
@@ -196,13 +200,14 @@ def nav_config(config: PipelineConfig):
 
 def nav_stage(config: PipelineConfig, model: str, fields: list[str], folder: Path, log) -> dict[str, Any]:
     """Drive every method through `fields` with `model` (an ONNX path or 'oracle')."""
-    from segmin.nav_eval.evaluate import run_evaluation
+    from segmin.nav_eval.evaluate import raise_for_errors, run_evaluation
 
     log(f"nav-eval: {model} on {', '.join(fields)} with {', '.join(config.nav.methods)}, "
         f"{config.nav.runs} run(s) each")
     results = run_evaluation(model, fields=fields, methods=config.nav.methods, runs=config.nav.runs,
                              out_dir=folder, workers=config.nav.workers, config=nav_config(config),
                              seed=config.nav.seed, video=config.nav.video)
+    raise_for_errors(results, f"nav-eval in {folder}")  # never cache a stage whose runs raised
     successes = sum(bool(r.success) for r in results)
     return {"results": str(folder / "results.json"), "runs": len(results), "successes": successes}
 

@@ -1,0 +1,91 @@
+"""nav-eval: broken setups fail before the first run; runs that raise are errors, not results (issue 13.3)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from segmin.app.cli import main
+
+FAST = ["--fields", "straight_vineyard", "--methods", "segmin", "--runs", "1", "--no-plots", "--no-progress"]
+
+
+def _foreign_onnx(path: Path) -> Path:
+    """A valid ONNX graph (Identity) that is not a segmin export: no metadata, float input."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3])
+    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "foreign", [x], [y])
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), str(path))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["random", "foreign"])
+def test_a_model_that_is_not_a_segmin_export_fails_before_any_run(tmp_path, capsys, kind):
+    model = tmp_path / "m.onnx"
+    if kind == "random":
+        model.write_bytes(bytes(range(256)) * 4)
+    else:
+        _foreign_onnx(model)
+    out = tmp_path / "out"
+    assert main(["nav-eval", "--model", str(model), "--out", str(out), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert str(model) in err and len(err.strip().splitlines()) == 1
+    assert not (out / "results.json").exists()  # no run started
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("navigator.v_max=-1", "v_max"),
+    ("navigator.smooth_window=4", "smooth_window"),
+])
+def test_bad_navigator_settings_fail_before_any_run(tmp_path, capsys, setting, message):
+    out = tmp_path / "out"
+    assert main(["nav-eval", "--model", "oracle", "--out", str(out), "--set", setting, *FAST]) == 2
+    assert message in capsys.readouterr().err
+    assert not (out / "results.json").exists()
+
+
+def test_a_non_finite_depth_threshold_is_refused_by_name():
+    from segmin.nav_eval.eval_config import NavEvalConfig
+    from segmin.nav_eval.evaluate import preflight
+
+    config = NavEvalConfig()
+    config.depth_thresholds["straight_vineyard"] = float("nan")  # past the loader's checks
+    with pytest.raises(ValueError, match="straight_vineyard.*depth_threshold"):
+        preflight("oracle", ["straight_vineyard"], ["segmin"], config)
+
+
+def _errored(field: str = "straight_vineyard"):
+    from segmin.nav_eval.evaluate import RunResult
+
+    return RunResult(field=field, method="segmin", run=0, seed=0, model="oracle", success=False,
+                     reason="error", error="RuntimeError: boom\ntraceback ...")
+
+
+def test_nav_eval_exits_non_zero_when_a_run_raised(tmp_path, capsys, monkeypatch):
+    import segmin.nav_eval.evaluate as evaluate
+
+    monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: _errored())
+    assert main(["nav-eval", "--model", "oracle", "--out", str(tmp_path / "out"), *FAST]) == 1
+    captured = capsys.readouterr()
+    assert "run raised: straight_vineyard/segmin/0: RuntimeError: boom" in captured.out
+    assert "1 of 1 run(s) raised" in captured.err
+
+
+def test_the_pipeline_never_caches_a_nav_stage_with_errored_runs(tmp_path, monkeypatch):
+    import segmin.nav_eval.evaluate as evaluate
+    from segmin.app.pipeline import stages
+    from segmin.app.pipeline.cache import StageCache
+    from segmin.app.pipeline.config import load_pipeline_config
+    from segmin.app.pipeline.runner import PipelineRunner
+
+    monkeypatch.setattr(evaluate, "run_evaluation", lambda *a, **k: [_errored()])
+    config = load_pipeline_config("micro")
+    runner = PipelineRunner(config, tmp_path, log=lambda message: None)
+    with pytest.raises(evaluate.RunErrors, match="1 of 1 run"):
+        runner._stage("nav-eval", "nav-eval/oracle", "h",
+                      lambda folder, fresh: stages.nav_stage(config, "oracle", ["straight_vineyard"], folder, print))
+    assert not StageCache(tmp_path).record("nav-eval/oracle").finished

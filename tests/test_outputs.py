@@ -1,0 +1,52 @@
+"""Output locations are checked before any work: a path below a regular file fails at once,
+naming the path (issue 13.7 / 13.10). The CLI maps these OSErrors to one line, exit 2; the tests
+call each command's function so they hold before and after that mapping."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from segmin.common.outputs import check_output_dir, check_output_file
+
+
+@pytest.fixture()
+def somefile(tmp_path: Path) -> Path:
+    path = tmp_path / "somefile"
+    path.write_text("not a folder")
+    return path
+
+
+def _run(argv: list[str]) -> int:
+    from segmin.app.cli import build_parser
+
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+def test_the_helpers_name_the_path_and_the_file(somefile, tmp_path):
+    with pytest.raises(NotADirectoryError, match=f"--out {somefile}/x/y: {somefile} is a file"):
+        check_output_dir(somefile / "x" / "y")
+    with pytest.raises(FileExistsError, match="is a file, not a folder"):
+        check_output_dir(somefile)
+    with pytest.raises(NotADirectoryError, match=str(somefile)):
+        check_output_file(somefile / "p.png")
+    with pytest.raises(IsADirectoryError, match="is a folder"):
+        check_output_file(tmp_path)
+    assert check_output_dir(tmp_path / "new" / "dir") == tmp_path / "new" / "dir"
+    assert not (tmp_path / "new").exists()  # checks create nothing
+
+
+@pytest.mark.parametrize("argv", [
+    ["synth", "preview", "--world", "straight_vineyard", "--out", "{f}/p.png"],
+    ["synth", "render", "--world", "straight_vineyard", "--frames", "1", "--out", "{f}/ds"],
+    ["export", "--checkpoint", "{f}/../missing.pt", "--out", "{f}/m.onnx"],
+    ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--out", "{f}/eval"],
+    ["train", "--config", "quick", "--out", "{f}/run", "data.root=/nonexistent"],
+    ["pipeline", "--config", "micro", "--out", "{f}/run"],
+], ids=["preview", "render", "export", "nav-eval", "train", "pipeline"])
+def test_every_command_refuses_an_output_below_a_file_before_working(somefile, argv):
+    argv = [a.replace("{f}", str(somefile)) for a in argv]
+    with pytest.raises(NotADirectoryError, match=str(somefile)):
+        _run(argv)
