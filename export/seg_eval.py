@@ -316,7 +316,11 @@ def _checkpoint_predictor(path: Path, size: int | None) -> Predictor:
     from segmin.export.verify import torch_reference
     from segmin.models.checkpoint import load_model  # torch.load(weights_only=True)
 
-    model, info = load_model(path)
+    try:
+        model, info = load_model(path)
+    except ValueError as exc:  # torch's unpickler explains itself over several lines: keep the first
+        first = str(exc).splitlines()[0].rstrip()
+        raise ValueError(first + (" ...)" if first.count("(") > first.count(")") else "")) from exc
     input_size = (int(size), int(size)) if size is not None else tuple(int(v) for v in info["input_size"])
     reference = torch_reference(DeployWrapper(model).eval())
 
