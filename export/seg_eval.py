@@ -32,7 +32,6 @@ import json
 import logging
 import math
 from dataclasses import dataclass, field
-from importlib.resources import files
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -44,8 +43,6 @@ from segmin.export import metadata as md
 
 log = logging.getLogger(__name__)
 
-# The real photos shipped as package data of segmin.data (data/real/<name>/ in the repository).
-SHIPPED_REAL_SETS: tuple[str, ...] = ("vineyard_rows",)
 RESULT_FILES: tuple[str, ...] = ("results.csv", "results.json", "contact_sheet.png")
 ONNX_SUFFIXES = (".onnx",)
 CHECKPOINT_SUFFIXES = (".pt", ".pth", ".ckpt")
@@ -56,16 +53,6 @@ FALSE_CROP = (230, 0, 0)
 MISSED_CROP = (0, 90, 255)
 SHEET_ROW_HEIGHT = 200
 SHEET_MAX_ROWS = 24
-
-
-def shipped_real_data(name: str = "vineyard_rows") -> Path:
-    """The folder of a real labelled set shipped with the package (a real folder: segmin installs unzipped)."""
-    if name not in SHIPPED_REAL_SETS:
-        raise ValueError(f"unknown shipped real set {name!r} (shipped: {', '.join(SHIPPED_REAL_SETS)})")
-    path = Path(str(files("segmin.data") / "real" / name))
-    if not (path / "images").is_dir():
-        raise FileNotFoundError(f"{path}: shipped real photos missing from this install (reinstall segmin)")
-    return path
 
 
 # ----------------------------------------------------------------------------- metrics

@@ -36,7 +36,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def run_eval_seg(args: argparse.Namespace) -> int:
-    from segmin.export.seg_eval import check_out_dir, evaluate_model, shipped_real_data, write_results
+    from segmin.data.real_sets import shipped_real_data
+    from segmin.export.seg_eval import check_out_dir, evaluate_model, write_results
 
     if args.threads < 1:
         raise ValueError(f"--threads {args.threads}: must be >= 1")

@@ -18,9 +18,9 @@ from segmin.export.seg_eval import (
     Predictor,
     confusion,
     evaluate,
-    shipped_real_data,
     write_results,
 )
+from segmin.data.real_sets import shipped_real_data
 
 CROP = (0, 255, 0)
 
