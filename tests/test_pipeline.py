@@ -15,7 +15,7 @@ from segmin.app.pipeline.runner import PipelineRunner
 
 FIELDS = ("straight_vineyard", "curved_vineyard", "pergola_vineyard", "pear_field", "high_trees")
 STAGE_KEYS = ("render", "train/trees", "train/vineyards", "export/trees", "export/vineyards",
-              "nav-eval/trees", "nav-eval/vineyards", "nav-eval/oracle", "report")
+              "real-eval/trees", "real-eval/vineyards", "nav-eval/trees", "nav-eval/vineyards", "nav-eval/oracle", "report")
 
 
 def micro_config():
@@ -42,13 +42,22 @@ def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureF
             assert (run_dir / folder / f"{field}_trajectories.png").stat().st_size > 1000
             assert (run_dir / folder / f"{field}_histograms.png").stat().st_size > 1000
     for artefact in ("render/contact_sheet.png", "report/training_curves.png", "export/trees/trees.onnx",
-                     "export/vineyards/vineyards.onnx", "train/trees/best.pt", "train/vineyards/metrics.csv"):
+                     "export/vineyards/vineyards.onnx", "train/trees/best.pt", "train/vineyards/metrics.csv",
+                     *[f"real-eval/{family}/{name}" for family in ("trees", "vineyards")
+                       for name in ("results.csv", "results.json", "contact_sheet.png")]):
         assert (run_dir / artefact).stat().st_size > 0, artefact
-    for section in ("## 1. Data", "## 2. Training", "## 3. Export", "## 4. Closed loop", "oracle segmenter",
-                    "Comparison with the paper", "## 5. Figures"):
+    for section in ("## 1. Data", "## 2. Training", "## 3. Export", "## 4. Real photos", "## 5. Closed loop",
+                    "oracle segmenter", "Comparison with the paper", "## 6. Figures"):
         assert section in report
+    # The real-photo figures beside the synthetic ones, per family, and the cross-crop caveat.
+    real = report[report.index("## 4. Real photos"):report.index("## 5. Closed loop")]
+    assert "| family | synthetic val IoU | real mean IoU |" in real and "cross-crop" in real and "CC BY 4.0" in real
+    for family in ("trees", "vineyards"):
+        assert f"| {family} | " in real and f"real-eval/{family}/contact_sheet.png" in real
+        results = json.loads((run_dir / "real-eval" / family / "results.json").read_text())
+        assert len(results["rows"]) == 8 and results["kind"] == "onnx"
     html = (run_dir / "report.html").read_text()
-    assert html.count("data:image/png;base64,") >= 2 + 2 * len(FIELDS)
+    assert html.count("data:image/png;base64,") >= 2 + 2 + 2 * len(FIELDS)
     assert 'src="render/' not in html  # every figure embedded, the page stands alone
     rows = json.loads((run_dir / "nav-eval" / "oracle" / "results.json").read_text())["rows"]
     assert sorted(r["field"] for r in rows) == sorted(FIELDS)
@@ -97,3 +106,15 @@ def test_profiles_are_validated() -> None:
         load_pipeline_config("micro", ["render.val_seed_offset=0"])
     for profile in ("quick", "paper", "micro"):
         assert load_pipeline_config(profile).families.keys() == {"trees", "vineyards"}
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_pipeline_config("micro", ["real_eval.dat=x"])
+
+
+def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Path) -> None:
+    config = load_pipeline_config("micro", ["real_eval.enabled=false"])
+    assert not config.real_eval.enabled
+    messages: list[str] = []
+    missing = load_pipeline_config("micro", [f"real_eval.data={tmp_path / 'nowhere'}"])
+    with pytest.raises(FileNotFoundError, match="real_eval.data folder not found"):
+        PipelineRunner(missing, tmp_path / "run", log=messages.append).run()
+    assert not (tmp_path / "run" / "render").exists()  # refused before any stage ran

@@ -14,6 +14,7 @@ from typing import Literal
 
 from segmin.data.augment import AugmentConfig
 from segmin.common.config import load_config
+from segmin.data.real_sets import check_not_real_data
 
 
 _DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
@@ -47,6 +48,12 @@ class DataConfig:
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"data.{name}={value}: must be >= 1 or null")
+        # The shipped real photos are a test set: no training config may read them.
+        check_not_real_data(
+            "training data",
+            paths={"data.root": self.root, "data.val_root": self.val_root},
+            names={"data.domains": self.domains, "data.val_domains": self.val_domains},
+        )
 
 
 @dataclass

@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.data.synth.cli",
     "segmin.train.cli",
     "segmin.export.cli",
+    "segmin.export.seg_eval_cli",
     "segmin.app.bench_export",
     "segmin.nav_eval.navigator_cli",
     "segmin.nav_eval.cli",

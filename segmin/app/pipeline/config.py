@@ -17,7 +17,7 @@ from segmin.common.config import load_config
 from segmin.common.shipped import resolve_config
 from segmin.nav_eval.methods import METHODS
 
-STAGES: tuple[str, ...] = ("render", "train", "export", "nav-eval", "report")
+STAGES: tuple[str, ...] = ("render", "train", "export", "real-eval", "nav-eval", "report")
 
 
 @dataclass
@@ -67,6 +67,23 @@ class ExportPlan:
 
 
 @dataclass
+class RealEvalPlan:
+    """Score every family's ONNX on real labelled photos (a test set: never trained or validated on).
+
+    `data`: any folder the AgriSeg loader reads; null = the shipped real vineyard rows
+    (data/real/vineyard_rows, 8 photos, CC BY 4.0). Relative paths are from the working folder.
+    """
+
+    enabled: bool = True
+    data: Path | None = None
+
+    def resolved_data(self) -> Path:
+        from segmin.data.real_sets import shipped_real_data
+
+        return Path(self.data) if self.data is not None else shipped_real_data()
+
+
+@dataclass
 class NavPlan:
     """Closed-loop evaluation: nav config, methods, runs; the oracle runs beside the model."""
 
@@ -92,6 +109,7 @@ class PipelineConfig:
     families: dict[str, FamilyPlan]
     render: RenderPlan = field(default_factory=RenderPlan)
     export: ExportPlan = field(default_factory=ExportPlan)
+    real_eval: RealEvalPlan = field(default_factory=RealEvalPlan)
     nav: NavPlan = field(default_factory=NavPlan)
     # "auto": ImageNet when its file is cached (said so in the log), else from scratch;
     # or "imagenet" / "none" / a state-dict path, passed to every family's training.
@@ -100,6 +118,31 @@ class PipelineConfig:
     def __post_init__(self) -> None:
         if not self.families:
             raise ValueError("families: name at least one crop family")
+        check_training_sources(self)
+
+
+def check_training_sources(config: PipelineConfig) -> None:
+    """No family may train or validate on real test photos (data/real or `real_eval.data`).
+
+    Catches what a profile can name: training/validation worlds, the training config path, and
+    data paths or domains in `train_overrides`. The training config itself checks its own
+    `data` section (train.config.DataConfig), and `stages.train_config_for` checks the final
+    config against `real_eval.data` too.
+    """
+    from segmin.data.real_sets import check_not_real_data
+
+    extra = [config.real_eval.data] if config.real_eval.data is not None else []
+    for family, plan in config.families.items():
+        overrides = dict(item.split("=", 1) for item in plan.train_overrides if "=" in item)
+        data_overrides = {k: v.strip() for k, v in overrides.items() if k.strip().startswith("data.")}
+        paths = {f"families.{family}.train_config": plan.train_config,
+                 **{f"families.{family}.train_overrides {k}": v for k, v in data_overrides.items()
+                    if k.strip() in ("data.root", "data.val_root", "data.split_file")}}
+        names = {f"families.{family}.train_worlds": plan.train_worlds,
+                 f"families.{family}.val_worlds": plan.val_worlds,
+                 **{f"families.{family}.train_overrides {k}": [d.strip(" '\"") for d in v.strip("[]").split(",")]
+                    for k, v in data_overrides.items() if k.strip() in ("data.domains", "data.val_domains")}}
+        check_not_real_data(f"pipeline profile {config.profile!r}", paths=paths, names=names, extra=extra)
 
 
 def load_pipeline_config(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> PipelineConfig:

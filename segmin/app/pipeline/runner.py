@@ -1,7 +1,7 @@
 """Run the stages in order, skipping what is up to date and resuming what was interrupted.
 
-Stage keys and folders: `render`, `train/<family>`, `export/<family>`, `nav-eval/<family>`,
-`nav-eval/oracle`, `report`. A stage's input hash chains the hashes of the stages it reads, so
+Stage keys and folders: `render`, `train/<family>`, `export/<family>`, `real-eval/<family>`,
+`nav-eval/<family>`, `nav-eval/oracle`, `report`. A stage's input hash chains the hashes of the stages it reads, so
 changing a training config reruns that family's training, export and evaluation, and nothing
 else. `--from STAGE` reruns that stage and every later one from scratch.
 """
@@ -41,6 +41,9 @@ class PipelineRunner:
         config = self.config
         backbone = stages.resolve_backbone(config, self.log)
 
+        # Checked before anything runs: a missing photo folder should not wait for training to fail.
+        real_fingerprint = (stages.dataset_fingerprint(config.real_eval.resolved_data())
+                            if config.real_eval.enabled else None)
         render_hash = hash_inputs("render", to_dict(config.render), stages.world_specs(config))
         render = self._stage("render", "render", render_hash,
                              lambda folder, fresh: stages.render_stage(config, folder, overwrite=fresh, log=self.log))
@@ -65,6 +68,15 @@ class PipelineRunner:
             )
             models[family] = (exported["onnx"], export_hash)
             upstream.update({f"train/{family}": train_hash, f"export/{family}": export_hash})
+
+        if config.real_eval.enabled:
+            real_common = (to_dict(config.real_eval), real_fingerprint)
+            for family in config.families:
+                onnx_path, export_hash = models[family]
+                key = f"real-eval/{family}"
+                upstream[key] = hash_inputs("real-eval", export_hash, real_common)
+                self._stage("real-eval", key, upstream[key],
+                            lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log))
 
         nav_common = (to_dict(config.nav), to_dict(nav_config))
         for family, plan in config.families.items():

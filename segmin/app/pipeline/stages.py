@@ -1,4 +1,4 @@
-"""The pipeline's stages, in data-flow order: render -> train -> export -> nav-eval -> report.
+"""The pipeline's stages, in data-flow order: render -> train -> export -> real-eval -> nav-eval -> report.
 
 Each stage function does one family's (or the oracle's) work in its own folder and returns a
 small JSON-able dict of outputs for its stage record. Caching and ordering live in
@@ -115,7 +115,13 @@ def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, rend
         f"backbone_weights={backbone}",
         *plan.train_overrides,
     ]
-    return load_train_config(plan.train_config, overrides)
+    train_config = load_train_config(plan.train_config, overrides)
+    if config.real_eval.data is not None:  # data/real itself is refused by the training config
+        from segmin.data.real_sets import check_not_real_data
+
+        check_not_real_data(f"family {family}", extra=[config.real_eval.data],
+                            paths={"data.root": train_config.data.root, "data.val_root": train_config.data.val_root})
+    return train_config
 
 
 def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, Any]:
@@ -187,6 +193,28 @@ def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2
     times = time_calls(segmenter.segment, runs=len(images), warmup=min(3, len(images)), inputs=images) * 1e3
     return {"median": float(np.median(times)), "p95": float(np.percentile(times, 95)),
             "threads": threads, "frames": len(times), "frame_size": list(images[0].shape[:2])}
+
+
+# --------------------------------------------------------------------------------- real-eval
+
+
+def dataset_fingerprint(root: Path) -> list[tuple[str, int]]:
+    """(relative path, size) of every file under `root`: edits to the photo set change the stage hash."""
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: real_eval.data folder not found")
+    return [(p.relative_to(root).as_posix(), p.stat().st_size) for p in sorted(root.rglob("*")) if p.is_file()]
+
+
+def real_eval_stage(config: PipelineConfig, model: Path, folder: Path, log) -> dict[str, Any]:
+    """Score one family's ONNX on the real photos; results and contact sheet go in the stage folder."""
+    from segmin.export.seg_eval import evaluate_model, write_results
+
+    data = config.real_eval.resolved_data()
+    log(f"real-eval: {model} on {data}")
+    summary, sheet = evaluate_model(model, data)
+    paths = write_results(summary, sheet, folder, force=True)  # the stage folder is the cache's own
+    figures = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in summary.figures().items()}
+    return {"data": str(data), "threshold": summary.threshold, **figures, **paths}
 
 
 # ---------------------------------------------------------------------------------- nav-eval
