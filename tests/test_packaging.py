@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from export_helpers import SIZE, shared_export
+from export_helpers import SIZE
 from segmin.common.extras import EXTRA_OF_MODULE
 
 BLOCKED = ("torch", "torchvision", "pybullet", "matplotlib", "albumentations", "onnx", "onnxscript",
@@ -39,8 +39,8 @@ def run_lean(code: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180, cwd=cwd)
 
 
-def test_the_robot_runtime_runs_without_torch_pybullet_or_matplotlib(tmp_path_factory, tmp_path: Path) -> None:
-    model = shared_export(tmp_path_factory)[0]
+def test_the_robot_runtime_runs_without_torch_pybullet_or_matplotlib(exported: tuple[Path, dict], tmp_path: Path) -> None:
+    model = exported[0]
     rgb = np.random.default_rng(0).integers(0, 256, (SIZE + 16, SIZE, 3), dtype=np.uint8)
     np.save(tmp_path / "rgb.npy", rgb)
     code = f"""
