@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from export_helpers import field_image, shared_checkpoint, shared_export
+from export_helpers import field_image
 from segmin.app.cli import main
 from segmin.data.agriseg_loader import find_frames
 from segmin.export.seg_eval import (
@@ -127,9 +127,9 @@ def test_the_real_photos_ship_with_the_package() -> None:
 # ----------------------------------------------------------------------------- command
 
 
-def test_eval_seg_on_a_tiny_export_and_its_checkpoint(tmp_path: Path, tmp_path_factory, capsys) -> None:
+def test_eval_seg_on_a_tiny_export_and_its_checkpoint(tmp_path: Path, exported, checkpoint, capsys) -> None:
     data = write_set(tmp_path / "toy", count=3, size=(72, 96), toy=True)
-    onnx_path, _ = shared_export(tmp_path_factory)
+    onnx_path, _ = exported
     assert main(["eval-seg", "--model", str(onnx_path), "--data", str(data), "--out", str(tmp_path / "onnx")]) == 0
     out = capsys.readouterr().out
     for figure in ("mean IoU over images", "pooled IoU", "precision (pooled)", "recall (pooled)", "pixel accuracy"):
@@ -141,7 +141,6 @@ def test_eval_seg_on_a_tiny_export_and_its_checkpoint(tmp_path: Path, tmp_path_f
     onnx_result = json.loads((tmp_path / "onnx" / "results.json").read_text())
     assert onnx_result["kind"] == "onnx" and onnx_result["input_size"] == [64, 64] and len(onnx_result["rows"]) == 3
 
-    checkpoint = shared_checkpoint(tmp_path_factory)
     assert main(["eval-seg", "--model", str(checkpoint), "--data", str(data), "--out", str(tmp_path / "pt")]) == 0
     pt_result = json.loads((tmp_path / "pt" / "results.json").read_text())
     assert pt_result["kind"] == "checkpoint"
@@ -172,9 +171,8 @@ def _bad_folder(tmp_path: Path, kind: str) -> tuple[Path, str]:
 
 
 @pytest.mark.parametrize("kind", ["empty", "unpaired", "unreadable"])
-def test_bad_folders_fail_with_one_line(kind: str, tmp_path: Path, tmp_path_factory, capsys) -> None:
+def test_bad_folders_fail_with_one_line(kind: str, tmp_path: Path, checkpoint, capsys) -> None:
     folder, message = _bad_folder(tmp_path, kind)
-    checkpoint = shared_checkpoint(tmp_path_factory)
     assert main(["eval-seg", "--model", str(checkpoint), "--data", str(folder), "--out", str(tmp_path / "out")]) == 2
     err = one_error_line(capsys)
     assert message in err and str(folder) in err
