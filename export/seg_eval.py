@@ -39,6 +39,7 @@ import numpy as np
 
 from segmin.common.atomic import write_bytes, write_json, write_text
 from segmin.data.agriseg_loader import DatasetError, Frame, find_frames, load_frame
+from segmin.data.overlay import tint_mask
 from segmin.export import metadata as md
 
 log = logging.getLogger(__name__)
@@ -235,9 +236,9 @@ class Predictor:
         """(probability float32 H x W, mask bool H x W) at the photo size (see module docstring)."""
         import cv2
 
-        from segmin.export.verify import _resize
+        from segmin.data.model_input import resize_to_input
 
-        batch = _resize(np.ascontiguousarray(rgb), self.input_size)[None]
+        batch = resize_to_input(np.ascontiguousarray(rgb), self.input_size)[None]
         probs = np.asarray(self.model_probabilities(batch), np.float32).reshape(self.input_size)
         height, width = rgb.shape[:2]
         if probs.shape != (height, width):
@@ -452,19 +453,11 @@ def read_summary(path: str | Path) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- contact sheet
 
 
-def tint(rgb: np.ndarray, mask: np.ndarray, colour: Sequence[int], alpha: float = 0.5) -> np.ndarray:
-    """`rgb` with the pixels of `mask` blended towards `colour` (a copy)."""
-    out = np.asarray(rgb, np.uint8).copy()
-    m = np.asarray(mask, bool)
-    out[m] = ((1 - alpha) * out[m] + alpha * np.asarray(colour, np.float32)).astype(np.uint8)
-    return out
-
-
 def error_overlay(rgb: np.ndarray, prediction: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """True crop green, false crop (predicted, not labelled) red, missed crop (labelled, not predicted) blue."""
-    out = tint(rgb, prediction & truth, TRUE_CROP, 0.45)
-    out = tint(out, prediction & ~truth, FALSE_CROP, 0.55)
-    return tint(out, ~prediction & truth, MISSED_CROP, 0.55)
+    out = tint_mask(rgb, prediction & truth, TRUE_CROP, 0.45)
+    out = tint_mask(out, prediction & ~truth, FALSE_CROP, 0.55)
+    return tint_mask(out, ~prediction & truth, MISSED_CROP, 0.55)
 
 
 def _label(image: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.45) -> None:
@@ -479,7 +472,7 @@ def sheet_row(image: np.ndarray, prediction: np.ndarray, truth: np.ndarray, resu
     """photo | prediction with errors coloured | ground truth (tinted green), captioned with its figures."""
     import cv2
 
-    panels = [image, error_overlay(image, prediction, truth), tint(image, truth, TRUE_CROP, 0.5)]
+    panels = [image, error_overlay(image, prediction, truth), tint_mask(image, truth, TRUE_CROP, 0.5)]
     width = max(1, round(image.shape[1] * height / image.shape[0]))
     panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
     row = np.concatenate([np.concatenate([p, np.full((height, 2, 3), 255, np.uint8)], axis=1) for p in panels],

@@ -125,7 +125,7 @@ def test_unwritable_output_fails_before_rendering(tmp_path, monkeypatch):
     import segmin.data.synth.world as world_module
 
     monkeypatch.setattr(world_module, "build_world", lambda *a, **k: built.append(1))
-    with pytest.raises(ValueError, match="not writable"):
+    with pytest.raises(NotADirectoryError, match="is a file, not a folder"):
         render_dataset(_job(blocker / "out"))
     assert segmin_main(["synth", "render", "--world", "straight_vineyard", "--frames", "1",
                         "--out", str(blocker / "out")]) == 2
