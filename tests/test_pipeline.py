@@ -118,3 +118,25 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
     with pytest.raises(FileNotFoundError, match="real_eval.data folder not found"):
         PipelineRunner(missing, tmp_path / "run", log=messages.append).run()
     assert not (tmp_path / "run" / "render").exists()  # refused before any stage ran
+
+
+@pytest.mark.parametrize("override, message", [
+    ("export.exporter=foo", "export.exporter"),
+    ("nav.methods=[segmax]", "nav.methods"),
+])
+def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:
+    """Issue 13.12: these failed only when their stage ran, after render and training."""
+    with pytest.raises(ConfigError, match=message):
+        load_pipeline_config("micro", [override])
+
+
+@pytest.mark.parametrize("override, message", [
+    ("nav.overrides=[run.lenght_m=3]", "lenght_m"),
+    ("families.trees.train_overrides=[epochz=1]", "families.trees: .*epochz"),
+    ("families.trees.fields=[no_such_field]", "no_such_field"),
+])
+def test_nested_configs_are_checked_before_the_first_stage(tmp_path, override, message) -> None:
+    runner = PipelineRunner(load_pipeline_config("micro", [override]), tmp_path, log=lambda m: None)
+    with pytest.raises(ValueError, match=message):
+        runner.run()
+    assert not (tmp_path / "render").exists()  # nothing ran

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 from segmin.common.config import load_config
 from segmin.common.shipped import resolve_config
@@ -59,7 +60,7 @@ class RenderPlan:
 class ExportPlan:
     """Export options (see `segmin export --help`)."""
 
-    exporter: str = "dynamo"
+    exporter: Literal["dynamo", "legacy"] = "dynamo"
     verify_frames: int = 32
     fp16: bool = False
     int8: bool = False
@@ -99,6 +100,11 @@ class NavPlan:
     def __post_init__(self) -> None:
         if self.runs < 1 or self.workers < 1:
             raise ValueError("nav.runs and nav.workers must be >= 1")
+        from segmin.nav_eval.eval_config import METHODS
+
+        unknown = [m for m in self.methods if m not in METHODS]
+        if unknown or not self.methods:
+            raise ValueError(f"nav.methods: unknown {unknown}; choose from {list(METHODS)}")
 
 
 @dataclass

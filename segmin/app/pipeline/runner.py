@@ -39,6 +39,7 @@ class PipelineRunner:
         check_output_dir(self.run_dir, "--out")
         self.run_dir.mkdir(parents=True, exist_ok=True)
         config = self.config
+        self.preflight()
         backbone = stages.resolve_backbone(config, self.log)
 
         # Checked before anything runs: a missing photo folder should not wait for training to fail.
@@ -97,6 +98,24 @@ class PipelineRunner:
         report = self._stage("report", "report", report_hash,
                              lambda folder, fresh: write_pipeline_report(config, self.run_dir, self.cache, self.log))
         return Path(report["markdown"])
+
+    def preflight(self) -> None:
+        """Load every config the stages will load, before the first one runs.
+
+        A typo in `nav.overrides`, a family's training config or its fields would otherwise
+        surface only after rendering and training (hours in). The configs loaded here are
+        discarded: the stages load them again with the paths only the render stage knows.
+        """
+        from segmin.nav_eval.evaluate import resolve_fields
+        from segmin.train.config import load_train_config
+
+        stages.nav_config(self.config)
+        for family, plan in self.config.families.items():
+            try:
+                load_train_config(plan.train_config, [f"family={family}", *plan.train_overrides])
+                resolve_fields(plan.fields)
+            except ValueError as exc:
+                raise type(exc)(f"families.{family}: {exc}") from exc
 
     def _stage(self, stage: str, key: str, input_hash: str, work: Callable[[Path, bool], dict[str, Any]]) -> dict[str, Any]:
         """Skip a finished stage with the same inputs; otherwise run it (resuming where possible).
