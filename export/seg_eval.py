@@ -292,6 +292,9 @@ def _onnx_predictor(path: Path, threads: int, size: int | None) -> Predictor:
     inputs = session.get_inputs()
     if len(inputs) != 1 or inputs[0].type != "tensor(uint8)":
         raise ValueError(f"{path}: expected one uint8 RGB input, got {[(i.name, i.type) for i in inputs]}")
+    if list(inputs[0].shape)[1:] != [input_size[0], input_size[1], 3]:
+        raise ValueError(f"{path}: input shape {list(inputs[0].shape)} does not match metadata "
+                         f"{md.KEY_INPUT_SIZE}={md.format_input_size(input_size)}")
 
     def probabilities(batch: np.ndarray) -> np.ndarray:
         return run_session(session, batch, batch=1)[0, 0]
