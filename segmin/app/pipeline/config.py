@@ -100,7 +100,6 @@ class NavPlan:
     def __post_init__(self) -> None:
         if self.runs < 1 or self.workers < 1:
             raise ValueError("nav.runs and nav.workers must be >= 1")
-        from segmin.nav_eval.eval_config import METHODS
 
         unknown = [m for m in self.methods if m not in METHODS]
         if unknown or not self.methods:
