@@ -2,9 +2,11 @@
 
 pybullet's TinyRenderer has no culling of its own: every frame we hide (alpha 0) the chunks
 outside the view frustum or beyond `render.cull_distance`, and show far chunks at their coarse
-level of detail. Shadows stay off (they double the cost and look wrong); instead light
-direction, colour and ambient/diffuse terms are randomised. Where nothing was hit, a sky
-(gradient plus clouds, randomised) is composited and depth is 0 (no return).
+level of detail. Shadows double a frame's cost, so they are drawn on a share of frames only
+(`render.shadow_probability`); light direction, colour and ambient/diffuse terms, overcast or
+back-lit skies and distance haze are randomised from the world's `sky` section. Backdrop chunks
+skip the distance cut. Where nothing was hit, a sky (gradient plus clouds) is composited and
+depth is 0 (no return).
 """
 
 from __future__ import annotations

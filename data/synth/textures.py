@@ -119,9 +119,8 @@ def ground_texture(rng: np.random.Generator, appearance, style: str = "patchy") 
     size = GROUND_SIZE
     detail = appearance.ground_detail
     soil = _hsv(rng.uniform(20, 38), rng.uniform(0.25, 0.5), rng.uniform(0.3, 0.55))
-    # Sunlit grass is bright and yellow-green in photos; shading and tints darken it further.
-    grass = _hsv(rng.uniform(65, 105), rng.uniform(0.45, 0.8), rng.uniform(0.45, 0.85))
-    straw = _hsv(rng.uniform(38, 55), rng.uniform(0.3, 0.55), rng.uniform(0.55, 0.85))
+    grass = _hsv(rng.uniform(65, 110), rng.uniform(0.4, 0.75), rng.uniform(0.35, 0.65))
+    straw = _hsv(rng.uniform(38, 55), rng.uniform(0.3, 0.55), rng.uniform(0.5, 0.75))
     patches = _noise(rng, size, (4, 8, 16))
     fine = _noise(rng, size, (32, 64, 128))
     blades = _blades(rng, size, 5 if style != "long" else 9)
