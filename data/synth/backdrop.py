@@ -133,7 +133,6 @@ def backdrop_meshes(spec, layout, terrain, rng: np.random.Generator, textures) -
     for _ in range(bd.forest_edges):  # a dense line of trees along one whole side
         side = int(rng.integers(4))
         distance = rng.uniform(*bd.tree_distance)
-        edge_a, _ = _around(np.random.default_rng(0), lo, hi, distance, side)
         count = int(rng.integers(8, 16))
         for k in range(count):
             xy, _ = _around(rng, lo, hi, distance + rng.uniform(0, 4), side)
