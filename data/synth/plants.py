@@ -44,7 +44,11 @@ class Plant:
         return self.base[None, :] + local[:, :1] * t + local[:, 1:2] * left + local[:, 2:3] * np.array([0, 0, 1.0])
 
     def mesh(self, level: int) -> Mesh:
-        """Triangles at level of detail `level` (0 = finest, see LOD_FACTORS)."""
+        """Triangles at level of detail `level` (0 = finest, see LOD_FACTORS): leaves, then wood."""
+        return Mesh.concat(list(self.mesh_parts(level)))
+
+    def mesh_parts(self, level: int) -> tuple[Mesh, Mesh]:
+        """(leaves, wood) at level of detail `level`, so the mask can label the canopy only."""
         fine = level == 0
         rng = np.random.default_rng([self.seed, level])
         parts = []
@@ -86,8 +90,7 @@ class Plant:
         pick = pick[np.argsort(-np.abs(local[pick, 1]), kind="stable")]
         sizes = size * rng.uniform(0.75, 1.25, size=len(pick))
         facing = self.to_world(outward[pick]) - self.base[None, :]
-        # Leaves before wood: they hide most of it, and hidden pixels skip shading.
-        return Mesh.concat([leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0)] + parts)
+        return leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0), Mesh.concat(parts)
 
 
 def _u(rng: np.random.Generator, pair) -> float:
@@ -107,9 +110,12 @@ def make_plant(spec: WorldSpec, rng: np.random.Generator, base: np.ndarray, alon
         trunk_radius=_u(rng, ps.trunk_radius), leaf_size=_u(rng, ps.leaf_size),
         density=ps.leaf_density, seed=int(rng.integers(2**31)),
     )
+    if ps.sparse_probability > 0 and rng.uniform() < ps.sparse_probability:
+        plant.density = ps.leaf_density * float(rng.uniform(0.3, 0.55))  # young shoots on the wires
     builder = {"vineyard": _vine, "pear": _pear, "tree": _tree, "pergola": _pergola}[spec.crop]
     builder(plant, spec, rng, row_index)
     _low_branches(plant, spec, rng)
+    _hanging_shoots(plant, spec, rng)
     return plant
 
 
@@ -239,3 +245,21 @@ def _low_branches(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> No
         tip = np.array([rng.normal(0, 0.25), side * reach, z0 + rng.uniform(-0.05, 0.25)])
         _seg(plant, [0, 0, z0], tip, 0.35 * plant.trunk_radius, 0.1 * plant.trunk_radius)
         plant.clusters.append((tip, np.array([0.18, 0.12, 0.12]) * rng.uniform(0.8, 1.4)))
+
+
+def _hanging_shoots(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> None:
+    """Shoots that lean out of the canopy and hang into the row: a thin stem with a narrow,
+    elongated leaf cluster at its end (young vines are ragged, not trimmed hedges)."""
+    ps = spec.plants
+    n = _i(rng, ps.hanging_shoots)
+    if not n or not plant.clusters:
+        return
+    for _ in range(n):
+        centre, radii = plant.clusters[int(rng.integers(len(plant.clusters)))]
+        side = rng.choice([-1.0, 1.0])
+        start = centre + np.array([rng.uniform(-radii[0], radii[0]), side * radii[1] * 0.8, radii[2] * rng.uniform(-0.2, 0.6)])
+        out = rng.uniform(0.15, 0.45)
+        tip = start + np.array([rng.normal(0, 0.15), side * out, -rng.uniform(0.1, 0.5)])
+        _seg(plant, start, tip, 0.006, 0.003)
+        mid = (start + tip) / 2
+        plant.clusters.append((mid + np.array([0, side * 0.05, 0]), np.array([0.12, 0.1 + 0.5 * out, 0.1]) * rng.uniform(0.7, 1.3)))

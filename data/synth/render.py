@@ -2,9 +2,11 @@
 
 pybullet's TinyRenderer has no culling of its own: every frame we hide (alpha 0) the chunks
 outside the view frustum or beyond `render.cull_distance`, and show far chunks at their coarse
-level of detail. Shadows stay off (they double the cost and look wrong); instead light
-direction, colour and ambient/diffuse terms are randomised. Where nothing was hit, a sky
-(gradient plus clouds, randomised) is composited and depth is 0 (no return).
+level of detail. Shadows double a frame's cost, so they are drawn on a share of frames only
+(`render.shadow_probability`); light direction, colour and ambient/diffuse terms, overcast or
+back-lit skies and distance haze are randomised from the world's `sky` section. Backdrop chunks
+skip the distance cut. Where nothing was hit, a sky (gradient plus clouds) is composited and
+depth is 0 (no return).
 """
 
 from __future__ import annotations
@@ -88,22 +90,15 @@ class Renderer:
 
     def __init__(self, world: World, camera: CameraModel | None = None) -> None:
         self.world = world
-        self.camera = camera or CameraModel()
         self.client = world.client_id
-        cam = self.camera
-        self.aspect = math.tan(math.radians(cam.hfov_deg) / 2) / math.tan(math.radians(cam.vfov_deg) / 2)
-        self.projection = p.computeProjectionMatrixFOV(cam.vfov_deg, self.aspect, cam.near, cam.far,
-                                                       physicsClientId=self.client)
-        self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
-        self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
-        rays = cam.pixel_rays()
-        rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
-        small = (max(2, cam.width // 4), max(2, cam.height // 4))
-        self.rays_small = cv2.resize(rays, small, interpolation=cv2.INTER_AREA)
+        self._optics: dict[tuple, tuple] = {}
+        self.set_camera(camera or CameraModel())
         chunks = world.chunks
         self.centres = np.array([c.centre for c in chunks])
         self.radii = np.array([c.radius for c in chunks])
         self.always = np.isinf(self.radii)
+        # Things beyond the field are seen from anywhere: frustum culling only, no distance cap.
+        self.far_ok = np.array([c.kind.startswith("backdrop") for c in chunks])
         caps = [c.capsule if c.capsule is not None else (c.centre, c.centre, c.radius) for c in chunks]
         self.cap_a = np.array([c[0] for c in caps])
         self.cap_ab = np.array([c[1] - c[0] for c in caps])
@@ -128,13 +123,35 @@ class Renderer:
             for b in c.bodies:
                 if b < 0:
                     continue
-                self.rgba[b] = [1.0, 1.0, 1.0] if c.kind != "structure" else [0.9, 0.9, 0.9]
+                self.rgba[b] = list(c.tint[:3])
                 self.texture[b] = c.texture
                 self.shown[b] = True
                 p.changeVisualShape(b, -1, textureUniqueId=c.texture, rgbaColor=self.rgba[b] + [1.0],
                                     physicsClientId=self.client)
         self._noise_rng = np.random.default_rng([world.seed, 7])
         self.far_ground = np.array([0.42, 0.42, 0.3], np.float32)
+
+    def set_camera(self, camera: CameraModel) -> None:
+        """Switch to another camera model (dataset frames vary field of view and mount per frame);
+        projections and sky rays are cached per field of view and size."""
+        self.camera = cam = camera
+        key = (cam.width, cam.height, cam.hfov_deg, cam.sensor_aspect, cam.near, cam.far)
+        if key not in self._optics:
+            aspect = math.tan(math.radians(cam.hfov_deg) / 2) / math.tan(math.radians(cam.vfov_deg) / 2)
+            projection = p.computeProjectionMatrixFOV(cam.vfov_deg, aspect, cam.near, cam.far,
+                                                      physicsClientId=self.client)
+            rays = cam.pixel_rays()
+            rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
+            small = (max(2, cam.width // 4), max(2, cam.height // 4))
+            yy, xx = np.mgrid[0:cam.height, 0:cam.width].astype(np.float32)
+            radius = np.hypot((xx - cam.width / 2) / (cam.width / 2), (yy - cam.height / 2) / (cam.height / 2))
+            if len(self._optics) > 64:
+                self._optics.clear()
+            self._optics[key] = (aspect, projection, cv2.resize(rays, small, interpolation=cv2.INTER_AREA),
+                                 (radius / math.sqrt(2)).astype(np.float32))
+        self.aspect, self.projection, self.rays_small, self.radius = self._optics[key]
+        self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
+        self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
 
     # ----------------------------------------------------------------- appearance
     def randomize_appearance(self, rng: np.random.Generator) -> None:
@@ -146,10 +163,15 @@ class Renderer:
         self.far_ground = (np.clip(ground_tint, 0, 1) * tex.ground_mean[ground]).astype(np.float32)
         struct_tint = rng.uniform(0.55, 1.0) * (1 + rng.uniform(-0.05, 0.05, 3))
         for c in self.world.chunks:
-            if c.kind == "plants":
+            if c.kind in ("plants", "wood"):
                 variant = main_plant if rng.uniform() > 0.2 else int(rng.integers(len(tex.plant)))
                 texture = tex.plant[variant]
                 tint = rng.uniform(0.78, 1.0) * (1 + rng.uniform(-0.07, 0.07, 3))
+            elif c.kind == "backdrop_tree":  # any leaf texture, often darker than the crop
+                texture = tex.plant[int(rng.integers(len(tex.plant)))]
+                tint = rng.uniform(0.45, 1.0) * (1 + rng.uniform(-0.1, 0.1, 3))
+            elif c.kind == "backdrop":  # buildings and hills keep their own tint
+                texture, tint = c.texture, np.asarray(c.tint[:3]) * rng.uniform(0.8, 1.1)
             elif c.kind == "ground":
                 texture, tint = tex.ground[ground], ground_tint
             elif c.kind == "grass":
@@ -183,7 +205,7 @@ class Renderer:
         t = np.clip(((pos - self.cap_a) * self.cap_ab).sum(axis=1) / ab2, 0, 1)
         closest = self.cap_a + t[:, None] * self.cap_ab
         dist = np.linalg.norm(closest - pos, axis=1) - np.where(self.always, 0.0, self.cap_r)
-        visible &= self.always | (dist < spec.cull_distance)
+        visible &= self.always | self.far_ok | (dist < spec.cull_distance)
         level = np.searchsorted(np.asarray(spec.lod_distances), dist)
         level = np.minimum(level, self.n_levels - 1)
         want = visible[:, None] & (np.arange(self.bodies.shape[1])[None, :] == level[:, None]) & (self.bodies >= 0)
@@ -200,17 +222,49 @@ class Renderer:
                 "changes": len(changed[0]), "triangles": int(self.tris[want].sum())}
 
     # ----------------------------------------------------------------- sky
-    def _sky(self, pose: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+    def _draw_look(self, rng: np.random.Generator | None, heading: float) -> dict:
+        """Per-frame sky, sun and haze drawn from the world's `sky` ranges (fixed without rng)."""
+        if rng is None:
+            return {"overcast": False, "cover": 0.0, "haze": 0.0, "shadow": False,
+                    "horizon": np.array([0.80, 0.85, 0.90]), "zenith": np.array([0.35, 0.55, 0.85]),
+                    "light": dict(lightDirection=[0.4, 0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=100.0,
+                                  lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.05)}
+        sky = self.world.spec.sky
+        # The first draws keep the order of the original renderer (sun, colour, terms, sky colours).
+        az, el = rng.uniform(0, 2 * np.pi), math.radians(rng.uniform(*sky.sun_elevation))
+        warm = rng.uniform(-0.12, 0.12)
+        ambient, diffuse, specular = rng.uniform(0.35, 0.7), rng.uniform(0.3, 0.7), rng.uniform(0.0, 0.12)
+        horizon = np.clip(np.array([0.78, 0.83, 0.88]) + rng.uniform(-0.1, 0.1, 3), 0, 1)
+        zenith = np.clip(np.array([0.3, 0.5, 0.85]) + rng.uniform(-0.15, 0.12, 3), 0, 1)
+        cover = rng.uniform(*sky.cloud_cover)
+        overcast = sky.overcast_probability > 0 and rng.uniform() < sky.overcast_probability
+        if overcast:  # white to grey, brighter at the horizon; soft light from everywhere
+            grey = rng.uniform(0.6, 0.97)
+            zenith = np.clip(grey * 0.92 + rng.uniform(-0.03, 0.03, 3), 0, 1)
+            horizon = np.clip(np.full(3, min(grey * 1.05, 1.0)) + rng.uniform(-0.02, 0.02, 3), 0, 1)
+            cover, warm = 0.0, warm * 0.3
+            ambient, diffuse, specular = rng.uniform(0.6, 0.85), rng.uniform(0.1, 0.3), 0.0
+        elif sky.backlight_probability > 0 and rng.uniform() < sky.backlight_probability:
+            az = heading + rng.normal(0, 0.4)        # sun ahead, low: plants seen from their dark side
+            el = math.radians(rng.uniform(8, 30))
+            horizon = np.clip(horizon + 0.12, 0, 1)
+        haze = rng.uniform(*sky.haze) if sky.haze[1] > 0 else 0.0
+        shadow = (not overcast and self.world.spec.render.shadow_probability > 0
+                  and rng.uniform() < self.world.spec.render.shadow_probability)
+        light = dict(
+            lightDirection=[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
+            lightColor=[float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
+            lightDistance=100.0, lightAmbientCoeff=ambient, lightDiffuseCoeff=diffuse, lightSpecularCoeff=specular,
+        )
+        return {"overcast": overcast, "cover": cover, "haze": haze, "shadow": shadow,
+                "horizon": horizon, "zenith": zenith, "light": light}
+
+    def _sky(self, pose: np.ndarray, rng: np.random.Generator | None, look: dict) -> np.ndarray:
         """Sky (and distant ground below the horizon), computed at 1/4 resolution and upsampled:
         it is smooth, and this keeps it under a millisecond."""
         cam = self.camera
         elev = self.rays_small @ pose[2, :3].astype(np.float32)  # world z of each pixel's ray
-        if rng is None:
-            horizon, zenith, cover = np.array([0.80, 0.85, 0.90]), np.array([0.35, 0.55, 0.85]), 0.0
-        else:
-            horizon = np.clip(np.array([0.78, 0.83, 0.88]) + rng.uniform(-0.1, 0.1, 3), 0, 1)
-            zenith = np.clip(np.array([0.3, 0.5, 0.85]) + rng.uniform(-0.15, 0.12, 3), 0, 1)
-            cover = rng.uniform(0.0, 0.8)
+        horizon, zenith, cover = look["horizon"], look["zenith"], look["cover"]
         t = np.clip(elev * (1 / 0.6), 0, 1)
         t = t * (2 - t)
         sky = horizon.astype(np.float32) + t[..., None] * (zenith - horizon).astype(np.float32)
@@ -218,6 +272,10 @@ class Renderer:
         if below.any():  # distant ground beyond the tiles, fading into haze at the horizon
             haze = np.clip(-elev[below] * 12, 0, 1)[:, None]
             sky[below] = horizon * (1 - haze) + self.far_ground * haze
+        if look["overcast"]:  # soft large-scale structure of a cloud deck
+            h, w = elev.shape
+            deck = cv2.resize(rng.uniform(-1, 1, size=(3, 4)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
+            sky[~below] *= (1 + 0.05 * deck[~below])[:, None]
         if cover > 0:
             h, w = elev.shape
             small = rng.uniform(0, 1, size=(5, 7)).astype(np.float32)
@@ -240,21 +298,10 @@ class Renderer:
         eye = pose[:3, 3]
         view = p.computeViewMatrix(eye.tolist(), (eye + pose[:3, 2]).tolist(), (-pose[:3, 1]).tolist(),
                                    physicsClientId=self.client)
-        if rng is None:
-            light = dict(lightDirection=[0.4, 0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=100.0,
-                         lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.05)
-        else:
-            az, el = rng.uniform(0, 2 * np.pi), rng.uniform(math.radians(20), math.radians(80))
-            warm = rng.uniform(-0.12, 0.12)
-            light = dict(
-                lightDirection=[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
-                lightColor=[float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
-                lightDistance=100.0, lightAmbientCoeff=rng.uniform(0.35, 0.7),
-                lightDiffuseCoeff=rng.uniform(0.3, 0.7), lightSpecularCoeff=rng.uniform(0.0, 0.12),
-            )
+        look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
         _, _, rgba, zbuf, seg = p.getCameraImage(
-            cam.width, cam.height, view, self.projection, shadow=0, renderer=p.ER_TINY_RENDERER,
-            physicsClientId=self.client, **light,
+            cam.width, cam.height, view, self.projection, shadow=int(look["shadow"]), renderer=p.ER_TINY_RENDERER,
+            physicsClientId=self.client, **look["light"],
         )
         rgba = np.reshape(np.asarray(rgba, np.uint8), (cam.height, cam.width, 4))
         zbuf = np.reshape(np.asarray(zbuf, np.float32), (cam.height, cam.width))
@@ -267,12 +314,21 @@ class Renderer:
         depth[~hit] = 0.0
         rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
         if not hit.all():
-            np.copyto(rgb, self._sky(pose, rng), where=~hit[..., None])
+            np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
+        if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
+            fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
+            fade[~hit] = 0.0
+            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(np.uint8)
         if rng is not None:
             gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
             rgb = cv2.multiply(rgb, (float(gain[0]), float(gain[1]), float(gain[2]), 0.0))  # saturating
+            vig = self.world.spec.capture.vignetting
+            if vig[1] > 0:
+                amount = np.float32(rng.uniform(*vig))
+                falloff = 1 - amount * np.clip(self.radius, 0, 1) ** 2
+                rgb = (rgb * falloff[..., None]).astype(np.uint8)
         if noisy_depth and cam.depth_noise_enabled:
             depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
         return RenderedFrame(rgb=rgb, depth=depth, mask=mask, camera_pose=pose,
                              robot_pose=(float(x), float(y), float(yaw)), body_ids=ids,
-                             stats=stats)
+                             stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])})

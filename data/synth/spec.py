@@ -8,6 +8,7 @@ impossible field (negative spacing, rows that would intersect) fails before pybu
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,8 @@ TEST_FIELDS: tuple[str, ...] = (
 
 
 Range = tuple[float, float]
+# Ground styles of textures.GROUND_STYLES (kept here so the spec does not import pybullet code).
+GROUND_STYLE_NAMES: tuple[str, ...] = ("patchy", "mown", "long", "dry", "soil", "litter")
 
 # The narrowest free gap a world may have: the evaluation robot's footprint (a Clearpath Jackal,
 # 0.43 m wide, see nav_eval.robot.RobotConfig; data must not import nav_eval) plus 0.1 m either
@@ -45,6 +48,19 @@ def _check_range(name: str, value: Range, *, low: float | None = 0.0, strict: bo
         raise ValueError(f"{name}: range [{a}, {b}] has low > high")
     if low is not None and (a < low or (strict and a <= low)):
         raise ValueError(f"{name}: values must be {'>' if strict else '>='} {low}, got [{a}, {b}]")
+
+
+def _check_finite(value, name: str) -> None:
+    """NaN compares false with everything, so range checks would let it through: reject it (and
+    infinities) in every number of the spec, naming the field."""
+    if dataclasses.is_dataclass(value):
+        for f in dataclasses.fields(value):
+            _check_finite(getattr(value, f.name), f"{name}.{f.name}" if name else f.name)
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_finite(v, f"{name}[{i}]")
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{name}: must be a finite number, got {value}")
 
 
 def _check_positive(name: str, value: float) -> None:
@@ -141,6 +157,9 @@ class PlantsSpec:
     low_branch_reach: float = 0.4
     leaf_size: Range = (0.08, 0.14)       # triangle edge length (fine level of detail)
     leaf_density: float = 0.7             # 0..1, how much of each cluster's shell is covered
+    hanging_shoots: tuple[int, int] = (0, 0)  # shoots per plant hanging from the canopy into the row
+    sparse_probability: float = 0.0       # chance a plant is a sparse young vine (a third to half the leaves)
+    label: Literal["canopy", "plant"] = "canopy"  # canopy: leaves only are 1 (trunks, branches = 0)
 
     def __post_init__(self) -> None:
         _check_positive("plants.spacing", self.spacing)
@@ -153,7 +172,7 @@ class PlantsSpec:
         _check_range("plants.canopy_bottom", self.canopy_bottom)
         _check_range("plants.canopy_width", self.canopy_width, strict=True)
         _check_range("plants.leaf_size", self.leaf_size, strict=True)
-        for name in ("clusters", "branches", "low_branches"):
+        for name in ("clusters", "branches", "low_branches", "hanging_shoots"):
             a, b = getattr(self, name)
             if a < 0 or a > b:
                 raise ValueError(f"plants.{name}: need 0 <= low <= high, got [{a}, {b}]")
@@ -162,6 +181,7 @@ class PlantsSpec:
         if self.low_branch_reach < 0:
             raise ValueError(f"plants.low_branch_reach: must be >= 0, got {self.low_branch_reach}")
         _check_fraction("plants.leaf_density", self.leaf_density)
+        _check_fraction("plants.sparse_probability", self.sparse_probability)
         if self.canopy_bottom[1] >= self.height[0]:
             raise ValueError(
                 f"plants.canopy_bottom: {list(self.canopy_bottom)} must lie below plants.height {list(self.height)}"
@@ -204,6 +224,7 @@ class TerrainSpec:
     resolution: float = 1.0           # mesh grid step near the camera (m)
     margin: float = 8.0               # ground beyond the outer rows and row ends (m)
     grass_tufts: float = 0.6          # tufts per square metre (not vegetation)
+    texture_scale: float = 2.0        # metres per repeat of the ground texture (finer = sharper blades)
 
     def __post_init__(self) -> None:
         if self.roughness < 0:
@@ -212,6 +233,7 @@ class TerrainSpec:
         _check_positive("terrain.resolution", self.resolution)
         if self.margin < 0:
             raise ValueError(f"terrain.margin: must be >= 0, got {self.margin}")
+        _check_positive("terrain.texture_scale", self.texture_scale)
         if self.grass_tufts < 0:
             raise ValueError(f"terrain.grass_tufts: must be >= 0, got {self.grass_tufts}")
 
@@ -225,7 +247,10 @@ class AppearanceSpec:
     leaf_value: Range = (0.30, 0.65)
     autumn_probability: float = 0.15       # chance a texture variant has autumn tones
     bark_value: Range = (0.22, 0.45)
-    ground_green: Range = (0.2, 0.7)       # grass cover of the ground texture
+    ground_green: Range = (0.2, 0.7)       # grass cover of the "patchy" ground style
+    ground_styles: list[str] = field(default_factory=lambda: list(GROUND_STYLE_NAMES))  # first = variant 0
+    ground_detail: float = 0.5             # amplitude of the grass-blade fine detail (0 = smooth)
+    leaf_detail: float = 0.35              # amplitude of per-texel leaf detail (0 = smooth)
     texture_variants: int = 3
 
     def __post_init__(self) -> None:
@@ -240,6 +265,14 @@ class AppearanceSpec:
         _check_fraction("appearance.autumn_probability", self.autumn_probability)
         if self.texture_variants < 1:
             raise ValueError(f"appearance.texture_variants: at least 1, got {self.texture_variants}")
+        if not self.ground_styles:
+            raise ValueError("appearance.ground_styles: at least one style")
+        for style in self.ground_styles:
+            if style not in GROUND_STYLE_NAMES:
+                raise ValueError(f"appearance.ground_styles: unknown style {style!r}; choose from {list(GROUND_STYLE_NAMES)}")
+        for name in ("ground_detail", "leaf_detail"):
+            if not 0 <= getattr(self, name) <= 2:
+                raise ValueError(f"appearance.{name}: must be within [0, 2], got {getattr(self, name)}")
 
 
 @dataclass
@@ -249,11 +282,91 @@ class RenderSpec:
     cull_distance: float = 35.0
     lod_distances: tuple[float, float] = (4.0, 10.0)  # switch to the next coarser level beyond these
     chunk_length: float = 3.0       # plants of one row within this length share one body
+    shadow_probability: float = 0.0  # share of frames with TinyRenderer shadows (about 2x the cost)
 
     def __post_init__(self) -> None:
+        _check_fraction("render.shadow_probability", self.shadow_probability)
         _check_positive("render.cull_distance", self.cull_distance)
         _check_range("render.lod_distances", self.lod_distances)
         _check_positive("render.chunk_length", self.chunk_length)
+
+
+@dataclass
+class SkySpec:
+    """Sky and light per frame: clear to overcast skies, sun height, haze and back-light."""
+
+    overcast_probability: float = 0.0     # white/grey overcast sky, soft light (no strong sun)
+    cloud_cover: Range = (0.0, 0.8)       # cloud amount of clear-sky frames
+    sun_elevation: Range = (20.0, 80.0)   # degrees above the horizon
+    backlight_probability: float = 0.0    # low sun in front of the camera (dark, rim-lit plants)
+    haze: Range = (0.0, 0.0)              # distance haze: fraction of the horizon colour at 50 m
+
+    def __post_init__(self) -> None:
+        _check_fraction("sky.overcast_probability", self.overcast_probability)
+        _check_fraction("sky.backlight_probability", self.backlight_probability)
+        _check_range("sky.cloud_cover", self.cloud_cover)
+        _check_range("sky.haze", self.haze)
+        _check_range("sky.sun_elevation", self.sun_elevation, strict=True)
+        for name in ("cloud_cover", "haze"):
+            if getattr(self, name)[1] > 1:
+                raise ValueError(f"sky.{name}: values within [0, 1], got {list(getattr(self, name))}")
+        if self.sun_elevation[1] > 90:
+            raise ValueError(f"sky.sun_elevation: degrees within (0, 90], got {list(self.sun_elevation)}")
+
+
+@dataclass
+class CaptureSpec:
+    """Camera variety of dataset frames (the writer only; closed-loop runs keep their camera).
+
+    A range with low == high keeps the job camera's value; otherwise each frame draws its own
+    (recorded in meta.json with the frame's intrinsics).
+    """
+
+    hfov_deg: Range = (69.0, 69.0)        # horizontal field of view; real robots use 60-120
+    mount_height: Range = (0.4, 0.4)      # camera height above the ground (m)
+    tilt_deg: Range = (15.0, 15.0)        # upward tilt
+    vignetting: Range = (0.0, 0.0)        # corner darkening (fraction of brightness lost)
+
+    def __post_init__(self) -> None:
+        _check_range("capture.hfov_deg", self.hfov_deg, low=10.0)
+        if self.hfov_deg[1] > 170:
+            raise ValueError(f"capture.hfov_deg: within [10, 170], got {list(self.hfov_deg)}")
+        _check_range("capture.mount_height", self.mount_height, strict=True)
+        _check_range("capture.tilt_deg", self.tilt_deg, low=-60.0)
+        if self.tilt_deg[1] > 60:
+            raise ValueError(f"capture.tilt_deg: within [-60, 60], got {list(self.tilt_deg)}")
+        _check_range("capture.vignetting", self.vignetting)
+        if self.vignetting[1] > 0.8:
+            raise ValueError(f"capture.vignetting: within [0, 0.8], got {list(self.vignetting)}")
+
+
+@dataclass
+class BackdropSpec:
+    """What stands beyond the field: never vegetation in the mask, whatever it looks like.
+
+    Real rows end in hedges, forest edges, single trees, buildings and hills; a model that never
+    saw them paints them as crop. Distances are measured from the field's edge (the outer rows
+    and the row ends).
+    """
+
+    trees: int = 0                        # single trees and forest-edge trees around the field
+    tree_height: Range = (5.0, 14.0)
+    tree_distance: Range = (4.0, 30.0)
+    forest_edges: int = 0                 # dense lines of trees along a side of the field
+    hedges: int = 0                       # low continuous hedges along a side
+    hedge_height: Range = (1.2, 3.0)
+    buildings: int = 0
+    building_height: Range = (3.0, 8.0)
+    hills: float = 0.0                    # probability of a ridge of hills on the horizon
+
+    def __post_init__(self) -> None:
+        for name in ("trees", "forest_edges", "hedges", "buildings"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"backdrop.{name}: must be >= 0, got {getattr(self, name)}")
+        for name in ("tree_height", "hedge_height", "building_height"):
+            _check_range(f"backdrop.{name}", getattr(self, name), strict=True)
+        _check_range("backdrop.tree_distance", self.tree_distance)
+        _check_fraction("backdrop.hills", self.hills)
 
 
 @dataclass
@@ -271,8 +384,12 @@ class WorldSpec:
     terrain: TerrainSpec = field(default_factory=TerrainSpec)
     appearance: AppearanceSpec = field(default_factory=AppearanceSpec)
     render: RenderSpec = field(default_factory=RenderSpec)
+    sky: SkySpec = field(default_factory=SkySpec)
+    capture: CaptureSpec = field(default_factory=CaptureSpec)
+    backdrop: BackdropSpec = field(default_factory=BackdropSpec)
 
     def __post_init__(self) -> None:
+        _check_finite(self, "")
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
             raise ValueError(f"name: must be a non-empty word (letters, digits, _ or -), got {self.name!r}")
         if not self.domain:
@@ -353,9 +470,13 @@ __all__ = [
     "MIN_GAP_WIDTH",
     "TEST_FIELDS",
     "AppearanceSpec",
+    "BackdropSpec",
+    "CaptureSpec",
+    "GROUND_STYLE_NAMES",
     "PlantsSpec",
     "RenderSpec",
     "RowsSpec",
+    "SkySpec",
     "StructuresSpec",
     "TerrainSpec",
     "WorldSpec",

@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 import pybullet as p
 
+from segmin.data.synth.spec import GROUND_STYLE_NAMES
+
 SIZE = 128
 
 
@@ -69,24 +71,94 @@ def plant_atlas(rng: np.random.Generator, appearance, autumn: bool) -> np.ndarra
     ys, xs = np.mgrid[0:size, 0:half]
     veins = (np.abs(((xs + ys * 0.6) % 16) - 8) < 0.7) | (np.abs(((xs - ys * 0.6) % 16) - 8) < 0.7)
     leaf[veins] = np.clip(leaf[veins] * 1.25 + 0.03, 0, 1)
+    # Fine detail (leaf edges, serration, light through leaves): real canopy has ~4x the rendered one.
+    grain = rng.uniform(-1, 1, size=(size, half)).astype(np.float32)
+    leaf *= np.clip(1 + appearance.leaf_detail * grain, 0, None)[..., None]
     spots = _noise(rng, size, (16, 32))[:, :half] > 0.92
     leaf[spots] = leaf[spots] * 0.6 + _hsv(35, 0.6, val * 0.9)[None, :] * 0.4
     img[:, half:] = leaf
     return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
 
-def ground_texture(rng: np.random.Generator, appearance) -> np.ndarray:
-    size = SIZE
-    green = rng.uniform(*appearance.ground_green)
-    soil = _hsv(rng.uniform(22, 35), rng.uniform(0.3, 0.5), rng.uniform(0.35, 0.55))
-    grass = _hsv(rng.uniform(60, 100), rng.uniform(0.35, 0.6), rng.uniform(0.35, 0.55))
+GROUND_STYLES = GROUND_STYLE_NAMES
+GROUND_SIZE = 256  # ground texels are ~8 mm at the default 2 m repeat: grass blades stay sharp near the camera
+
+
+def _blades(rng: np.random.Generator, size: int, length: int) -> np.ndarray:
+    """Zero-mean fine detail of grass: per-texel noise smeared along short random-direction strokes.
+
+    Real grass between rows has about three times the fine detail (mean absolute Laplacian) of a
+    smooth texture; the model reads fine detail as vegetation, so ground must carry it too.
+    """
+    white = rng.uniform(-1, 1, size=(size, size)).astype(np.float32)
+    out = np.zeros_like(white)
+    for angle in rng.uniform(0, np.pi, 3):
+        k = np.zeros((length, length), np.float32)
+        c = (length - 1) / 2
+        for t in np.linspace(-c, c, 2 * length):
+            k[int(round(c + t * np.sin(angle))), int(round(c + t * np.cos(angle)))] = 1.0
+        pad = length // 2 + 1  # wrap around by hand: the texture tiles, so its detail must too
+        big = np.pad(white, pad, mode="wrap")
+        out += cv2.filter2D(big, -1, k / k.sum())[pad:-pad, pad:-pad]
+    out /= max(float(np.abs(out).max()), 1e-6)
+    return out
+
+
+def _spots(rng: np.random.Generator, size: int, count: int, radius: tuple[int, int]) -> np.ndarray:
+    """A float mask of `count` small soft blobs (flowers, clods, fallen leaves, stones)."""
+    m = np.zeros((size, size), np.float32)
+    for _ in range(count):
+        x, y = (int(v) for v in rng.integers(0, size, 2))
+        cv2.circle(m, (x, y), int(rng.integers(radius[0], radius[1] + 1)), 1.0, -1)
+    return m
+
+
+def ground_texture(rng: np.random.Generator, appearance, style: str = "patchy") -> np.ndarray:
+    """Ground of one style (see GROUND_STYLES), with grass-like fine detail scaled by
+    `appearance.ground_detail`; ground is never vegetation in the mask, whatever its colour."""
+    size = GROUND_SIZE
+    detail = appearance.ground_detail
+    soil = _hsv(rng.uniform(20, 38), rng.uniform(0.25, 0.5), rng.uniform(0.3, 0.55))
+    grass = _hsv(rng.uniform(65, 110), rng.uniform(0.4, 0.75), rng.uniform(0.35, 0.65))
+    straw = _hsv(rng.uniform(38, 55), rng.uniform(0.3, 0.55), rng.uniform(0.5, 0.75))
     patches = _noise(rng, size, (4, 8, 16))
     fine = _noise(rng, size, (32, 64, 128))
-    cover = np.clip((patches - (1 - green)) * 4 + 0.5, 0, 1) * (0.6 + 0.4 * fine)
-    img = soil[None, None] * (1 - cover[..., None]) + grass[None, None] * cover[..., None]
-    img *= (0.75 + 0.5 * fine)[..., None]
-    stones = _noise(rng, size, (64, 128)) > 0.93
-    img[stones] = img[stones] * 0.5 + 0.35
+    blades = _blades(rng, size, 5 if style != "long" else 9)
+    if style == "patchy":  # the original look: soil with patches of grass
+        green = rng.uniform(*appearance.ground_green)
+        cover = np.clip((patches - (1 - green)) * 4 + 0.5, 0, 1) * (0.6 + 0.4 * fine)
+        base = soil[None, None] * (1 - cover[..., None]) + grass[None, None] * cover[..., None]
+    elif style == "mown":  # dense short grass, lighter and darker patches, clover
+        base = grass[None, None] * (0.8 + 0.4 * patches)[..., None]
+        clover = _spots(rng, size, int(rng.integers(0, 60)), (1, 3))
+        base = base * (1 - 0.5 * clover[..., None]) + _hsv(rng.uniform(60, 90), 0.3, 0.8) * 0.5 * clover[..., None]
+    elif style == "long":  # long grass and weeds: green to straw, dark weed leaves, flowers
+        mix = np.clip((patches - rng.uniform(0.3, 0.8)) * 3 + 0.5, 0, 1)[..., None]
+        base = grass[None, None] * (1 - mix) + straw[None, None] * mix
+        weeds = _spots(rng, size, int(rng.integers(10, 40)), (2, 6))
+        base = base * (1 - 0.45 * weeds[..., None])
+        flowers = _spots(rng, size, int(rng.integers(0, 80)), (1, 1))
+        base = base * (1 - flowers[..., None]) + _hsv(rng.choice([50, 55, 0]), rng.uniform(0, 0.8), 0.95) * flowers[..., None]
+    elif style == "dry":  # dry summer grass: straw with a few green tufts
+        cover = np.clip((patches - rng.uniform(0.5, 0.9)) * 4 + 0.5, 0, 1)[..., None]
+        base = straw[None, None] * (1 - cover) + grass[None, None] * cover
+    elif style == "soil":  # bare or tilled soil: furrows, clods, stones, sparse weeds
+        ys = np.arange(size, dtype=np.float32)[:, None]
+        furrows = 0.5 + 0.5 * np.sin(ys * (2 * np.pi * rng.integers(2, 9) / size) + 3 * fine)
+        base = soil[None, None] * (0.7 + 0.5 * furrows * rng.uniform(0, 1) + 0.3 * patches)[..., None]
+        weeds = _spots(rng, size, int(rng.integers(0, 40)), (1, 4))
+        base = base * (1 - weeds[..., None]) + grass[None, None] * weeds[..., None]
+    elif style == "litter":  # grass or soil with fallen leaves and twigs
+        under = grass if rng.uniform() < 0.5 else soil
+        base = under[None, None] * (0.8 + 0.4 * patches)[..., None]
+        litter = _spots(rng, size, int(rng.integers(60, 250)), (1, 4))
+        leaf = _hsv(rng.uniform(15, 45), rng.uniform(0.4, 0.8), rng.uniform(0.35, 0.7))
+        base = base * (1 - litter[..., None]) + leaf[None, None] * litter[..., None] * (0.7 + 0.6 * fine[..., None])
+    else:
+        raise ValueError(f"unknown ground style {style!r}; choose from {', '.join(GROUND_STYLES)}")
+    img = base * (0.85 + 0.3 * fine)[..., None] * (1 + detail * blades)[..., None]
+    stones = _noise(rng, size, (64, 128)) > 0.95
+    img[stones] = img[stones] * 0.5 + 0.3
     return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
 
@@ -117,7 +189,9 @@ class TextureSet:
         # Keep at least one green variant: the default look of a world is summer.
         self.autumn[0] = False
         images = {f"plant{i}": plant_atlas(rng, appearance, self.autumn[i]) for i in range(n)}
-        images.update({f"ground{i}": ground_texture(rng, appearance) for i in range(n)})
+        styles = list(appearance.ground_styles)
+        self.ground_style = [styles[int(rng.integers(len(styles)))] if i else styles[0] for i in range(n)]
+        images.update({f"ground{i}": ground_texture(rng, appearance, self.ground_style[i]) for i in range(n)})
         images.update({f"grass{i}": grass_texture(rng, appearance) for i in range(n)})
         images["structure"] = structure_texture(rng)
         folder = Path(tempfile.mkdtemp(prefix="segmin_tex_"))

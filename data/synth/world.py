@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pybullet as p
 
+from segmin.data.synth.backdrop import backdrop_meshes
 from segmin.data.synth.mesh import Mesh, blades, cylinders, grid_surface
 from segmin.data.synth.plants import LOD_FACTORS, Plant, make_plant
 from segmin.data.synth.spec import WorldSpec
@@ -118,6 +119,7 @@ class Chunk:
     texture: int = -1
     triangles: list[int] = field(default_factory=list)  # per level
     capsule: tuple[np.ndarray, np.ndarray, float] | None = None  # tighter bound for distances
+    tint: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)  # colour before per-episode tints
 
 
 @dataclass
@@ -193,7 +195,8 @@ def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1,
     centre, radius = levels[0].bounding_sphere()
     bodies = [_body(client, m, rgba, texture) for m in levels]
     return Chunk(centre=centre, radius=radius, bodies=bodies, kind=kind, texture=texture,
-                 triangles=[m.n_triangles for m in levels], capsule=levels[0].bounding_capsule())
+                 triangles=[m.n_triangles for m in levels], capsule=levels[0].bounding_capsule(),
+                 tint=tuple(float(v) for v in rgba))
 
 
 def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> World:
@@ -234,15 +237,33 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     # nearer skips shading: inner rows first (they hide the outer ones from the middle gaps),
     # then along each row from the entrance.
     middle = (rs.count - 1) / 2
+    canopy_only = ps.label == "canopy"
+    if canopy_only:
+        tris["wood"] = [0] * len(LOD_FACTORS)
     for key in sorted(plants, key=lambda k: (abs(k[0] - middle), k[0], k[1])):
-        levels = [Mesh.concat([pl.mesh(level) for pl in plants[key]]) for level in range(len(LOD_FACTORS))]
-        ch = _chunk(client_id, levels, "plants", textures.plant[0])
-        chunks.append(ch)
-        vegetation.update(ch.bodies)
-        tris["plants"] = [a + b for a, b in zip(tris["plants"], ch.triangles)]
+        if not canopy_only:  # one body per level: leaves and wood are both vegetation
+            levels = [Mesh.concat([pl.mesh(level) for pl in plants[key]]) for level in range(len(LOD_FACTORS))]
+            kinds = [("plants", levels)]
+        else:  # leaves (vegetation) and wood (trunks, cordons, shoots: 0 in the mask) apart
+            parts = [[pl.mesh_parts(level) for pl in plants[key]] for level in range(len(LOD_FACTORS))]
+            kinds = [("plants", [Mesh.concat([lv for lv, _ in lvl]) for lvl in parts]),
+                     ("wood", [Mesh.concat([wd for _, wd in lvl]) for lvl in parts])]
+        for kind, levels in kinds:  # leaves first: they hide most of the wood (hidden pixels skip shading)
+            if not any(m.n_triangles for m in levels):
+                continue
+            ch = _chunk(client_id, levels, kind, textures.plant[0])
+            chunks.append(ch)
+            if kind == "plants":
+                vegetation.update(ch.bodies)
+            tris[kind] = [a + b for a, b in zip(tris[kind], ch.triangles + [0] * (len(LOD_FACTORS) - len(ch.triangles)))]
 
     obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
     _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
+    tris["backdrop"] = [0]
+    for kind, mesh, texture, tint in backdrop_meshes(spec, layout, terrain, np.random.default_rng([seed, 5]), textures):
+        if mesh.n_triangles:  # not vegetation, whatever its leaves look like
+            chunks.append(_chunk(client_id, [mesh], kind, texture, tint))
+            tris["backdrop"][0] += mesh.n_triangles
 
     centre_offsets, half_widths = _gap_geometry(spec, layout.offsets)
     s_line = np.arange(0.0, rs.length + 1e-9, CENTRELINE_STEP)
@@ -331,7 +352,7 @@ def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
     hi = pts.max(axis=0) + ts.margin
     nx = int(np.ceil((hi[0] - lo[0]) / GROUND_TILE))
     ny = int(np.ceil((hi[1] - lo[1]) / GROUND_TILE))
-    uv_scale = 0.25
+    uv_scale = 1.0 / ts.texture_scale
     for i in range(nx):
         for j in range(ny):
             x0, y0 = lo[0] + i * GROUND_TILE, lo[1] + j * GROUND_TILE

@@ -52,6 +52,7 @@ class FramePlan:
     robot_pose: tuple[float, float, float]
     pose_offset: tuple[float, float, float, float]   # lateral, yaw, pitch, roll
     block: int                                        # appearance block
+    capture: tuple[float, float, float] | None = None  # hfov_deg, mount_height, tilt_deg; None = job camera
 
 
 @dataclass
@@ -150,8 +151,23 @@ def plan_frame(world, job_seed: int, frame: int, appearance_every: int) -> Frame
         float(np.clip(rng.normal(0, math.radians(2)), -math.radians(5), math.radians(5))),
         float(np.clip(rng.normal(0, math.radians(2)), -math.radians(5), math.radians(5))),
     )
+    capture = None
+    cs = spec.capture
+    if any(lo != hi for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg)):
+        # Drawn after the pose, so worlds without camera variety keep their poses.
+        capture = tuple(float(rng.uniform(lo, hi)) if lo != hi else None
+                        for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg))
     return FramePlan(frame=frame, gap=gap, s=s, reverse=reverse, robot_pose=(x, y, float(yaw)),
-                     pose_offset=offset, block=frame // appearance_every)
+                     pose_offset=offset, block=frame // appearance_every, capture=capture)
+
+
+def frame_camera(camera: CameraModel, plan: FramePlan) -> CameraModel:
+    """The job camera with the frame's drawn field of view, mount height and tilt (if any)."""
+    if plan.capture is None:
+        return camera
+    hfov, height, tilt = plan.capture
+    changes = {k: v for k, v in (("hfov_deg", hfov), ("mount_height", height), ("tilt_deg", tilt)) if v is not None}
+    return dataclasses.replace(camera, **changes)
 
 
 # --------------------------------------------------------------------------------- encoding
@@ -247,6 +263,7 @@ class FrameRenderer:
         self.client = p.connect(p.DIRECT)
         self.world = build_world(spec, self.client)
         self.renderer = Renderer(self.world, camera)
+        self.camera = camera
         self.job_seed = job_seed
         self.appearance_every = appearance_every
         self.noisy_depth = noisy_depth
@@ -258,6 +275,7 @@ class FrameRenderer:
             self.renderer.randomize_appearance(np.random.default_rng([self.job_seed, 4, plan.block]))
             self._block = plan.block
         x, y, yaw = plan.robot_pose
+        self.renderer.set_camera(frame_camera(self.camera, plan))
         out = self.renderer.render(x, y, yaw, rng=np.random.default_rng([self.job_seed, 2, frame]),
                                    noisy_depth=False, pose_offset=plan.pose_offset)
         if self.noisy_depth:
@@ -328,7 +346,11 @@ def write_meta(job: RenderJob, world) -> list[Path]:
         frames = {}
         for f in range(first, last):
             plan = plan_frame(world, job.dataset_seed, f, job.appearance_every)
-            pose = camera_pose(world, job.camera, *plan.robot_pose, pose_offset=plan.pose_offset)
+            cam = frame_camera(job.camera, plan)
+            pose = camera_pose(world, cam, *plan.robot_pose, pose_offset=plan.pose_offset)
+            extra = {} if plan.capture is None else {"intrinsics": cam.intrinsics(),
+                                                     "mount_height": round(cam.mount_height, 6),
+                                                     "tilt_deg": round(cam.tilt_deg, 6)}
             frames[str(f)] = {
                 "gap": plan.gap, "s": round(plan.s, 6), "reverse": plan.reverse,
                 "robot_pose": [round(v, 6) for v in plan.robot_pose],
@@ -336,6 +358,7 @@ def write_meta(job: RenderJob, world) -> list[Path]:
                 "camera_pose": np.round(pose, 6).tolist(), "appearance_block": plan.block,
                 "files": {kind: str(p.relative_to(sub)) for kind, p in
                           frame_paths(job.out, job.spec.domain, f, job.frames_per_subset).items()},
+                **extra,
             }
         meta = dict(fp)
         meta.update({
