@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from segmin.nav_eval.metrics import project_onto_polyline  # noqa: E402
 from segmin.common.atomic import write_bytes  # noqa: E402
+from segmin.nav_eval.video import write_video  # noqa: E402,F401  (kept importable from here)
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
@@ -161,42 +162,3 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
     if config.perception.depth_noise:
         frame.depth = ctx.camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
-
-
-def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> Path:
-    """The camera view as MP4 (OpenCV, mp4v) or, when the suffix is .gif or MP4 cannot be
-    written, an animated GIF (Pillow). Written atomically; returns the path actually written."""
-    import os
-    import tempfile
-
-    path = Path(path)
-    if not frames:
-        return path
-    height, width = np.asarray(frames[0]).shape[:2]
-    if path.suffix.lower() == ".mp4":
-        import cv2
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
-        os.close(fd)
-        try:
-            writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
-            if writer.isOpened():
-                for frame in frames:
-                    writer.write(cv2.cvtColor(np.asarray(frame, dtype=np.uint8), cv2.COLOR_RGB2BGR))
-                writer.release()
-                if os.path.getsize(tmp) > 0:
-                    os.replace(tmp, path)
-                    return path
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        path = path.with_suffix(".gif")          # no MP4 encoder here: fall back to GIF
-    from PIL import Image
-
-    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
-    buffer = io.BytesIO()
-    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
-                   duration=int(round(1000.0 / fps)), loop=0)
-    write_bytes(path, buffer.getvalue())
-    return path
