@@ -244,7 +244,7 @@ class Navigator:
     def step(self, mask: np.ndarray, depth: np.ndarray) -> Command:
         """Take one mask + depth frame and return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
-        self.push_mask(mask_b)
+        self._push(mask_b, 0.0)
         return self._command(self.fused_mask(), depth_m)
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
@@ -255,6 +255,9 @@ class Navigator:
         """
         mask = np.asarray(mask)
         mask_b, _ = _validated_frame(mask, np.zeros(mask.shape, dtype=np.float32))
+        self._push(mask_b, stamp)
+
+    def _push(self, mask_b: np.ndarray, stamp: float) -> None:
         n = self.config.fuse_frames
         if self._masks is None or self._masks.shape[1:] != mask_b.shape:
             self._masks = np.zeros((n, *mask_b.shape), dtype=bool)
