@@ -33,12 +33,11 @@ pybullet: the field is built in `__init__`):
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
-
 from segmin.nav_eval.eval_config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.sim import RowEnv
 
@@ -50,7 +49,7 @@ TRUNCATING = ("timeout", "stalled")
 class RowFollowEnv(gymnasium.Env):
     """A robot in one row gap of a field (shipped name or world spec YAML)."""
 
-    metadata = {"render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
 
     def __init__(self, field: str | None = "straight_vineyard", *, config: NavEvalConfig | str | None = None,
                  overrides: list[str] | tuple[str, ...] = (), gap: int | None = None,
@@ -120,7 +119,7 @@ class RowFollowEnv(gymnasium.Env):
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != (2,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be two finite numbers (v, omega), got {action!r}")
-        ended, info = self.row.step((float(a[0]), float(a[1])))
+        _, info = self.row.step((float(a[0]), float(a[1])))
         reward = float(info["s"] - self._s)
         self._s = info["s"]
         obs, info = self._observe(info)

@@ -6,7 +6,6 @@ import os
 import time
 
 import numpy as np
-
 from segmin.nav_eval.demo_scenes import DEMO_SCENES, render_scene
 from segmin.nav_eval.navigator import METHODS, Navigator, NavigatorConfig
 

@@ -27,16 +27,17 @@ No torch, pybullet or matplotlib at import: this runs on the bare robot install.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
-
-from segmin.common.atomic import write_text
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig, to_metres
 from segmin.nav_eval.runtime import FollowerOutput, RowFollower, RuntimeConfig
 from segmin.nav_eval.video import overlay, write_video
+
+from segmin.common.atomic import write_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")

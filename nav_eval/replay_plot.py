@@ -8,10 +8,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from segmin.common.atomic import write_bytes  # noqa: E402
+from segmin.common.atomic import write_bytes
 
 
 def plot_commands(path: Path, rows: list[tuple[float, float, float, float | None, bool]]) -> None:

@@ -15,7 +15,6 @@ import dataclasses
 from typing import Any
 
 import numpy as np
-
 from segmin.nav_eval.gym_env import RowFollowEnv
 from segmin.nav_eval.metrics import Trajectory
 from segmin.nav_eval.runtime import RowFollower

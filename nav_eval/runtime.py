@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
 from segmin.nav_eval.navigator import Command, Navigator, to_metres
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).

@@ -7,9 +7,8 @@ import math
 import gymnasium
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
-
 import segmin.nav_eval.gym_env  # noqa: F401  (registers segmin/RowFollow-v0)
+from gymnasium.utils.env_checker import check_env
 from segmin.nav_eval.factories import make_follower
 from segmin.nav_eval.gym_env import RowFollowEnv
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
@@ -99,7 +98,7 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
     try:
         obs, info = env.reset(seed=0)
         assert obs["rgb"].shape == (32, 32, 3) and info["mask"].any()
-        obs, reward, terminated, truncated, info = env.step(np.array([0.4, 0.0]))
+        obs, _, terminated, truncated, info = env.step(np.array([0.4, 0.0]))
         assert float(obs["t"]) == pytest.approx(1 / 30) and not (terminated or truncated)
     finally:
         env.close()

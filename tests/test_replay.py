@@ -11,15 +11,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from export_helpers import shared_export
-from segmin.app.cli import main
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.replay import read_commands_csv, replay
 from segmin.nav_eval.runtime import RowFollower
 from segmin.nav_eval.segmenter import OnnxSegmenter
 from segmin.nav_eval.sim import RowEnv
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
+
+from segmin.app.cli import main
 
 FRAMES = 24   # 0.8 s at 30 Hz: 4 commands at 5 Hz
 

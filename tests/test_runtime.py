@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.runtime import RowFollower, RuntimeConfig
 
@@ -73,7 +72,7 @@ def test_30_hz_frames_give_20_hz_masks_and_5_hz_commands_fusing_the_last_3() -> 
 
 
 def test_the_runtime_matches_navigator_step_on_the_same_masks() -> None:
-    follower, segmenter = _follower(fuse=3)
+    follower, _ = _follower(fuse=3)
     outputs = _drive(follower, 31)
     reference = Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, fuse_frames=1, smooth_window=1))
     for out in (o for o in outputs if o.fresh):
