@@ -65,8 +65,8 @@ def untrained_onnx(folder: Path, size: int = 224) -> Path:
 def bench_one_run(model: str, field: str, method: str, seconds: float, config: Any, threads: int = 1,
                   seed: int = 0) -> dict[str, Any]:
     """Drive `seconds` of simulated time and return the timing breakdown."""
-    from segmin.nav_eval.factories import FieldContext, make_navigator, make_segmenter
-    from segmin.nav_eval.sim import RowEnv, run_episode
+    from segmin.nav_eval.factories import FieldContext, make_follower, make_segmenter
+    from segmin.nav_eval.rollout import make_env, run_episode
 
     config = dataclasses.replace(config, run=dataclasses.replace(
         config.run, time_limit_s=seconds, stall_time_s=10 * seconds, length_m=max(config.run.length_m, 1.0)))
@@ -74,13 +74,14 @@ def bench_one_run(model: str, field: str, method: str, seconds: float, config: A
     ctx = FieldContext(field, config)
     build_s = time.perf_counter() - t0
     segmenter = make_segmenter(model, threads)
-    env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
-    navigator = make_navigator(method, ctx.depth_threshold, config)
+    env = make_env(ctx, config)
+    follower = make_follower(segmenter, method, ctx.depth_threshold, config)
+    navigator = follower.navigator
     render = _Timed(ctx.renderer, "render")
     seg = _Timed(segmenter, next(m for m in ("segment_prepared", "segment_frame", "segment") if hasattr(segmenter, m)))
-    nav = _Timed(navigator, "step")
+    nav = _Timed(navigator, "command")
     t0 = time.perf_counter()
-    episode = run_episode(env, segmenter, navigator, seed)
+    episode = run_episode(env, follower, seed)
     wall = time.perf_counter() - t0
     sim = float(episode.trajectory.t[-1])
     ctx.close()

@@ -36,6 +36,9 @@ class Rates:
         for name in ("camera_hz", "segment_hz", "command_hz"):
             if self.physics_hz % getattr(self, name):
                 raise ValueError(f"rates.physics_hz ({self.physics_hz}) must be a multiple of rates.{name}")
+        if self.segment_hz % self.command_hz:
+            raise ValueError(f"rates.segment_hz ({self.segment_hz}) must be a multiple of rates.command_hz "
+                             f"({self.command_hz}): every command falls on a segmentation deadline")
 
 
 @dataclasses.dataclass

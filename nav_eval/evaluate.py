@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from segmin.nav_eval.eval_config import NavEvalConfig, load_nav_config
-from segmin.nav_eval.factories import FieldContext, field_label, make_navigator, make_segmenter
+from segmin.nav_eval.factories import FieldContext, field_label, make_follower, make_navigator, make_segmenter
 from segmin.nav_eval.metrics import Trajectory, compute_metrics
 from segmin.nav_eval.methods import METHODS
 from segmin.common.config import from_dict, to_dict
@@ -196,7 +196,7 @@ class Worker:
 
     def run(self, job: Job) -> RunResult:
         """One run; never raises (an exception becomes a failure row)."""
-        from segmin.nav_eval.sim import RowEnv, run_episode
+        from segmin.nav_eval.rollout import make_env, run_episode
 
         start = time.perf_counter()
         result = RunResult(field=field_label(job.field), method=job.method, run=job.run, seed=job.seed,
@@ -204,11 +204,11 @@ class Worker:
         try:
             ctx = self.field(job.field)
             result.depth_threshold = ctx.depth_threshold
-            env = RowEnv(ctx.world, ctx.renderer, self.config, gap=ctx.gap)
-            result.gap = env.gap
-            navigator = make_navigator(job.method, ctx.depth_threshold, self.config)
-            episode = run_episode(env, self.segmenter, navigator, job.seed, video=bool(job.video_path))
-            metrics = compute_metrics(episode.trajectory, env.centreline, success=episode.success,
+            env = make_env(ctx, self.config)
+            result.gap = env.row.gap
+            follower = make_follower(self.segmenter, job.method, ctx.depth_threshold, self.config)
+            episode = run_episode(env, follower, job.seed, video=bool(job.video_path))
+            metrics = compute_metrics(episode.trajectory, env.row.centreline, success=episode.success,
                                       clearance_time=episode.clearance_time, collisions=episode.collisions)
             for key in METRIC_KEYS:
                 setattr(result, key, metrics[key])
@@ -219,7 +219,7 @@ class Worker:
             result.trajectory = episode.trajectory
             result.commands = episode.commands
             if job.video_path and episode.video:
-                from segmin.nav_eval.plots import write_video
+                from segmin.nav_eval.video import write_video
 
                 write_video(job.video_path, episode.video, fps=self.config.rates.command_hz)
         except Exception as exc:  # a failed run is a row, never a crash of the evaluation

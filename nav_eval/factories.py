@@ -67,8 +67,17 @@ def make_segmenter(model: str, threads: int = 1) -> Any:
 
 
 def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
-    """The paper's navigator; fusion happens in the sim (see sim.py), so fuse_frames=1 here."""
+    """The paper's navigator with the evaluation's fusion window (perception.fuse_frames)."""
     from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
-    return Navigator(NavigatorConfig(method=method, depth_threshold=depth_threshold, fuse_frames=1,
-                                     **config.navigator))
+    return Navigator(NavigatorConfig(method=method, depth_threshold=depth_threshold,
+                                     fuse_frames=config.perception.fuse_frames, **config.navigator))
+
+
+def make_follower(segmenter: Any, method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
+    """The robot runtime at the evaluation's rates: what nav-eval drives in the simulator."""
+    from segmin.nav_eval.runtime import RowFollower, RuntimeConfig
+
+    rates = config.rates
+    return RowFollower(segmenter, make_navigator(method, depth_threshold, config),
+                       RuntimeConfig(segment_hz=rates.segment_hz, command_hz=rates.command_hz))

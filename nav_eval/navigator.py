@@ -222,7 +222,13 @@ def control_law(x_h: float, width: int, config: NavigatorConfig) -> tuple[float,
 
 
 class Navigator:
-    """Mask fusion over the last N frames, target search, control law and EMA smoothing."""
+    """Mask fusion over the last N masks, target search, control law and EMA smoothing.
+
+    `step(mask, depth)` is the one-call form (push the mask, fuse, command). A caller that owns
+    the timing, as `nav_eval.runtime.RowFollower` does (masks at the segmentation rate, commands
+    at the command rate), uses the split: `push_mask` per mask, `fused_mask` then `command` per
+    command. Both forms run the same code, so they give the same commands.
+    """
 
     def __init__(self, config: NavigatorConfig) -> None:
         self.config = config
@@ -231,6 +237,7 @@ class Navigator:
     def reset(self) -> None:
         """Forget past masks, the SegZeros track and the EMA (the robot is at rest)."""
         self._masks: np.ndarray | None = None
+        self._stamps = np.full(self.config.fuse_frames, -np.inf)
         self._count = 0
         self._v = 0.0
         self._omega = 0.0
@@ -238,9 +245,59 @@ class Navigator:
 
     def step(self, mask: np.ndarray, depth: np.ndarray) -> Command:
         """Take one mask + depth frame and return the smoothed command."""
-        config = self.config
         mask_b, depth_m = _validated_frame(mask, depth)
-        fused = self._fuse(mask_b)
+        self._push(mask_b, 0.0)
+        return self._command(self.fused_mask(), depth_m)
+
+    def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
+        """Add one mask to the fusion window (a ring of `fuse_frames`, no reallocation).
+
+        `stamp` is the mask's frame time in seconds, used only by `fused_mask(not_before=...)`
+        to leave out stale masks. A mask of another size than the window's starts a new window.
+        """
+        mask = np.asarray(mask)
+        mask_b, _ = _validated_frame(mask, np.zeros(mask.shape, dtype=np.float32))
+        self._push(mask_b, stamp)
+
+    def _push(self, mask_b: np.ndarray, stamp: float) -> None:
+        n = self.config.fuse_frames
+        if self._masks is None or self._masks.shape[1:] != mask_b.shape:
+            self._masks = np.zeros((n, *mask_b.shape), dtype=bool)
+            self._stamps[:] = -np.inf
+            self._count = 0
+        self._masks[self._count % n] = mask_b
+        self._stamps[self._count % n] = float(stamp)
+        self._count += 1
+
+    def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
+        """Logical OR of the masks in the window; with `not_before`, only those stamped at or
+        after it (stale masks are left out). None when no mask qualifies."""
+        if self._masks is None or self._count == 0:
+            return None
+        filled = min(self._count, self.config.fuse_frames)
+        keep = np.zeros(self.config.fuse_frames, dtype=bool)
+        keep[:filled] = True
+        if not_before is not None:
+            keep &= self._stamps >= not_before
+        if not keep.any():
+            return None
+        if keep.all():
+            return self._masks.any(axis=0)
+        return self._masks[keep].any(axis=0)
+
+    def command(self, fused: np.ndarray, depth: np.ndarray) -> Command:
+        """The smoothed command for an already fused mask and the newest depth frame (one EMA step)."""
+        mask_b, depth_m = _validated_frame(fused, depth)
+        return self._command(mask_b, depth_m)
+
+    def stop(self) -> Command:
+        """An invalid stop command; the EMA restarts from rest (as after a lost target)."""
+        self._v = 0.0
+        self._omega = 0.0
+        return Command(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
+
+    def _command(self, fused: np.ndarray, depth_m: np.ndarray) -> Command:
+        config = self.config
         histogram = column_histogram(fused, depth_m, method=config.method, depth_threshold=config.depth_threshold)
         width = histogram.shape[0]
         if config.method == "segzeros":
@@ -257,18 +314,6 @@ class Navigator:
         self._v = (1.0 - lam) * self._v + lam * v
         self._omega = (1.0 - lam) * self._omega + lam * omega
         return Command(v=self._v, omega=self._omega, target_column=target, histogram=histogram, valid=True)
-
-    def _fuse(self, mask: np.ndarray) -> np.ndarray:
-        """Logical OR of the last `fuse_frames` masks (a ring buffer, no reallocation)."""
-        n = self.config.fuse_frames
-        if n == 1:
-            return mask
-        if self._masks is None or self._masks.shape[1:] != mask.shape:
-            self._masks = np.zeros((n, *mask.shape), dtype=bool)
-            self._count = 0
-        self._masks[self._count % n] = mask
-        self._count += 1
-        return self._masks.any(axis=0) if self._count >= n else self._masks[: self._count].any(axis=0)
 
     def _track_free_run(self, histogram: np.ndarray) -> float | None:
         """SegZeros target with Aghi et al.'s start-up border rule and run tracking."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 
@@ -37,3 +38,72 @@ def single_thread_environment() -> None:
     """Pin numpy's thread pools to one thread (the benchmark measures one core)."""
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+
+
+def _percentiles(seconds: list[float]) -> str:
+    ms = np.asarray(seconds) * 1e3
+    return f"median {np.median(ms):.3f} ms  p95 {np.percentile(ms, 95):.3f} ms"
+
+
+def bench_runtime(*, size: int = 224, steps: int = 3000, model: str | None = None, threads: int = 2,
+                  camera_hz: int = 30) -> str:
+    """The robot runtime per camera frame at the paper's rates (30 Hz camera, 20 / 5 Hz, 3 masks).
+
+    First with the masks given (segmentation excluded: the runtime's own bookkeeping, fusion and
+    the navigator), then with an ONNX segmenter: the full perception + fusion + command step of
+    a frame at which a command is computed. Without `model` an untrained model is exported to a
+    temporary file (needs the [train] extra; that part is skipped without it).
+    """
+    import tempfile
+    from pathlib import Path
+
+    from segmin.nav_eval.runtime import RowFollower
+
+    scenes = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
+    rgbs = []
+    for mask, _ in scenes:
+        rgb = np.full((*mask.shape, 3), (120, 95, 70), dtype=np.uint8)
+        rgb[mask] = (40, 140, 35)
+        rgbs.append(rgb)
+
+    def drive(follower: RowFollower, frames: int, with_masks: bool, start: int = 0) -> tuple[list[float], list[float]]:
+        every, fresh = [], []
+        for i in range(start, start + frames):
+            mask, depth = scenes[i % len(scenes)]
+            start = time.perf_counter()
+            out = follower.step(rgbs[i % len(scenes)], depth, i / camera_hz, mask=mask if with_masks else None)
+            elapsed = time.perf_counter() - start
+            every.append(elapsed)
+            if out.fresh:
+                fresh.append(elapsed)
+        return every, fresh
+
+    lines = [f"RowFollower at {size} x {size}, camera {camera_hz} Hz, masks 20 Hz, commands 5 Hz, fuse 3 (SegMinD)"]
+    follower = RowFollower(None, Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
+    every, fresh = drive(follower, steps, with_masks=True)
+    lines.append(f"  per frame, segmentation excluded: {_percentiles(every)} over {len(every)} frames; "
+                 f"frames with a command: {_percentiles(fresh)}")
+    with tempfile.TemporaryDirectory() as tmp:
+        if model is None:
+            try:
+                from segmin.nav_eval.bench import untrained_onnx
+
+                model = str(untrained_onnx(Path(tmp), size=size))
+                label = "untrained model exported to a temp file"
+            except ModuleNotFoundError as exc:
+                lines.append(f"  full step skipped: exporting a model needs the [train] extra ({exc.name}); "
+                             "give --model an .onnx file")
+                return "\n".join(lines)
+        else:
+            label = Path(model).name
+        from segmin.nav_eval.segmenter import OnnxSegmenter
+
+        follower = RowFollower(OnnxSegmenter(model, threads=threads),
+                               Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
+        frames = max(60, min(steps, 600))
+        drive(follower, 30, with_masks=False)   # warm-up
+        every, fresh = drive(follower, frames, with_masks=False, start=30)
+        lines.append(f"  full step with OnnxSegmenter ({label}, {threads} threads), a frame with a command "
+                     f"(segment + fuse + command): {_percentiles(fresh)} over {len(fresh)} commands; "
+                     f"every frame: {_percentiles(every)}")
+    return "\n".join(lines)

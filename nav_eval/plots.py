@@ -24,8 +24,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from segmin.nav_eval.metrics import project_onto_polyline  # noqa: E402
-from segmin.common.atomic import atomic_path, write_bytes  # noqa: E402
+from segmin.common.atomic import write_bytes  # noqa: E402
 from segmin.data.overlay import GREEN, tint_mask  # noqa: E402
+from segmin.nav_eval.video import write_video  # noqa: E402,F401  (kept importable from here)
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
@@ -159,44 +160,3 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
     if config.perception.depth_noise:
         frame.depth = ctx.camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
-
-
-class _NoMp4Encoder(Exception):
-    """OpenCV here cannot write MP4; raised inside `atomic_path` so its temporary file is removed."""
-
-
-def _write_mp4(path: Path, frames: list[np.ndarray], fps: float) -> None:
-    import cv2
-
-    height, width = np.asarray(frames[0]).shape[:2]
-    with atomic_path(path, suffix=".mp4") as tmp:  # VideoWriter picks the container from the name
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
-        if not writer.isOpened():
-            raise _NoMp4Encoder(path)
-        for frame in frames:
-            writer.write(cv2.cvtColor(np.asarray(frame, dtype=np.uint8), cv2.COLOR_RGB2BGR))
-        writer.release()
-        if tmp.stat().st_size == 0:
-            raise _NoMp4Encoder(path)
-
-
-def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) -> Path:
-    """The camera view as MP4 (OpenCV, mp4v) or, when the suffix is .gif or MP4 cannot be
-    written, an animated GIF (Pillow). Written atomically; returns the path actually written."""
-    path = Path(path)
-    if not frames:
-        return path
-    if path.suffix.lower() == ".mp4":
-        try:
-            _write_mp4(path, frames, fps)
-            return path
-        except _NoMp4Encoder:
-            path = path.with_suffix(".gif")      # no MP4 encoder here: fall back to GIF
-    from PIL import Image
-
-    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
-    buffer = io.BytesIO()
-    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:],
-                   duration=int(round(1000.0 / fps)), loop=0)
-    write_bytes(path, buffer.getvalue())
-    return path

@@ -1,24 +1,12 @@
-"""The closed loop in simulated time: robot + camera in a synth world, segmenter, navigator.
+"""The world side of the closed loop in simulated time: robot + camera in a synth world.
 
-Two layers, Gymnasium-style:
-- `RowEnv` is the world side. `reset(seed)` places the robot at the row entrance with a seeded
-  lateral offset and heading error; `step((v, omega))` holds that command for one command
-  period (1 / command_hz), integrating the robot at physics_hz and checking the end conditions
-  at every tick. Both return an `Observation`: the camera frames the perception pipeline
-  consumes before the next command.
-- `run_episode(env, segmenter, navigator)` is the robot's software: it segments those frames,
-  ORs the last `fuse_frames` masks, and asks the navigator for the next command.
-
-Frames are rendered on demand (`RowEnv.frame(tick)`), in tick order on the calling thread, and
-each is segmented on a helper thread while the next one renders: onnxruntime releases the GIL,
-so segmentation and pybullet's software rasteriser share the two cores instead of taking turns.
-The results do not depend on it: render order, noise draws and masks are the same either way.
-
-Timing (deterministic, all on integer physics ticks): camera frames exist at camera_hz, the
-segmenter runs at segment_hz on the latest camera frame, the navigator runs at command_hz on
-the OR of the last `fuse_frames` masks (and the depth of the newest frame). Only the camera
-frames that feed a used mask are rendered: with the paper's rates (30/20/5 Hz, N = 3) that is
-15 of 30 frames per second. The robot pose of a frame is the pose at that camera tick.
+`RowEnv` places the robot at the row entrance with a seeded lateral offset and heading error
+(`reset(seed)`), and `step((v, omega))` holds that command for one camera period
+(1 / camera_hz), integrating the robot at physics_hz and checking the end conditions at every
+tick. `frame()` renders the camera frame at the current tick on demand. The robot's software
+(segmenter, mask fusion, navigator, all timing) is `nav_eval.runtime.RowFollower`, the same one
+a robot runs; `nav_eval.gym_env.RowFollowEnv` wraps this class as a Gymnasium env and
+`nav_eval.rollout.run_episode` drives the runtime in it.
 
 End conditions (first one wins): "success" (covered run.length_m along the centreline),
 "collision" (footprint touches a trunk or post), "left_row" (|lateral| beyond the gap's free
@@ -36,23 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from segmin.data.overlay import GREEN, tint_mask
 from segmin.nav_eval.eval_config import NavEvalConfig
 from segmin.nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
 from segmin.nav_eval.oracle import segment_frame
 from segmin.nav_eval.robot import Robot, footprint_distances
-
-
-@dataclasses.dataclass
-class Observation:
-    """Camera ticks whose frames feed the next command, oldest first (empty once the run has ended).
-
-    Only the ticks: `RowEnv.frame(tick)` renders a frame when the caller asks for it, so the
-    caller decides what to overlap with rendering.
-    """
-
-    t: float
-    ticks: list[int]
 
 
 def point_on_polyline(polyline: np.ndarray, s: float) -> tuple[float, float, float]:
@@ -93,9 +68,7 @@ class RowEnv:
         self.robot = Robot(config.robot, world.terrain_height, world.terrain_normal)
         r = config.rates
         self.dt = 1.0 / r.physics_hz
-        self._cam_every = r.physics_hz // r.camera_hz
-        self._seg_every = r.physics_hz // r.segment_hz
-        self._cmd_every = r.physics_hz // r.command_hz
+        self.cam_every = r.physics_hz // r.camera_hz
         self.goal_s = 0.0
         self.start_s = 0.0
         self.reason: str | None = None
@@ -103,11 +76,10 @@ class RowEnv:
         self.start_pose = (0.0, 0.0, 0.0)
         self._rows: list[tuple[float, ...]] = []
         self._tick = 0
-        self._frames: dict[int, Any] = {}
+        self._frame: tuple[int, Any] | None = None
 
-    # ---- Gymnasium-like API -------------------------------------------------------------
-    def reset(self, seed: int, pose: tuple[float, float, float] | None = None) -> tuple[Observation, dict[str, Any]]:
-        """Start a run: seeded start noise and depth-noise stream; returns the first frames.
+    def reset(self, seed: int, pose: tuple[float, float, float] | None = None) -> dict[str, Any]:
+        """Start a run: seeded start noise and depth-noise stream; returns the info.
 
         `pose` (x, y, yaw) replaces the seeded start pose (tests, scripted scenarios).
         """
@@ -130,29 +102,38 @@ class RowEnv:
         self.start_pose = (x, y, yaw)
         self.robot.reset(x, y, yaw)
         self.reason, self.clearance_time = None, None
-        self._rows, self._tick, self._frames = [], 0, {}
+        self._rows, self._tick, self._frame = [], 0, None
         self._progress: list[tuple[float, float]] = []
         self._record()
         self._check_end()
-        return self._observation(), self._info()
+        return self._info()
 
-    def step(self, action: tuple[float, float]) -> tuple[Observation, bool, dict[str, Any]]:
-        """Hold (v, omega) for one command period; returns (observation, ended, info)."""
+    def step(self, action: tuple[float, float]) -> tuple[bool, dict[str, Any]]:
+        """Hold (v, omega) for one camera period; returns (ended, info)."""
         if self.reason is not None:
             raise RuntimeError("step() after the run ended; call reset()")
         self.robot.command(float(action[0]), float(action[1]))
-        for _ in range(self._cmd_every):
+        for _ in range(self.cam_every):
             self.robot.step(self.dt)
             self._tick += 1
             self._record()
             if self._check_end():
                 break
-        return self._observation(), self.reason is not None, self._info()
+        return self.reason is not None, self._info()
 
     # ---- state ------------------------------------------------------------------------------
     @property
     def t(self) -> float:
         return self._tick * self.dt
+
+    @property
+    def tick(self) -> int:
+        return self._tick
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        s = self.robot.state
+        return (s.x, s.y, s.yaw)
 
     @property
     def trajectory(self) -> Trajectory:
@@ -192,39 +173,22 @@ class RowEnv:
         return {"t": self.t, "s": self._s - self.start_s, "lateral": self._lateral, "reason": self.reason}
 
     # ---- camera -----------------------------------------------------------------------------
-    def _observation(self) -> Observation:
-        """Camera ticks of the segmentation ticks in the fusion window of the command at this tick."""
-        if self.reason is not None:
-            return Observation(self.t, [])
-        fuse = self.config.perception.fuse_frames
-        last_seg = self._tick // self._seg_every
-        seg_ticks = [j * self._seg_every for j in range(max(0, last_seg - fuse + 1), last_seg + 1)]
-        cam_ticks: list[int] = []
-        for tick in seg_ticks:
-            cam = (tick // self._cam_every) * self._cam_every
-            if cam not in cam_ticks:
-                cam_ticks.append(cam)
-        self._frames = {k: v for k, v in self._frames.items() if k in cam_ticks}
-        return Observation(self.t, cam_ticks)
-
-    def frame(self, tick: int) -> Any:
-        """The camera frame at the pose of camera tick `tick`, rendered on first use (fixed light
-        and sky: no flicker). Frames of the current observation stay cached until the next one.
+    def frame(self) -> Any:
+        """The camera frame at the current tick's pose, rendered on first use (fixed light and
+        sky: no flicker) and cached until the robot moves.
 
         Depth noise is applied here with the run's own generator, not inside the renderer, so a
-        run's noise depends on its seed only (not on the runs a worker did before it); ask for
-        the frames of an observation in tick order (as `run_episode` does) to keep it so.
+        run's noise depends on its seed and on which frames were rendered, in tick order (not on
+        the runs a worker did before it).
         """
-        if not 0 <= tick <= self._tick:
-            raise ValueError(f"camera tick {tick} is in the future (the run is at tick {self._tick})")
-        if tick not in self._frames:
-            _, x, y, yaw = self._rows[tick][:4]
+        if self._frame is None or self._frame[0] != self._tick:
+            _, x, y, yaw = self._rows[self._tick][:4]
             frame = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
             camera = getattr(self.renderer, "camera", None)
             if self.config.perception.depth_noise and camera is not None and hasattr(camera, "apply_depth_noise"):
                 frame = dataclasses.replace(frame, depth=camera.apply_depth_noise(frame.depth, self._noise_rng))
-            self._frames[tick] = frame
-        return self._frames[tick]
+            self._frame = (self._tick, frame)
+        return self._frame[1]
 
 
 class BackgroundSegmenter:
@@ -264,60 +228,3 @@ class BackgroundSegmenter:
 
     def __exit__(self, *exc: object) -> None:
         self._pool.shutdown(wait=True)
-
-
-@dataclasses.dataclass
-class Episode:
-    """One finished run: the trajectory and how it ended (metrics come from nav_eval.metrics)."""
-
-    trajectory: Trajectory
-    reason: str
-    success: bool
-    clearance_time: float | None
-    collisions: int
-    start_pose: tuple[float, float, float]
-    goal_m: float
-    commands: list[tuple[float, float, float, float | None]]   # t, v, omega, target column
-    video: list[np.ndarray]
-
-
-def run_episode(env: RowEnv, segmenter: Any, navigator: Any, seed: int, *, video: bool = False,
-                pose: tuple[float, float, float] | None = None) -> Episode:
-    """Drive one run to its end. The navigator must not fuse again (its fuse_frames = 1)."""
-    navigator.reset()
-    obs, info = env.reset(seed, pose)
-    masks: dict[int, Future] = {}   # camera tick -> its mask, segmented on the helper thread
-    commands: list[tuple[float, float, float, float | None]] = []
-    frames_out: list[np.ndarray] = []
-    ended = info["reason"] is not None
-    with BackgroundSegmenter(segmenter) as background:
-        while not ended:
-            for key in obs.ticks:   # render in tick order; segment each while the next renders
-                if key not in masks:
-                    masks[key] = background.submit(env.frame(key))
-            masks = {k: v for k, v in masks.items() if k in obs.ticks}
-            fused = np.logical_or.reduce([masks[key].result() for key in obs.ticks])
-            newest = env.frame(obs.ticks[-1])
-            cmd = navigator.step(fused, newest.depth)
-            column = getattr(cmd, "target_column", None)
-            commands.append((obs.t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
-            if video:
-                frames_out.append(overlay(newest.rgb, fused, column))
-            obs, ended, info = env.step((cmd.v, cmd.omega))
-    reason = env.reason or "error"
-    return Episode(
-        trajectory=env.trajectory, reason=reason, success=reason == "success",
-        clearance_time=env.clearance_time, collisions=int(reason == "collision"),
-        start_pose=env.start_pose, goal_m=env.goal_s - env.start_s, commands=commands, video=frames_out)
-
-
-def overlay(rgb: np.ndarray, mask: np.ndarray | None, column: float | None) -> np.ndarray:
-    """Camera view with the mask tinted green and the chosen column drawn in red."""
-    img = np.asarray(rgb, dtype=np.uint8).copy() if mask is None else tint_mask(rgb, mask, GREEN, opacity=0.45)
-    if column is not None and np.isfinite(column):
-        c = int(round(float(column)))
-        c = min(max(c, 0), img.shape[1] - 1)
-        img[:, max(c - 1, 0):c + 1] = (255, 0, 0)
-    else:
-        img[:4, :] = (255, 0, 0)   # no valid command: red bar at the top
-    return img

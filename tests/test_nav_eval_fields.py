@@ -14,7 +14,9 @@ from segmin.nav_eval.eval_config import load_nav_config
 from segmin.nav_eval.evaluate import Job, Worker, run_evaluation, run_seed
 from segmin.nav_eval.factories import FieldContext
 from segmin.nav_eval.oracle import OracleSegmenter
-from segmin.nav_eval.sim import RowEnv, run_episode
+from segmin.nav_eval.navigator import Command, Navigator, NavigatorConfig
+from segmin.nav_eval.rollout import make_env, run_episode
+from segmin.nav_eval.runtime import RowFollower
 
 TINY = ["perception.width=64", "perception.height=64", "run.length_m=2.0", "run.time_limit_s=12"]
 
@@ -36,29 +38,29 @@ def test_short_oracle_run_per_field_has_finite_metrics(worker, field: str) -> No
     assert result.mae < 0.5
 
 
-class _Fixed:
+class _Fixed(Navigator):
+    """A navigator that ignores the camera and drives straight at speed v."""
+
     def __init__(self, v: float) -> None:
+        super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
         self.v = v
 
-    def reset(self) -> None:
-        pass
-
-    def step(self, mask, depth):
-        return type("Cmd", (), {"v": self.v, "omega": 0.0, "target_column": None})()
+    def command(self, fused, depth) -> Command:
+        return Command(v=self.v, omega=0.0, target_column=None, histogram=np.zeros(0), valid=True)
 
 
 def test_run_aimed_into_a_plant_row_is_a_collision(worker) -> None:
     ctx: FieldContext = worker.field("straight_vineyard")
     config = dataclasses.replace(worker.config, run=dataclasses.replace(worker.config.run, length_m=20.0))
-    env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
-    env.half_width = math.inf            # the hedge line would end it as "left_row" first
-    x0, y0 = env.centreline[4]
+    env = make_env(ctx, config)
+    env.row.half_width = math.inf            # the hedge line would end it as "left_row" first
+    x0, y0 = env.row.centreline[4]
     # Aim at the nearest trunk at least 1.5 m ahead along the row.
-    plants = env.plants
+    plants = env.row.plants
     ahead = plants[(plants[:, 0] - x0 > 1.5)]
     target = ahead[np.argmin(np.hypot(ahead[:, 0] - x0, ahead[:, 1] - y0))]
     yaw = math.atan2(target[1] - y0, target[0] - x0)
-    episode = run_episode(env, OracleSegmenter(), _Fixed(0.4), seed=0, pose=(x0, y0, yaw))
+    episode = run_episode(env, RowFollower(OracleSegmenter(), _Fixed(0.4)), seed=0, pose=(x0, y0, yaw))
     assert episode.reason == "collision", episode.reason
     assert episode.collisions == 1 and not episode.success
     last = episode.trajectory

@@ -14,9 +14,13 @@ import numpy as np
 import pytest
 
 from segmin.nav_eval.eval_config import NavEvalConfig, Perception, Rates, RunSettings
-from segmin.nav_eval.factories import make_navigator
+from segmin.nav_eval.factories import make_follower
+from segmin.nav_eval.gym_env import RowFollowEnv
+from segmin.nav_eval.navigator import Command, Navigator, NavigatorConfig
 from segmin.nav_eval.oracle import OracleSegmenter
-from segmin.nav_eval.sim import RowEnv, run_episode
+from segmin.nav_eval.rollout import run_episode
+from segmin.nav_eval.runtime import RowFollower
+from segmin.nav_eval.sim import RowEnv
 
 
 @dataclasses.dataclass
@@ -100,9 +104,9 @@ def _run(method: str = "segmin", seed: int = 3, **run):
     world = FakeWorld()
     config = _config(**run)
     renderer = FakeRenderer(world)
-    env = RowEnv(world, renderer, config)
-    nav = make_navigator(method, 5.0, config)
-    return run_episode(env, OracleSegmenter(), nav, seed), renderer, env
+    env = RowFollowEnv(None, config=config, world=world, renderer=renderer)
+    follower = make_follower(OracleSegmenter(), method, 5.0, config)
+    return run_episode(env, follower, seed), renderer, env
 
 
 def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
@@ -118,18 +122,17 @@ def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
     assert np.max(np.abs(episode.trajectory.y)) < 0.4
 
 
-def test_frames_render_on_demand_and_never_from_the_future() -> None:
+def test_frames_render_on_demand_at_the_current_pose() -> None:
     world = FakeWorld()
     renderer = FakeRenderer(world)
     env = RowEnv(world, renderer, _config())
-    obs, _ = env.reset(seed=0)
-    assert renderer.calls == 0 and obs.ticks == [0]
-    first = env.frame(0)
-    assert env.frame(0) is first and renderer.calls == 1   # cached within the observation
-    with pytest.raises(ValueError, match="future"):
-        env.frame(1)
-    obs, _, _ = env.step((0.4, 0.0))
-    assert obs.ticks and max(obs.ticks) <= 12 and renderer.calls == 1
+    env.reset(seed=0)
+    assert renderer.calls == 0
+    first = env.frame()
+    assert env.frame() is first and renderer.calls == 1   # cached until the robot moves
+    ended, info = env.step((0.4, 0.0))
+    assert not ended and env.tick == 2 and info["t"] == pytest.approx(2 / 60)   # one camera period
+    assert env.frame() is not first and renderer.calls == 2
 
 
 def test_same_seed_same_trajectory_and_seeded_start() -> None:
@@ -142,27 +145,29 @@ def test_same_seed_same_trajectory_and_seeded_start() -> None:
         assert abs(ep.start_pose[1]) <= 0.15 and abs(ep.start_pose[2]) <= math.radians(5) + 1e-12
 
 
-class _Straight:
-    """A 'navigator' that ignores the camera and drives a fixed command."""
+class _Straight(Navigator):
+    """A navigator that ignores the camera and commands a fixed (v, omega)."""
 
     def __init__(self, v: float, omega: float) -> None:
+        super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
         self.v, self.omega = v, omega
 
-    def reset(self) -> None:
-        pass
+    def command(self, fused, depth) -> Command:
+        return Command(v=self.v, omega=self.omega, target_column=None, histogram=np.zeros(0), valid=True)
 
-    def step(self, mask, depth):
-        return type("Cmd", (), {"v": self.v, "omega": self.omega, "target_column": None})()
+
+def _drive(config: NavEvalConfig, navigator: Navigator):
+    world = FakeWorld()
+    env = RowFollowEnv(None, config=config, world=world, renderer=FakeRenderer(world))
+    return run_episode(env, RowFollower(OracleSegmenter(), navigator), seed=0)
 
 
 def test_driving_into_the_row_is_a_collision_and_standing_still_stalls() -> None:
     world = FakeWorld()
     config = _config(start_lateral_max=0.0, start_heading_max_deg=0.0)
-    env = RowEnv(world, FakeRenderer(world), config)
-    ep = run_episode(env, OracleSegmenter(), _Straight(0.4, 0.6), seed=0)
+    ep = _drive(config, _Straight(0.4, 0.6))
     assert ep.reason == "collision" and ep.collisions == 1 and not ep.success
     assert math.isnan(ep.clearance_time or math.nan)
     config = _config(stall_time_s=3.0, time_limit_s=10.0)
-    env = RowEnv(world, FakeRenderer(world), config)
-    ep = run_episode(env, OracleSegmenter(), _Straight(0.0, 0.0), seed=0)
+    ep = _drive(config, _Straight(0.0, 0.0))
     assert ep.reason == "stalled" and 3.0 <= ep.trajectory.t[-1] < 3.5

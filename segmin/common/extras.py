@@ -13,6 +13,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "matplotlib": "sim",
     "markdown": "sim",
     "tqdm": "sim",
+    "gymnasium": "sim",
     "torch": "train",
     "torchvision": "train",
     "albumentations": "train",

@@ -1,0 +1,150 @@
+"""`segmin replay`: the runtime over a recorded sequence, its outputs and its bad-input errors.
+
+The fixture is a short sequence rendered by a RowEnv run in the analytic stand-in world
+(tiny frames, 30 Hz), written as RGB PNGs and uint16 millimetre depth PNGs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from export_helpers import shared_export
+from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.replay import read_commands_csv, replay
+from segmin.nav_eval.runtime import RowFollower
+from segmin.nav_eval.segmenter import OnnxSegmenter
+from segmin.nav_eval.sim import RowEnv
+from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
+
+from segmin.app.cli import main
+
+FRAMES = 24   # 0.8 s at 30 Hz: 4 commands at 5 Hz
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> tuple[Path, Path, list[tuple[np.ndarray, np.ndarray]]]:
+    folder = tmp_path_factory.mktemp("sequence")
+    rgb_dir, depth_dir = folder / "rgb", folder / "depth"
+    rgb_dir.mkdir()
+    depth_dir.mkdir()
+    world = FakeWorld()
+    env = RowEnv(world, FakeRenderer(world, size=48), _config())
+    env.reset(seed=0)
+    frames = []
+    for i in range(FRAMES):
+        frame = env.frame()
+        depth_mm = np.clip(np.round(frame.depth * 1000), 0, 65535).astype(np.uint16)
+        cv2.imwrite(str(rgb_dir / f"{i:04d}.png"), cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(depth_dir / f"{i:04d}.png"), depth_mm)
+        frames.append((frame.rgb, depth_mm))
+        env.step((0.4, 0.0))
+    return rgb_dir, depth_dir, frames
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    return shared_export(tmp_path_factory)[0]
+
+
+def test_replay_writes_all_outputs_and_the_commands_of_the_runtime(sequence, model, tmp_path) -> None:
+    rgb_dir, depth_dir, frames = sequence
+    code = main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--depth", str(depth_dir), "--fps", "30",
+                 "--method", "segmind", "--depth-threshold", "5", "--out", str(tmp_path / "out")])
+    assert code == 0
+    out = tmp_path / "out"
+    assert (out / "commands.csv").is_file() and (out / "commands.png").is_file()
+    assert (out / "overlay.mp4").is_file() or (out / "overlay.gif").is_file()
+    rows = read_commands_csv(out / "commands.csv")
+    follower = RowFollower(OnnxSegmenter(model, threads=2),
+                           Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
+    expected = []
+    for i, (rgb, depth) in enumerate(frames):
+        o = follower.step(rgb, depth, i / 30)
+        if o.fresh:
+            expected.append((i / 30, o.command.v, o.command.omega, o.command.target_column, o.command.valid))
+    assert len(rows) == 4 and rows == expected
+    # Without --force a second replay into the same folder is refused.
+    assert main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin",
+                 "--depth-threshold", "5", "--out", str(out)]) == 2
+
+
+def test_without_depth_segmin_runs_on_the_mask_and_segmind_is_refused(sequence, model, tmp_path, capsys) -> None:
+    rgb_dir, _, _ = sequence
+    assert main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin",
+                 "--depth-threshold", "5", "--out", str(tmp_path / "a")]) == 0
+    assert "ran on the mask alone" in capsys.readouterr().out
+    assert main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmind",
+                 "--depth-threshold", "5", "--out", str(tmp_path / "b")]) == 2
+    assert "segmind needs --depth" in capsys.readouterr().err
+
+
+def _copy(sequence, tmp_path: Path) -> tuple[Path, Path]:
+    rgb_dir, depth_dir, _ = sequence
+    rgb, depth = tmp_path / "rgb", tmp_path / "depth"
+    rgb.mkdir()
+    depth.mkdir()
+    for p in rgb_dir.iterdir():
+        (rgb / p.name).write_bytes(p.read_bytes())
+    for p in depth_dir.iterdir():
+        (depth / p.name).write_bytes(p.read_bytes())
+    return rgb, depth
+
+
+def _run(model, rgb, depth=None, **kw):
+    return replay(model, rgb, kw.pop("out"), method=kw.pop("method", "segmind" if depth else "segmin"),
+                  depth_threshold=5.0, depth=depth, **kw)
+
+
+def test_bad_inputs_are_one_line_errors_naming_the_frame(sequence, model, tmp_path) -> None:
+    rgb, depth = _copy(sequence, tmp_path)
+    out = tmp_path / "out"
+    stamps = tmp_path / "t.txt"
+    stamps.write_text("\n".join(str(i / 30) for i in range(FRAMES)).replace("0.1\n", "0.01\n", 1))
+    stamps.write_text("\n".join(str(t) for t in [i / 30 for i in range(5)] + [0.1] + [i / 30 for i in range(6, FRAMES)]))
+    with pytest.raises(ValueError, match=r"frame 0005.png: .*not after the previous frame"):
+        _run(model, rgb, depth, timestamps=stamps, out=out)
+    stamps.write_text("0.0\n0.1\n")
+    with pytest.raises(ValueError, match="2 timestamps for 24 frames"):
+        _run(model, rgb, depth, timestamps=stamps, out=out)
+    with pytest.raises(ValueError, match="needs --fps or --timestamps"):
+        _run(model, rgb, depth, out=out)
+    with pytest.raises(ValueError, match="multiple of command_hz"):
+        from segmin.nav_eval.runtime import RuntimeConfig
+        _run(model, rgb, depth, fps=30, out=out, runtime=RuntimeConfig(segment_hz=20, command_hz=3))
+    with pytest.raises(ValueError, match="oracle"):
+        replay("oracle", rgb, out, method="segmin", depth_threshold=5.0, fps=30)
+    small = cv2.imread(str(depth / "0003.png"), cv2.IMREAD_UNCHANGED)[:20]
+    cv2.imwrite(str(depth / "0003.png"), small)
+    with pytest.raises(ValueError, match=r"0003.png is 48x20, the RGB frame 0003.png is 48x48"):
+        _run(model, rgb, depth, fps=30, out=out)
+    (depth / "0003.png").unlink()
+    with pytest.raises(FileNotFoundError, match="no depth frame for 0003.png"):
+        _run(model, rgb, depth, fps=30, out=out)
+    (depth / "0003.png").write_bytes(b"not a png")
+    with pytest.raises(ValueError, match="cannot read .*0003.png"):
+        _run(model, rgb, depth, fps=30, out=out)
+    (rgb / "0002.png").write_bytes(b"broken")
+    with pytest.raises(ValueError, match="cannot read .*0002.png"):
+        _run(model, rgb, None, fps=30, out=out)
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"no video here")
+    with pytest.raises(ValueError, match="OpenCV cannot open"):
+        _run(model, video, None, out=out)
+    assert not out.exists()                                  # nothing written by a refused replay
+
+
+def test_non_finite_npy_depth_is_no_reading_and_counted(sequence, model, tmp_path) -> None:
+    rgb, _ = _copy(sequence, tmp_path)
+    depth = tmp_path / "depth_npy"
+    depth.mkdir()
+    for i, (_, mm) in enumerate(sequence[2]):
+        d = mm.astype(np.float32) / 1000
+        if i == 4:
+            d[0, :5] = np.nan
+        np.save(depth / f"{i:04d}.npy", d)
+    result = _run(model, rgb, depth, fps=30, out=tmp_path / "out")
+    assert any("1 depth frame(s) had non-finite pixels" in n for n in result.notes)
+    assert all(np.isfinite(r[1]) and np.isfinite(r[2]) for r in result.commands)

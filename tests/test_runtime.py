@@ -1,0 +1,134 @@
+"""The robot runtime (`RowFollower`): its rates, its fusion window and its timing faults."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime import RowFollower, RuntimeConfig
+
+H, W = 8, 64
+
+
+class FrameIndexSegmenter:
+    """A 'segmenter' whose mask marks the frame it came from: column (frame index) is vegetation.
+
+    The frame index is encoded in pixel [0, 0] of the RGB image, so the fused mask shows which
+    frames a command fused.
+    """
+
+    def __init__(self) -> None:
+        self.calls: list[int] = []
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        index = int(rgb[0, 0, 0])
+        self.calls.append(index)
+        mask = np.zeros((H, W), dtype=bool)
+        mask[:, index % W] = True
+        return mask
+
+
+def _rgb(i: int) -> np.ndarray:
+    rgb = np.zeros((H, W, 3), dtype=np.uint8)
+    rgb[0, 0, 0] = i
+    return rgb
+
+
+def _follower(fuse: int = 3, method: str = "segmin", **runtime) -> tuple[RowFollower, FrameIndexSegmenter]:
+    segmenter = FrameIndexSegmenter()
+    navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=fuse, smooth_window=1))
+    return RowFollower(segmenter, navigator, RuntimeConfig(**runtime)), segmenter
+
+
+DEPTH = np.full((H, W), 2.0, dtype=np.float32)
+
+
+def _drive(follower: RowFollower, frames: int, hz: float = 30.0, start: int = 0):
+    return [follower.step(_rgb(i), DEPTH, i / hz) for i in range(start, start + frames)]
+
+
+def test_30_hz_frames_give_20_hz_masks_and_5_hz_commands_fusing_the_last_3() -> None:
+    # With a window of 4 every 20 Hz deadline feeds a command, so all of them are segmented.
+    follower, segmenter = _follower(fuse=4)
+    outputs = _drive(follower, 61)                        # 2 s of frames at 30 Hz
+    assert len(segmenter.calls) == 41                     # deadlines 0, 0.05, ..., 2.0 s
+    fresh = [o for o in outputs if o.fresh]
+    assert [round(o.command_t, 6) for o in fresh] == [round(k / 5, 6) for k in range(11)]
+    # Deadline s_k is served by the latest frame at or before it: frame floor(30 s_k).
+    assert segmenter.calls == [int(np.floor(30 * k / 20 + 1e-9)) for k in range(41)]
+
+    # The paper's window of 3: each command fuses the masks of its last 3 deadlines, and the
+    # fourth deadline of each command period, which no command fuses, is not segmented.
+    follower, segmenter = _follower(fuse=3)
+    outputs = _drive(follower, 61)
+    assert len(segmenter.calls) == 1 + 10 * 3
+    for out in outputs:
+        if out.fresh and out.command_t > 0:
+            k = int(round(out.command_t * 20))
+            frames = {int(np.floor(30 * j / 20 + 1e-9)) for j in (k - 2, k - 1, k)}
+            assert set(np.flatnonzero(out.fused[0])) == frames, out.command_t
+    # Between commands the command in force is returned unchanged.
+    assert outputs[1].command is outputs[0].command and not outputs[1].fresh
+
+
+def test_the_runtime_matches_navigator_step_on_the_same_masks() -> None:
+    follower, _ = _follower(fuse=3)
+    outputs = _drive(follower, 31)
+    reference = Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, fuse_frames=1, smooth_window=1))
+    for out in (o for o in outputs if o.fresh):
+        expected = reference.step(out.fused, DEPTH)
+        assert (out.command.v, out.command.omega, out.command.target_column) == (
+            expected.v, expected.omega, expected.target_column)
+
+
+def test_a_gap_in_frames_stops_the_robot_and_restarts_the_runtime() -> None:
+    follower, _ = _follower()
+    outputs = _drive(follower, 30)
+    last_t = outputs[-1].t
+    assert follower.command_at(last_t + 0.1).v == outputs[-1].command.v > 0
+    stop = follower.command_at(last_t + 0.6)              # frame_timeout_s = 0.5 by default
+    assert (stop.v, stop.omega, stop.valid) == (0.0, 0.0, False)
+    after = follower.step(_rgb(40), DEPTH, last_t + 1.0)
+    assert after.stopped == "frame_timeout" and after.fresh
+    # The EMA restarted from rest: one step of lambda = 0.5 towards the raw command.
+    fresh = Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, fuse_frames=3, smooth_window=1))
+    assert after.command.v == fresh.step(after.fused, DEPTH).v
+
+
+def test_stale_masks_are_not_fused() -> None:
+    # A 2 Hz camera: the commands at 0.2 s and 0.4 s use frame 0's mask, 0.4 s of age is stale.
+    follower, _ = _follower(max_mask_age_s=0.3, frame_timeout_s=1.0)
+    follower.step(_rgb(0), DEPTH, 0.0)
+    out = follower.step(_rgb(1), DEPTH, 0.5)
+    assert out.stopped == "stale_masks" and not out.command.valid and out.command_t == pytest.approx(0.4)
+    again = follower.step(_rgb(2), DEPTH, 0.6)            # fresh masks again (0.5 s and 0.6 s)
+    assert again.fresh and again.command.valid
+
+
+def test_bad_timestamps_are_clear_errors() -> None:
+    follower, _ = _follower()
+    follower.step(_rgb(0), DEPTH, 1.0)
+    with pytest.raises(ValueError, match="not after the previous frame"):
+        follower.step(_rgb(1), DEPTH, 0.9)
+    with pytest.raises(ValueError, match="not after the previous frame"):
+        follower.step(_rgb(1), DEPTH, 1.0)
+    with pytest.raises(ValueError, match="finite"):
+        follower.step(_rgb(1), DEPTH, float("nan"))
+    with pytest.raises(ValueError, match="depth is 3x8"):
+        follower.step(_rgb(1), np.ones((8, 3), np.float32), 1.1)
+
+
+def test_depth_is_optional_for_segmin_and_required_for_segmind() -> None:
+    follower, _ = _follower()
+    out = follower.step(_rgb(5), None, 0.0)
+    assert out.fresh and out.command.valid and out.command.target_column is not None
+    follower, _ = _follower(method="segmind")
+    with pytest.raises(ValueError, match="segmind needs depth"):
+        follower.step(_rgb(5), None, 0.0)
+
+
+def test_rates_must_divide_evenly() -> None:
+    with pytest.raises(ValueError, match="multiple of command_hz"):
+        RuntimeConfig(segment_hz=20, command_hz=6)
+    with pytest.raises(ValueError, match="frame_timeout_s"):
+        RuntimeConfig(frame_timeout_s=0)
