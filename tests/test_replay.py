@@ -11,7 +11,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from export_helpers import shared_export
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.replay import read_commands_csv, replay
 from segmin.nav_eval.runtime import RowFollower
@@ -45,8 +44,8 @@ def sequence(tmp_path_factory) -> tuple[Path, Path, list[tuple[np.ndarray, np.nd
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory) -> Path:
-    return shared_export(tmp_path_factory)[0]
+def model(exported: tuple[Path, dict]) -> Path:
+    return exported[0]
 
 
 def test_replay_writes_all_outputs_and_the_commands_of_the_runtime(sequence, model, tmp_path) -> None:
