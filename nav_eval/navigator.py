@@ -255,9 +255,7 @@ class Navigator:
         `stamp` is the mask's frame time in seconds, used only by `fused_mask(not_before=...)`
         to leave out stale masks. A mask of another size than the window's starts a new window.
         """
-        mask = np.asarray(mask)
-        mask_b, _ = _validated_frame(mask, np.zeros(mask.shape, dtype=np.float32))
-        self._push(mask_b, stamp)
+        self._push(_validated_mask(mask), stamp)
 
     def _push(self, mask_b: np.ndarray, stamp: float) -> None:
         n = self.config.fuse_frames
@@ -347,19 +345,26 @@ class Navigator:
 # ---------------------------------------------------------------------------------------------
 
 
-def _validated_frame(mask: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Check shapes and dtypes; return a bool mask and float32 metres."""
+def _validated_mask(mask: np.ndarray) -> np.ndarray:
+    """Check a mask's shape and values; return it as bool (no depth needed, so pushing a mask
+    into the fusion window allocates nothing)."""
     mask = np.asarray(mask)
-    depth = np.asarray(depth)
     if mask.ndim != 2:
         raise ValueError(f"mask must be a 2-D h x w array, got shape {mask.shape}")
-    if depth.ndim != 2:
-        raise ValueError(f"depth must be a 2-D h x w array, got shape {depth.shape}")
     if mask.size == 0:
         raise ValueError(f"mask must not be empty, got shape {mask.shape}")
-    if mask.shape != depth.shape:
-        raise ValueError(f"mask and depth must have the same shape, got mask {mask.shape} and depth {depth.shape}")
-    return _bool_mask(mask), to_metres(depth)
+    return _bool_mask(mask)
+
+
+def _validated_frame(mask: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Check shapes and dtypes; return a bool mask and float32 metres."""
+    mask_b = _validated_mask(mask)
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"depth must be a 2-D h x w array, got shape {depth.shape}")
+    if mask_b.shape != depth.shape:
+        raise ValueError(f"mask and depth must have the same shape, got mask {mask_b.shape} and depth {depth.shape}")
+    return mask_b, to_metres(depth)
 
 
 _THRESHOLD_HINT = "threshold it first, e.g. mask = probabilities > 0.5"
