@@ -272,16 +272,17 @@ class Navigator:
         after it (stale masks are left out). None when no mask qualifies."""
         if self._masks is None or self._count == 0:
             return None
-        filled = min(self._count, self.config.fuse_frames)
-        keep = np.zeros(self.config.fuse_frames, dtype=bool)
-        keep[:filled] = True
-        if not_before is not None:
-            keep &= self._stamps >= not_before
-        if not keep.any():
-            return None
-        if keep.all():
-            return self._masks.any(axis=0)
-        return self._masks[keep].any(axis=0)
+        if not_before is None:
+            filled = min(self._count, self.config.fuse_frames)
+            window = self._masks if filled == self.config.fuse_frames else self._masks[:filled]
+        else:
+            # Slots never filled are stamped -inf, so they only pass a not_before of -inf, and
+            # then they add nothing to the OR (they are all False).
+            keep = self._stamps >= not_before
+            if not keep.any():
+                return None
+            window = self._masks if keep.all() else self._masks[keep]
+        return window.any(axis=0)
 
     def command(self, fused: np.ndarray, depth: np.ndarray) -> Command:
         """The smoothed command for an already fused mask and the newest depth frame (one EMA step)."""
