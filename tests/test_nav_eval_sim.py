@@ -163,7 +163,6 @@ def _drive(config: NavEvalConfig, navigator: Navigator):
 
 
 def test_driving_into_the_row_is_a_collision_and_standing_still_stalls() -> None:
-    world = FakeWorld()
     config = _config(start_lateral_max=0.0, start_heading_max_deg=0.0)
     ep = _drive(config, _Straight(0.4, 0.6))
     assert ep.reason == "collision" and ep.collisions == 1 and not ep.success
