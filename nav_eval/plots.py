@@ -150,13 +150,14 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
     """Render the centreline view a few metres into the row and draw the histogram figure."""
     from segmin.nav_eval.factories import make_segmenter
     from segmin.nav_eval.oracle import segment_frame
-    from segmin.nav_eval.sim import point_on_polyline
+    from segmin.nav_eval.sim import depth_noise_camera, point_on_polyline
 
     if model not in segmenters:
         segmenters[model] = make_segmenter(model)
     s = config.run.start_s + min(4.0, 0.5 * config.run.length_m)
     x, y, yaw = point_on_polyline(env.centreline, s)
     frame = ctx.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
-    if config.perception.depth_noise:
-        frame.depth = ctx.camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
+    camera = depth_noise_camera(ctx.renderer, config.perception.depth_noise_scale)
+    if config.perception.depth_noise and camera is not None:
+        frame.depth = camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
