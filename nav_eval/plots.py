@@ -31,7 +31,8 @@ from segmin.nav_eval.video import write_video  # noqa: E402,F401  (kept importab
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
 
-def _save(fig: Any, path: Path) -> None:
+def save_figure(fig: Any, path: Path) -> None:
+    """Write `fig` as a PNG atomically and close it."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
@@ -83,7 +84,7 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
     lat.set_xlabel("distance along the centreline (m)")
     lat.set_ylabel("lateral deviation (m, + left)")
     lat.grid(alpha=0.3)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth_threshold: float) -> None:
@@ -113,7 +114,7 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
         ax.legend(fontsize=7)
     axes[1].set_ylabel("near-vegetation pixels (smoothed)")
     axes[2].set_ylabel("depth-weighted sum (smoothed)")
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def make_field_figures(out: Path, results: list[Any], fields: list[str], config: Any, model: str) -> list[str]:
