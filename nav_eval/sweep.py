@@ -21,6 +21,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from segmin.common.atomic import write_json, write_text
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir
@@ -116,8 +118,6 @@ def _field(plan: SweepPlan, variant: Variant, out: Path, written: set[str]) -> s
         return plan.spec.base
     path = out / "worlds" / variant_file_name(plan.base_label, variant)
     if str(path) not in written:
-        import yaml
-
         write_text(path, f"# {plan.where}: {plan.base_label} with {variant.parameter} = {variant.label}\n"
                          + yaml.safe_dump(variant.world, sort_keys=False))
         written.add(str(path))

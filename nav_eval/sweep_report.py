@@ -123,7 +123,7 @@ def summary_markdown(plan: SweepPlan, rows: list[dict], figures: dict[str, str],
         if name in figures:
             lines += ["", f"![{name}]({figures[name]})"]
         lines.append("")
-    return "\n".join(lines)
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def write_sweep_outputs(out: Path, plan: SweepPlan, rows: list[dict], *, plots: bool, executed: int, reused: int,
