@@ -27,6 +27,8 @@ from segmin.common.atomic import write_json, write_text
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluate import Job, RunResult, execute_jobs, run_seed
+from segmin.nav_eval.factories import make_segmenter
+from segmin.nav_eval.sweep_report import summarise_sweep, write_sweep_outputs
 from segmin.nav_eval.sweep_spec import SweepPlan, Variant, digest, load_sweep, plan_sweep, variant_file_name
 
 
@@ -52,8 +54,6 @@ def run_sweep(spec_path: str | Path, out_dir: str | Path, *, model: str | None =
               workers: int = 1, overrides: list[str] | tuple[str, ...] = (), force: bool = False,
               progress: bool = True, plots: bool = True) -> SweepOutcome:
     """Run (or resume) the sweep `spec_path` into `out_dir`; `model` and `runs` replace the spec's."""
-    from segmin.nav_eval.factories import make_segmenter
-
     spec, path = load_sweep(spec_path)
     try:
         spec = dataclasses.replace(spec, **{k: v for k, v in (("model", model), ("runs", runs)) if v is not None})
@@ -84,8 +84,6 @@ def run_sweep(spec_path: str | Path, out_dir: str | Path, *, model: str | None =
 
         execute_jobs(todo, spec.model, plan.base_config, workers, done, progress=progress, desc="sweep runs")
         results = {**cached, **new}
-        from segmin.nav_eval.sweep_report import summarise_sweep, write_sweep_outputs
-
         rows = summarise_sweep(plan, keys, results)
         write_sweep_outputs(out, plan, rows, plots=plots,
                             executed=len(new), reused=len(cached), errored=len(errored))

@@ -31,19 +31,18 @@ def summarise_sweep(plan: SweepPlan, keys: list[list[tuple[str, str]]], results:
         for method in plan.spec.methods:
             done = [dataclasses.replace(results[key], field=variant.label) for m, key in pairs
                     if m == method and key in results]
-            entry = summarise(done)[0] if done else None
-            runs = entry["runs"] if entry else 0
-            rows.append({
-                "parameter": variant.parameter, "value": variant.label, "unit": PARAMETERS[variant.parameter].unit,
-                "method": method, "runs": runs, "successes": entry["successes"] if entry else 0,
-                "success_rate": entry["successes"] / runs if runs else math.nan,
-                "mae_mean": entry["mae"][0] if entry else math.nan, "mae_std": entry["mae"][1] if entry else math.nan,
-                "clearance_mean": entry["clearance_time"][0] if entry else math.nan,
-                "clearance_std": entry["clearance_time"][1] if entry else math.nan,
-                "v_avg_mean": entry["v_avg"][0] if entry else math.nan,
-                "failures": ", ".join(f"{k} x{v}" for k, v in sorted(entry["reasons"].items())) if entry else "",
-                "field": _field_name(results, pairs),
-            })
+            row = {"parameter": variant.parameter, "value": variant.label, "unit": PARAMETERS[variant.parameter].unit,
+                   "method": method, "runs": len(done), "successes": 0, "success_rate": math.nan,
+                   "mae_mean": math.nan, "mae_std": math.nan, "clearance_mean": math.nan, "clearance_std": math.nan,
+                   "v_avg_mean": math.nan, "failures": "", "field": _field_name(results, pairs)}
+            if done:  # runs that raised are missing; none left: the row stays empty
+                entry = summarise(done)[0]
+                row.update(successes=entry["successes"], success_rate=entry["successes"] / entry["runs"],
+                           mae_mean=entry["mae"][0], mae_std=entry["mae"][1],
+                           clearance_mean=entry["clearance_time"][0], clearance_std=entry["clearance_time"][1],
+                           v_avg_mean=entry["v_avg"][0],
+                           failures=", ".join(f"{k} x{v}" for k, v in sorted(entry["reasons"].items())))
+            rows.append(row)
     return rows
 
 
