@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from segmin.nav_eval.robot import RobotConfig
 
@@ -49,10 +49,19 @@ class Perception:
     width: int | None = None        # camera resolution override (None: the CameraModel default, 224)
     height: int | None = None
     depth_noise: bool = True        # the D435i-like depth-noise model of data.synth.camera
+    depth_noise_scale: float = 1.0  # multiplies that model's sigma coefficient and dropout share
+    # A weaker segmenter, simulated: this share of the masks is corrupted (nav_eval.mask_dropout),
+    # "erode" shrinks the vegetation (missed leaves), "drop" empties the mask (a lost inference).
+    mask_dropout: float = 0.0
+    mask_dropout_mode: Literal["erode", "drop"] = "erode"
 
     def __post_init__(self) -> None:
         if self.fuse_frames < 1:
             raise ValueError("perception.fuse_frames must be >= 1")
+        if self.depth_noise_scale < 0:
+            raise ValueError(f"perception.depth_noise_scale must be >= 0, got {self.depth_noise_scale}")
+        if not 0.0 <= self.mask_dropout <= 1.0:
+            raise ValueError(f"perception.mask_dropout must be within [0, 1], got {self.mask_dropout}")
         for name in ("width", "height"):
             v = getattr(self, name)
             if v is not None and v < 8:

@@ -29,6 +29,7 @@ import numpy as np
 
 from segmin.nav_eval.eval_config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.factories import FieldContext, field_label, make_follower, make_navigator, make_segmenter
+from segmin.nav_eval.mask_dropout import with_dropout
 from segmin.nav_eval.metrics import Trajectory, compute_metrics
 from segmin.nav_eval.methods import METHODS
 from segmin.common.config import from_dict, to_dict
@@ -83,6 +84,9 @@ class Job:
     run: int
     seed: int
     video_path: str = ""
+    # The run's own NavEvalConfig as plain data (`to_dict`), when it is not the worker's: a sweep
+    # runs many configs on one pool. None: the worker's config.
+    config: dict | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -145,14 +149,18 @@ def preflight(model: str, fields: list[str], methods: list[str], config: NavEval
     if str(model) != "oracle":
         make_segmenter(str(model), threads=1)  # loads and checks the file: metadata, graph in/out
     for f in fields:
-        spec = load_world_spec(f)
-        threshold = config.depth_threshold(spec.name, spec.family)
-        for method in methods:
-            try:
-                make_navigator(method, threshold, config)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"navigator settings for {field_label(f)} / {method} (depth threshold "
-                                 f"{threshold!r}, navigator {config.navigator}): {exc}") from exc
+        check_navigators(load_world_spec(f), field_label(f), methods, config)
+
+
+def check_navigators(spec: Any, label: str, methods: list[str], config: NavEvalConfig) -> None:
+    """Build each method's navigator for the field `spec` (its depth threshold) under `config`."""
+    threshold = config.depth_threshold(spec.name, spec.family)
+    for method in methods:
+        try:
+            make_navigator(method, threshold, config)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"navigator settings for {label} / {method} (depth threshold "
+                             f"{threshold!r}, navigator {config.navigator}): {exc}") from exc
 
 
 def parse_methods(methods: str | list[str] | tuple[str, ...]) -> list[str]:
@@ -169,19 +177,28 @@ def parse_methods(methods: str | list[str] | tuple[str, ...]) -> list[str]:
 
 
 class Worker:
-    """Per-process state: fields built on first use, one segmenter."""
+    """Per-process state: fields built on first use (the last few kept), one segmenter."""
+
+    # Built fields kept per worker. Jobs come field by field, so one would do for a matrix; a
+    # sweep has dozens of field variants, and each built world holds its own pybullet client.
+    KEEP_FIELDS = 2
 
     def __init__(self, model: str, config: NavEvalConfig, threads: int = 1) -> None:
         self.model = str(model)
         self.config = config
         self.threads = threads
         self._segmenter: Any = None
-        self._fields: dict[str, FieldContext] = {}
+        self._fields: dict[tuple, FieldContext] = {}
 
-    def field(self, name: str) -> FieldContext:
-        if name not in self._fields:
-            self._fields[name] = FieldContext(name, self.config)
-        return self._fields[name]
+    def field(self, name: str, config: NavEvalConfig | None = None) -> FieldContext:
+        """The field built for `config` (camera size and gap; the worker's config by default)."""
+        config = config or self.config
+        key = (name, config.perception.width, config.perception.height, config.run.gap)
+        ctx = self._fields.pop(key, None) or FieldContext(name, config)
+        self._fields[key] = ctx  # most recently used last
+        while len(self._fields) > self.KEEP_FIELDS:
+            self._fields.pop(next(iter(self._fields))).close()
+        return ctx
 
     @property
     def segmenter(self) -> Any:
@@ -202,11 +219,13 @@ class Worker:
         result = RunResult(field=field_label(job.field), method=job.method, run=job.run, seed=job.seed,
                            model=self.model, success=False, reason="error")
         try:
-            ctx = self.field(job.field)
-            result.depth_threshold = ctx.depth_threshold
-            env = make_env(ctx, self.config)
+            config = self.config if job.config is None else from_dict(NavEvalConfig, job.config)
+            ctx = self.field(job.field, config)
+            result.depth_threshold = config.depth_threshold(ctx.spec.name, ctx.spec.family)
+            env = make_env(ctx, config)
             result.gap = env.row.gap
-            follower = make_follower(self.segmenter, job.method, ctx.depth_threshold, self.config)
+            segmenter = with_dropout(self.segmenter, config.perception, job.seed)
+            follower = make_follower(segmenter, job.method, result.depth_threshold, config)
             episode = run_episode(env, follower, job.seed, video=bool(job.video_path))
             metrics = compute_metrics(episode.trajectory, env.row.centreline, success=episode.success,
                                       clearance_time=episode.clearance_time, collisions=episode.collisions)
@@ -221,7 +240,7 @@ class Worker:
             if job.video_path and episode.video:
                 from segmin.nav_eval.video import write_video
 
-                write_video(job.video_path, episode.video, fps=self.config.rates.command_hz)
+                write_video(job.video_path, episode.video, fps=config.rates.command_hz)
         except Exception as exc:  # a failed run is a row, never a crash of the evaluation
             result.success, result.reason = False, "error"
             result.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
@@ -288,29 +307,14 @@ def run_evaluation(
             "runs": runs, "seed": seed, "workers": workers, "config": to_dict(config)}
     results: list[RunResult] = []
 
-    def done(result: RunResult) -> None:
+    def done(job: Job, result: RunResult) -> None:
         results.append(result)
         if out is not None:
             from segmin.nav_eval.report import write_results
 
             write_results(out, sorted(results, key=_order(jobs)), meta)
 
-    bar = _progress(len(jobs), progress)
-    try:
-        if workers <= 1:
-            # One core is left to pybullet: the episode renders the next frame on this thread
-            # while the segmenter runs on its helper thread (see nav_eval.sim).
-            worker = Worker(str(model), config, threads=max(1, (os.cpu_count() or 1) - 1))
-            try:
-                for job in jobs:
-                    done(worker.run(job))
-                    bar.update(1)
-            finally:
-                worker.close()
-        else:
-            _run_pool(jobs, str(model), config, workers, done, bar)
-    finally:
-        bar.close()
+    execute_jobs(jobs, str(model), config, workers, done, progress=progress)
     results.sort(key=_order(jobs))
     if out is not None:
         from segmin.nav_eval.report import write_report
@@ -319,13 +323,36 @@ def run_evaluation(
     return results
 
 
+def execute_jobs(jobs: list[Job], model: str, config: NavEvalConfig, workers: int,
+                 done: Callable[[Job, RunResult], None], *, progress: bool = True,
+                 desc: str = "nav-eval runs") -> None:
+    """Run `jobs` on `workers` processes (this one when <= 1), calling `done(job, result)` as
+    each finishes (in completion order). A job's own `config` replaces `config` for that run."""
+    bar = _progress(len(jobs), progress, desc)
+    try:
+        if workers <= 1:
+            # One core is left to pybullet: the episode renders the next frame on this thread
+            # while the segmenter runs on its helper thread (see nav_eval.sim).
+            worker = Worker(model, config, threads=max(1, (os.cpu_count() or 1) - 1))
+            try:
+                for job in jobs:
+                    done(job, worker.run(job))
+                    bar.update(1)
+            finally:
+                worker.close()
+        else:
+            _run_pool(jobs, model, config, workers, done, bar)
+    finally:
+        bar.close()
+
+
 def _order(jobs: list[Job]) -> Callable[[RunResult], int]:
     index = {(field_label(j.field), j.method, j.run): i for i, j in enumerate(jobs)}
     return lambda r: index.get((r.field, r.method, r.run), len(index))
 
 
 def _run_pool(jobs: list[Job], model: str, config: NavEvalConfig, workers: int,
-              done: Callable[[RunResult], None], bar: Any) -> None:
+              done: Callable[[Job, RunResult], None], bar: Any) -> None:
     threads = max(1, (os.cpu_count() or 1) // workers)
     ctx = get_context("spawn")
     pending = {}
@@ -341,11 +368,11 @@ def _run_pool(jobs: list[Job], model: str, config: NavEvalConfig, workers: int,
                 result = RunResult(field=field_label(job.field), method=job.method, run=job.run, seed=job.seed,
                                    model=model, success=False, reason="error",
                                    error=f"{type(exc).__name__}: {exc}")
-            done(result)
+            done(job, result)
             bar.update(1)
 
 
-def _progress(total: int, enabled: bool) -> Any:
+def _progress(total: int, enabled: bool, desc: str) -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="nav-eval runs", unit="run", disable=not enabled)
+    return tqdm(total=total, desc=desc, unit="run", disable=not enabled)

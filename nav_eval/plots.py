@@ -31,7 +31,8 @@ from segmin.nav_eval.video import write_video  # noqa: E402,F401  (kept importab
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
 
 
-def _save(fig: Any, path: Path) -> None:
+def save_figure(fig: Any, path: Path) -> None:
+    """Write `fig` as a PNG atomically and close it."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
@@ -83,7 +84,7 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
     lat.set_xlabel("distance along the centreline (m)")
     lat.set_ylabel("lateral deviation (m, + left)")
     lat.grid(alpha=0.3)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth_threshold: float) -> None:
@@ -113,7 +114,7 @@ def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth
         ax.legend(fontsize=7)
     axes[1].set_ylabel("near-vegetation pixels (smoothed)")
     axes[2].set_ylabel("depth-weighted sum (smoothed)")
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def make_field_figures(out: Path, results: list[Any], fields: list[str], config: Any, model: str) -> list[str]:
@@ -150,13 +151,14 @@ def histogram_for_field(path: Path, label: str, ctx: Any, env: Any, config: Any,
     """Render the centreline view a few metres into the row and draw the histogram figure."""
     from segmin.nav_eval.factories import make_segmenter
     from segmin.nav_eval.oracle import segment_frame
-    from segmin.nav_eval.sim import point_on_polyline
+    from segmin.nav_eval.sim import depth_noise_camera, point_on_polyline
 
     if model not in segmenters:
         segmenters[model] = make_segmenter(model)
     s = config.run.start_s + min(4.0, 0.5 * config.run.length_m)
     x, y, yaw = point_on_polyline(env.centreline, s)
     frame = ctx.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
-    if config.perception.depth_noise:
-        frame.depth = ctx.camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
+    camera = depth_noise_camera(ctx.renderer, config.perception.depth_noise_scale)
+    if config.perception.depth_noise and camera is not None:
+        frame.depth = camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
     histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)

@@ -8,13 +8,17 @@ limits before they move the robot, so a jumpy controller pays for it as it would
 The pose is integrated in the horizontal plane (x, y, yaw); height, pitch and roll follow the
 terrain under the robot (`World.terrain_height` / `terrain_normal`). Collisions are answered in
 pure numpy: the rectangular footprint against the trunk and post circles of the world.
+
+`robot.model: skid_steer` swaps in the harder robot of `nav_eval.skid_steer` (wheel slip that
+depends on the terrain, actuator noise, command latency); its numbers are `SkidSteerConfig`,
+kept here with the rest of the robot's config so the nav config loads without the model code.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 
@@ -22,8 +26,43 @@ from segmin.common.angles import wrap_angle
 
 
 @dataclasses.dataclass
+class SkidSteerConfig:
+    """Slip, noise and latency of the skid-steer model (equations: nav_eval.skid_steer).
+
+    Defaults: a Jackal on grass. Its drive mixes wheel speeds with the track width times the ICR
+    expansion (the Jackal's own controller uses a wheel separation multiplier of 1.5), so on firm,
+    flat ground it turns as commanded; rough ground widens the ICRs further and the robot
+    under-turns, slopes add longitudinal slip and a sideways creep downhill.
+    """
+
+    track_width: float = 0.376              # B: distance between the left and right wheels, m
+    icr_expansion: float = 1.5              # alpha_0 >= 1: track ICRs at +-alpha_0 B / 2 on firm, flat ground
+    icr_expansion_per_roughness: float = 3.0  # alpha grows by this per metre of terrain roughness (height std)
+    icr_x: float = 0.02                     # x_ICR: longitudinal ICR offset, m (+ ahead: a left turn slides right)
+    longitudinal_slip: float = 0.03         # i_0: share of the wheel speed lost on firm, flat ground
+    slip_per_roughness: float = 1.0         # i grows by this per metre of terrain roughness
+    slip_per_slope: float = 0.5             # ... and by this times sin(pitch) when driving uphill (less downhill)
+    cross_slope_drift: float = 0.5          # sideways creep downhill: v_y = -k tan(roll) |v_x|
+    latency_ticks: int = 6                  # command delay in physics ticks (6 at 60 Hz = 0.1 s)
+    noise_std: float = 0.03                 # actuator noise: relative wheel-speed error (stationary std)
+    noise_tau: float = 0.3                  # its correlation time, s (Ornstein-Uhlenbeck)
+
+    def __post_init__(self) -> None:
+        if self.track_width <= 0 or self.noise_tau <= 0:
+            raise ValueError("robot.skid.track_width and robot.skid.noise_tau must be > 0")
+        if self.icr_expansion < 1:
+            raise ValueError(f"robot.skid.icr_expansion must be >= 1 (slip only widens the ICRs), got {self.icr_expansion}")
+        if not 0 <= self.longitudinal_slip < 1:
+            raise ValueError(f"robot.skid.longitudinal_slip must be within [0, 1), got {self.longitudinal_slip}")
+        for name in ("icr_expansion_per_roughness", "slip_per_roughness", "slip_per_slope", "cross_slope_drift",
+                     "latency_ticks", "noise_std"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"robot.skid.{name} must be >= 0, got {getattr(self, name)}")
+
+
+@dataclasses.dataclass
 class RobotConfig:
-    """Geometry and actuation limits (defaults: Clearpath Jackal)."""
+    """Geometry and actuation limits (defaults: Clearpath Jackal), and which motion model."""
 
     length: float = 0.51          # footprint along the heading, m
     width: float = 0.43           # footprint across, m
@@ -33,6 +72,8 @@ class RobotConfig:
     max_lin_acc: float = 1.0      # m/s^2
     max_ang_acc: float = 3.0      # rad/s^2
     lag_tau: float = 0.15         # first-order lag time constant of the drive, s (0 = none)
+    model: Literal["kinematic", "skid_steer"] = "kinematic"  # kinematic: the paper comparison
+    skid: SkidSteerConfig = dataclasses.field(default_factory=SkidSteerConfig)  # used by skid_steer only
 
     def __post_init__(self) -> None:
         for name in ("length", "width", "wheel_radius", "max_v", "max_omega", "max_lin_acc", "max_ang_acc"):
@@ -71,8 +112,11 @@ class Robot:
         self.state = RobotState(0.0, 0.0, 0.0)
         self._cmd = (0.0, 0.0)
 
-    def reset(self, x: float, y: float, yaw: float) -> RobotState:
-        """Place the robot at rest at (x, y, yaw) on the terrain."""
+    def reset(self, x: float, y: float, yaw: float, rng: np.random.Generator | None = None) -> RobotState:
+        """Place the robot at rest at (x, y, yaw) on the terrain.
+
+        `rng` is the run's actuator-noise stream; the unicycle is noise-free and ignores it.
+        """
         self.state = RobotState(float(x), float(y), float(yaw))
         self._cmd = (0.0, 0.0)
         self._follow_terrain()

@@ -27,7 +27,8 @@ import numpy as np
 from segmin.nav_eval.eval_config import NavEvalConfig
 from segmin.nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
 from segmin.nav_eval.oracle import segment_frame
-from segmin.nav_eval.robot import Robot, footprint_distances
+from segmin.nav_eval.robot import footprint_distances
+from segmin.nav_eval.skid_steer import make_robot
 
 
 def point_on_polyline(polyline: np.ndarray, s: float) -> tuple[float, float, float]:
@@ -42,6 +43,18 @@ def point_on_polyline(polyline: np.ndarray, s: float) -> tuple[float, float, flo
     u = (s - cum[k]) / lens[k]
     p = a[k] + u * seg[k]
     return float(p[0]), float(p[1]), float(math.atan2(seg[k, 1], seg[k, 0]))
+
+
+def depth_noise_camera(renderer: Any, scale: float) -> Any:
+    """The renderer's camera with its depth-noise model scaled by `scale` (sigma coefficient and
+    dropout share); None when the renderer has no noise model (the tests' stand-in)."""
+    camera = getattr(renderer, "camera", None)
+    if camera is None or not hasattr(camera, "apply_depth_noise"):
+        return None
+    if scale == 1.0:
+        return camera
+    return dataclasses.replace(camera, depth_noise_k=camera.depth_noise_k * scale,
+                               depth_invalid_fraction=min(1.0, camera.depth_invalid_fraction * scale))
 
 
 class RowEnv:
@@ -65,7 +78,8 @@ class RowEnv:
         obstacles = np.asarray(getattr(world, "obstacle_circles", np.zeros((0, 3))), dtype=float).reshape(-1, 3)
         self.plants, self.obstacles = plants, obstacles
         self._solid = np.concatenate([plants, obstacles], axis=0)
-        self.robot = Robot(config.robot, world.terrain_height, world.terrain_normal)
+        self.robot = make_robot(config.robot, world)
+        self._depth_camera = depth_noise_camera(renderer, config.perception.depth_noise_scale)
         r = config.rates
         self.dt = 1.0 / r.physics_hz
         self.cam_every = r.physics_hz // r.camera_hz
@@ -79,12 +93,12 @@ class RowEnv:
         self._frame: tuple[int, Any] | None = None
 
     def reset(self, seed: int, pose: tuple[float, float, float] | None = None) -> dict[str, Any]:
-        """Start a run: seeded start noise and depth-noise stream; returns the info.
+        """Start a run: seeded start noise, depth-noise and actuator-noise streams; returns the info.
 
         `pose` (x, y, yaw) replaces the seeded start pose (tests, scripted scenarios).
         """
         run = self.config.run
-        seeds = np.random.SeedSequence(int(seed)).spawn(2)
+        seeds = np.random.SeedSequence(int(seed)).spawn(3)
         start_rng = np.random.default_rng(seeds[0])
         self._noise_rng = np.random.default_rng(seeds[1])
         self.start_s = float(run.start_s)
@@ -100,7 +114,7 @@ class RowEnv:
         if pose is not None:
             x, y, yaw = (float(v) for v in pose)
         self.start_pose = (x, y, yaw)
-        self.robot.reset(x, y, yaw)
+        self.robot.reset(x, y, yaw, rng=np.random.default_rng(seeds[2]))
         self.reason, self.clearance_time = None, None
         self._rows, self._tick, self._frame = [], 0, None
         self._progress: list[tuple[float, float]] = []
@@ -184,9 +198,8 @@ class RowEnv:
         if self._frame is None or self._frame[0] != self._tick:
             _, x, y, yaw = self._rows[self._tick][:4]
             frame = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
-            camera = getattr(self.renderer, "camera", None)
-            if self.config.perception.depth_noise and camera is not None and hasattr(camera, "apply_depth_noise"):
-                frame = dataclasses.replace(frame, depth=camera.apply_depth_noise(frame.depth, self._noise_rng))
+            if self.config.perception.depth_noise and self._depth_camera is not None:
+                frame = dataclasses.replace(frame, depth=self._depth_camera.apply_depth_noise(frame.depth, self._noise_rng))
             self._frame = (self._tick, frame)
         return self._frame[1]
 

@@ -1,7 +1,7 @@
 """The configs shipped inside the package (`segmin.configs`), found by name.
 
 Configs are package data read with `importlib.resources`, so a wheel installed anywhere has the
-named worlds, training recipes, nav settings and pipeline profiles. Everywhere a shipped name is
+named worlds, training recipes, nav settings, pipeline profiles and sweeps. Everywhere a shipped name is
 accepted, a path to the user's own YAML file is accepted too: a value with a slash or a `.yaml`
 suffix is a path, a bare word is a shipped name.
 """
@@ -20,9 +20,10 @@ KINDS: dict[str, str] = {
     "train": "training recipes for `segmin train`",
     "nav": "closed-loop settings for `segmin nav-eval`",
     "pipeline": "profiles for `segmin pipeline`",
+    "sweeps": "robustness sweeps for `segmin robustness`",
 }
 # What one config of each kind is called in error messages.
-_SINGULAR = {"worlds": "world", "train": "training config", "nav": "nav config", "pipeline": "pipeline profile"}
+_SINGULAR = {"worlds": "world", "train": "training config", "nav": "nav config", "pipeline": "pipeline profile", "sweeps": "sweep"}
 
 
 def shipped_dir(kind: str) -> Path:
