@@ -97,3 +97,22 @@ def test_the_extras_table_follows_the_package_metadata() -> None:
         assert module in by_extra[extra], f"{module} is not in the [{extra}] extra"
     base = {re.split(r"[<>=!~ ;\[]", r, maxsplit=1)[0].lower() for r in requires("segmin") or [] if "extra ==" not in r}
     assert base == {"numpy", "opencv-python-headless", "onnxruntime", "pyyaml"}
+
+
+def test_every_shipped_data_folder_is_packaged() -> None:
+    """A new folder of configs or real photos must be listed in pyproject.toml, or the wheel
+    silently leaves its files out (setuptools only ships data of listed packages)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    for base, package in (("configs", "segmin.configs"), ("data/real", "segmin.data.real")):
+        for folder in sorted((root / base).rglob("*")):
+            if not folder.is_dir() or not any(f.is_file() and f.suffix in (".yaml", ".png", ".md") for f in folder.iterdir()):
+                continue
+            name = ".".join([package, *folder.relative_to(root / base).parts])
+            assert name in setup["packages"], f"{folder} is not in [tool.setuptools] packages"
+            patterns = setup["package-data"].get(name, [])
+            for f in folder.iterdir():
+                if f.is_file() and f.suffix in (".yaml", ".png", ".md"):
+                    assert any(f.match(p) for p in patterns), f"{f} matches no package-data pattern of {name}"
