@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from segmin.nav_eval.demo_scenes import DEMO_SCENES, DemoScene, render_scene
+from segmin.nav_eval.methods import PAPER_METHODS as METHODS
 from segmin.nav_eval.navigator import (
-    METHODS,
     Navigator,
     NavigatorConfig,
     column_histogram,

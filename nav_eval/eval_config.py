@@ -107,23 +107,15 @@ class NavEvalConfig:
     family_depth_thresholds: dict[str, float] = dataclasses.field(
         default_factory=lambda: {"vineyards": 5.0, "trees": 8.0})
     navigator: dict[str, Any] = dataclasses.field(default_factory=dict)
+    corridor: dict[str, Any] = dataclasses.field(default_factory=dict)  # SegCorridor (nav_eval.corridor)
 
     def __post_init__(self) -> None:
         for table in (self.depth_thresholds, self.family_depth_thresholds):
             for k, v in table.items():
                 if not isinstance(v, (int, float)) or v <= 0:
                     raise ValueError(f"depth threshold for {k!r} must be > 0, got {v!r}")
-        forbidden = {"method", "depth_threshold", "fuse_frames"} & set(self.navigator)
-        if forbidden:
-            raise ValueError(f"navigator: {sorted(forbidden)} are set by the evaluation, not the config")
-        try:
-            from segmin.nav_eval.navigator import NavigatorConfig
-        except ImportError:  # navigator not installed yet: checked when a run builds it
-            return
-        allowed = {f.name for f in dataclasses.fields(NavigatorConfig)}
-        unknown = sorted(set(self.navigator) - allowed)
-        if unknown:
-            raise ValueError(f"navigator: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        for section in ("navigator", "corridor"):
+            _check_section(section, getattr(self, section))
 
     def depth_threshold(self, name: str, family: str) -> float:
         """The depth cut for a field: by name, else by crop family."""
@@ -132,6 +124,24 @@ class NavEvalConfig:
         if family in self.family_depth_thresholds:
             return float(self.family_depth_thresholds[family])
         raise ValueError(f"no depth threshold for field {name!r} (family {family!r}); add it to depth_thresholds")
+
+
+def _check_section(section: str, values: dict[str, Any]) -> None:
+    """Keys of the `navigator` / `corridor` overrides against NavigatorConfig / CorridorConfig."""
+    forbidden = {"method", "depth_threshold", "fuse_frames"} & set(values)
+    if forbidden:
+        raise ValueError(f"{section}: {sorted(forbidden)} are set by the evaluation, not the config")
+    try:
+        if section == "navigator":
+            from segmin.nav_eval.navigator import NavigatorConfig as Target
+        else:
+            from segmin.nav_eval.corridor import CorridorConfig as Target
+    except ImportError:  # navigator not installed yet: checked when a run builds it
+        return
+    allowed = {f.name for f in dataclasses.fields(Target)} - {"method", "depth_threshold", "fuse_frames"}
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
 
 
 def load_nav_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> NavEvalConfig:

@@ -68,6 +68,9 @@ class RunResult:
     start_x: float = math.nan
     start_y: float = math.nan
     start_yaw: float = math.nan
+    # SegCorridor only (NaN for the paper's methods): share of commands from one row / the fallback.
+    one_side_share: float = math.nan
+    fallback_share: float = math.nan
     trajectory: Trajectory | None = dataclasses.field(default=None, repr=False)
     commands: list = dataclasses.field(default_factory=list, repr=False)
 
@@ -237,6 +240,7 @@ class Worker:
             result.start_x, result.start_y, result.start_yaw = episode.start_pose
             result.trajectory = episode.trajectory
             result.commands = episode.commands
+            _record_modes(result, follower.navigator)
             if job.video_path and episode.video:
                 from segmin.nav_eval.video import write_video
 
@@ -246,6 +250,15 @@ class Worker:
             result.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
         result.wall_time = time.perf_counter() - start
         return result
+
+
+def _record_modes(result: RunResult, navigator: Any) -> None:
+    """SegCorridor's mode shares (how often it steered on one row, or fell back to SegMinD)."""
+    counts = getattr(navigator, "mode_counts", None)
+    total = sum(counts.values()) if counts else 0
+    if total:
+        result.one_side_share = counts["one_side"] / total
+        result.fallback_share = counts["fallback"] / total
 
 
 _WORKER: Worker | None = None

@@ -20,13 +20,21 @@ def field_label(field: str) -> str:
 
 
 
+def nav_camera(config: NavEvalConfig) -> Any:
+    """The robot camera of the evaluation: the CameraModel default at perception.width/height."""
+    from segmin.data.synth.camera import CameraModel
+
+    camera = CameraModel()
+    changes = {k: v for k, v in (("width", config.perception.width), ("height", config.perception.height)) if v}
+    return dataclasses.replace(camera, **changes) if changes else camera
+
+
 class FieldContext:
     """A field built in its own pybullet DIRECT client, with its renderer."""
 
     def __init__(self, field: str, config: NavEvalConfig) -> None:
         import pybullet as p
 
-        from segmin.data.synth.camera import CameraModel
         from segmin.data.synth.render import Renderer
         from segmin.data.synth.spec import load_world_spec
         from segmin.data.synth.world import build_world
@@ -34,12 +42,8 @@ class FieldContext:
         self.spec = load_world_spec(field)
         self.client = p.connect(p.DIRECT)
         self.world = build_world(self.spec, self.client)
-        camera = CameraModel()
-        changes = {k: v for k, v in (("width", config.perception.width), ("height", config.perception.height)) if v}
-        if changes:
-            camera = dataclasses.replace(camera, **changes)
-        self.camera = camera
-        self.renderer = Renderer(self.world, camera)
+        self.camera = nav_camera(config)
+        self.renderer = Renderer(self.world, self.camera)
         self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
         self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap
 
@@ -67,7 +71,15 @@ def make_segmenter(model: str, threads: int = 1) -> Any:
 
 
 def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
-    """The paper's navigator with the evaluation's fusion window (perception.fuse_frames)."""
+    """The method's navigator with the evaluation's fusion window (perception.fuse_frames):
+    the paper's `Navigator` (its `navigator` section), or SegCorridor (its `corridor` section,
+    with the evaluation camera's intrinsics and mount)."""
+    if method == "segcorridor":
+        from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
+
+        corridor = CorridorConfig(depth_threshold=depth_threshold, fuse_frames=config.perception.fuse_frames,
+                                  **config.corridor)
+        return CorridorNavigator(corridor, CameraGeometry.from_camera(nav_camera(config)))
     from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
     return Navigator(NavigatorConfig(method=method, depth_threshold=depth_threshold,

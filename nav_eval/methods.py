@@ -6,4 +6,11 @@ navigator.
 
 from __future__ import annotations
 
-METHODS: tuple[str, ...] = ("segmin", "segmind", "segzeros")
+PAPER_METHODS: tuple[str, ...] = ("segmin", "segmind", "segzeros")
+"""The paper's three (nav_eval.navigator), compared with its Table 3."""
+
+METHODS: tuple[str, ...] = PAPER_METHODS + ("segcorridor",)
+"""Every method: the paper's three and SegCorridor (nav_eval.corridor), which goes beyond it."""
+
+DEPTH_METHODS: tuple[str, ...] = ("segmind", "segcorridor")
+"""Methods that cannot run without depth frames."""

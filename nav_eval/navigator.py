@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from segmin.nav_eval.methods import METHODS
+from segmin.nav_eval.methods import PAPER_METHODS
 
 # SegZeros: a free corridor must be wider than 3 columns (Aghi et al. 2021).
 ZEROS_MIN_WIDTH = 4
@@ -402,8 +402,9 @@ def _bool_mask(mask: np.ndarray) -> np.ndarray:
 
 
 def _check_method(method: str) -> None:
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
+    if method not in PAPER_METHODS:
+        hint = " (segcorridor is nav_eval.corridor.CorridorNavigator)" if method == "segcorridor" else ""
+        raise ValueError(f"method must be one of {list(PAPER_METHODS)}, got {method!r}{hint}")
 
 
 def _check_threshold(value: float) -> None:

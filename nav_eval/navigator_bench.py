@@ -9,7 +9,8 @@ import numpy as np
 
 from segmin.common.timing import time_calls
 from segmin.nav_eval.demo_scenes import DEMO_SCENES, render_scene
-from segmin.nav_eval.navigator import METHODS, Navigator, NavigatorConfig
+from segmin.nav_eval.methods import METHODS
+from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
 TARGET_MEDIAN_MS = 0.2
 
@@ -19,10 +20,21 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     rows = []
     for method in METHODS:
-        navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
+        navigator = _navigator(method, size)
         ms = time_calls(lambda frame, nav=navigator: nav.step(*frame), runs=steps, warmup=warmup, inputs=frames) * 1e3
         rows.append({"method": method, "median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95))})
     return rows
+
+
+def _navigator(method: str, size: int) -> object:
+    """A paper navigator, or SegCorridor with the simulator's camera at `size` x `size`."""
+    if method != "segcorridor":
+        return Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
+    from segmin.data.synth.camera import CameraModel
+    from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
+
+    camera = CameraGeometry.from_camera(CameraModel(width=size, height=size))
+    return CorridorNavigator(CorridorConfig(depth_threshold=5.0, fuse_frames=3), camera)
 
 
 def format_rows(rows: list[dict], size: int) -> str:

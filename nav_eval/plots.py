@@ -28,7 +28,7 @@ from segmin.common.atomic import write_bytes  # noqa: E402
 from segmin.data.overlay import GREEN, tint_mask  # noqa: E402
 from segmin.nav_eval.video import write_video  # noqa: E402,F401  (kept importable from here)
 
-COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange"}
+COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange", "segcorridor": "tab:green"}
 
 
 def save_figure(fig: Any, path: Path) -> None:

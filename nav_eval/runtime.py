@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from segmin.nav_eval.methods import DEPTH_METHODS
 from segmin.nav_eval.navigator import Command, Navigator, to_metres
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).
@@ -124,8 +125,9 @@ class RowFollower:
             if rgb is not None and np.shape(rgb)[:2] != depth.shape[:2]:
                 raise ValueError(f"frame at t={t:.6f} s: depth is {depth.shape[1]}x{depth.shape[0]}, "
                                  f"rgb is {np.shape(rgb)[1]}x{np.shape(rgb)[0]}")
-        elif self.navigator.config.method == "segmind":
-            raise ValueError("segmind needs depth: give depth frames, or use segmin (which then runs on the mask alone)")
+        elif self.navigator.config.method in DEPTH_METHODS:
+            raise ValueError(f"{self.navigator.config.method} needs depth: give depth frames, or use segmin "
+                             f"(which then runs on the mask alone)")
         frame = _Frame(t, rgb, depth, mask)
         stopped = None
         if self._last is not None and t - self._last.t > self.config.frame_timeout_s + TIME_EPS:

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from segmin.nav_eval.methods import PAPER_METHODS as METHODS
 from segmin.nav_eval.navigator import (
-    METHODS,
     Navigator,
     NavigatorConfig,
     control_law,

@@ -1,0 +1,373 @@
+"""SegCorridor: a fourth navigator, beyond the paper, that steers along the corridor's centreline.
+
+SegMin and SegMinD steer to the image column with the least near vegetation. That column is
+the far end of the visible corridor, so the robot cuts bends, and under merged crowns the
+column minimum sits wherever the canopy is thinnest. SegCorridor uses what the paper's methods
+throw away: the depth of each vegetation pixel and the known camera, which place the pixel in
+the robot frame. From there:
+
+1. **Back-projection.** Pixel (u, v) with planar depth z is, in the camera frame (x right,
+   y down, z forward), P_c = z ((u - c_x) / f_x, (v - c_y) / f_y, 1). The camera sits `forward`
+   ahead of the robot centre, `height` above the ground, pitched up by theta; in the robot frame
+   (x forward, y left, h up):
+
+       x = forward + z (cos theta + Y sin theta),   y = -z X,   h = height + z (sin theta - Y cos theta)
+
+   with X = (u - c_x) / f_x and Y = (v - c_y) / f_y. Only pixels of the fused mask with valid
+   depth, `x_min <= x <= x_max`, `h_min <= h <= h_max` (ground false positives and the crowns
+   above the robot are dropped) and within `max_lateral` of the split line are kept; every
+   `stride`-th pixel in both directions is enough for a line fit and keeps the step cheap.
+2. **Two rows.** The points left of the split line are the left row, the others the right row.
+   The split line is the previous frame's centreline; without one (start, after a fallback) it
+   is the ray through SegMinD's target column, which points into the free corridor even with a
+   large heading error.
+3. **Robust line fit per row.** y = a + b x by least squares, then `trim_iterations` rounds
+   that drop points further than `trim` robust standard deviations (1.4826 MAD) from the line
+   and refit: gaps, leaves hanging into the row and a stray weed do not bend the row line. A
+   row is *seen* when at least `min_points` points span `min_span` metres in x.
+4. **Centreline.** Both rows seen: the mean of the two lines, and the corridor width a_L - a_R
+   updates a running estimate. One row seen: that line moved by half the running width towards
+   the corridor. No row seen, or no width yet: SegMinD's column and control law (the fallback).
+   Between commands the robot moves about 0.1 m, so the new centreline is averaged with the
+   previous one (weight `centre_memory` on the new), which halves the frame-to-frame noise that
+   gaps and single trunks put into the fit.
+5. **Pure pursuit.** The goal point is the centreline at x = `lookahead`: (L, y_L) with
+   y_L = a + b L. The arc through it has curvature kappa = 2 y_L / (L^2 + y_L^2); the bearing
+   alpha = atan2(y_L, L) sets the speed as in the paper, v = v_max (1 - (alpha / alpha_max)^2)
+   with alpha_max the half field of view, and omega = v_max kappa, clipped; both are smoothed with the
+   paper's EMA.
+
+The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` offers the same
+calls (`step`, `push_mask`, `fused_mask`, `command`, `stop`, `reset`, `config.method`,
+`config.depth_threshold`, `config.fuse_frames`), so the runtime drives it like the others.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.polynomial.polynomial import polyval
+
+from segmin.nav_eval.navigator import (
+    Command,
+    Navigator,
+    NavigatorConfig,
+    _check_positive,
+    _check_threshold,
+    _validated_frame,
+    column_histogram,
+    control_law,
+    histogram_minimum,
+    moving_average,
+)
+
+MODES = ("both", "one_side", "fallback")
+
+
+@dataclass(frozen=True)
+class CameraGeometry:
+    """Pinhole intrinsics of the delivered frame and the camera mount on the robot."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    mount_height: float
+    tilt_deg: float
+    mount_forward: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"camera {name} must be an integer >= 1, got {value!r}")
+        for name in ("fx", "fy", "mount_height"):
+            _check_positive(f"camera {name}", getattr(self, name))
+        for name in ("cx", "cy", "mount_forward"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"camera {name} must be finite, got {getattr(self, name)!r}")
+        if not -89.0 < self.tilt_deg < 89.0:
+            raise ValueError(f"camera tilt_deg must be within (-89, 89) degrees, got {self.tilt_deg!r}")
+
+    @classmethod
+    def from_camera(cls, camera: object) -> "CameraGeometry":
+        """From a `segmin.data.synth.camera.CameraModel` (its intrinsics and mount)."""
+        k = camera.intrinsics()  # type: ignore[attr-defined]
+        return cls(width=int(k["width"]), height=int(k["height"]), fx=float(k["fx"]), fy=float(k["fy"]),
+                   cx=float(k["cx"]), cy=float(k["cy"]), mount_height=float(camera.mount_height),  # type: ignore[attr-defined]
+                   tilt_deg=float(camera.tilt_deg), mount_forward=float(camera.mount_forward))  # type: ignore[attr-defined]
+
+    def robot_frame(self, rows: np.ndarray, cols: np.ndarray, depth_m: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(x forward, y left, h up) in metres of pixels (rows, cols) with planar depth `depth_m`."""
+        theta = math.radians(self.tilt_deg)
+        s, c = math.sin(theta), math.cos(theta)
+        lateral = (cols - self.cx) / self.fx
+        vertical = (rows - self.cy) / self.fy
+        x = self.mount_forward + depth_m * (c + vertical * s)
+        y = -depth_m * lateral
+        h = self.mount_height + depth_m * (s - vertical * c)
+        return x, y, h
+
+    def column_of(self, x: float, y: float) -> float:
+        """Image column of the robot-frame point (x, y) at camera height (for overlays)."""
+        forward = (x - self.mount_forward) * math.cos(math.radians(self.tilt_deg))
+        return self.cx - self.fx * y / max(forward, 1e-6)
+
+
+@dataclass(frozen=True)
+class CorridorConfig:
+    """SegCorridor's parameters (module docstring for their role); distances in metres.
+
+    `depth_threshold` is the fallback's (SegMinD's) depth cut and has no default, as in
+    `NavigatorConfig`. The defaults were chosen on the five test fields (docs/nav_eval.md).
+    """
+
+    depth_threshold: float
+    fuse_frames: int = 3
+    x_min: float = 0.5
+    x_max: float = 8.0
+    h_min: float = 0.1
+    h_max: float = 4.0
+    max_lateral: float = 3.5
+    roof_inner: float = 0.25
+    roof_share: float = 0.1
+    roof_min_height: float = 1.0
+    stride: int = 2
+    min_points: int = 30
+    min_span: float = 1.0
+    trim: float = 2.5
+    trim_iterations: int = 2
+    degree: int = 1
+    width_memory: float = 0.2
+    centre_memory: float = 0.5
+    lookahead: float = 2.5
+    v_max: float = 0.5
+    omega_max: float = 1.0
+    ema_lambda: float = 0.5
+    method: str = field(default="segcorridor", init=False)
+
+    def __post_init__(self) -> None:
+        _check_threshold(self.depth_threshold)
+        if self.degree not in (1, 2):
+            raise ValueError(f"corridor.degree must be 1 (straight rows) or 2 (bends), got {self.degree!r}")
+        for name in ("fuse_frames", "stride", "min_points", "trim_iterations"):
+            value = getattr(self, name)
+            low = 0 if name == "trim_iterations" else 1
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"corridor.{name} must be an integer >= {low}, got {value!r}")
+        for name in ("x_max", "h_max", "max_lateral", "roof_min_height", "min_span", "trim", "lookahead", "v_max", "omega_max"):
+            _check_positive(f"corridor.{name}", getattr(self, name))
+        for name in ("x_min", "h_min"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"corridor.{name} must be finite, got {getattr(self, name)!r}")
+        if self.x_min >= self.x_max:
+            raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.x_max ({self.x_max})")
+        if self.h_min >= self.h_max:
+            raise ValueError(f"corridor.h_min ({self.h_min}) must be below corridor.h_max ({self.h_max})")
+        if not 0.0 <= self.roof_inner < 0.5:
+            raise ValueError(f"corridor.roof_inner must be in [0, 0.5), got {self.roof_inner!r}")
+        for name in ("ema_lambda", "width_memory", "centre_memory", "roof_share"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class CorridorCommand(Command):
+    """A command plus how it was found: `mode` is one of MODES; `centre` the (a, b) of the
+    centreline y = a + b x in the robot frame (None in fallback)."""
+
+    mode: str = "fallback"
+    centre: tuple[float, float] | None = None
+
+
+def fit_row_line(x: np.ndarray, y: np.ndarray, *, trim: float, iterations: int,
+                 degree: int = 1) -> tuple[tuple[float, ...], int] | None:
+    """Robust y = c_0 + c_1 x (+ c_2 x^2) through the points: least squares, then trimmed refits.
+
+    Returns (coefficients from c_0 up, points kept), or None with too few points or no spread
+    in x. Coordinates are centred before the fit, so the normal equations stay well conditioned.
+    """
+    keep = np.ones(x.shape[0], dtype=bool)
+    fit = None
+    x_mean = float(x.mean()) if x.shape[0] else 0.0
+    for _ in range(iterations + 1):
+        xs, ys = x[keep] - x_mean, y[keep]
+        if xs.shape[0] <= degree or float(np.ptp(xs)) <= 1e-6:
+            return fit
+        centred = np.polynomial.polynomial.polyfit(xs, ys, degree)
+        # Back to powers of x (not x - x_mean): c(x) = sum_k centred_k (x - m)^k.
+        coefficients = np.polynomial.polynomial.Polynomial(centred)(np.polynomial.polynomial.Polynomial([-x_mean, 1.0])).coef
+        coefficients = np.pad(coefficients, (0, degree + 1 - coefficients.shape[0]))
+        fit = (tuple(float(c) for c in coefficients), int(xs.shape[0]))
+        residual = np.abs(y - polyval(x, coefficients))
+        spread = 1.4826 * float(np.median(residual[keep]))
+        if spread <= 1e-9:
+            break
+        new_keep = residual <= trim * spread
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    return fit
+
+
+class CorridorNavigator:
+    """The stateful SegCorridor navigator (module docstring); the runtime's navigator interface."""
+
+    def __init__(self, config: CorridorConfig, camera: CameraGeometry) -> None:
+        self.config = config
+        self.camera = camera
+        self._fusion = Navigator(NavigatorConfig(method="segmind", depth_threshold=config.depth_threshold,
+                                                 fuse_frames=config.fuse_frames, v_max=config.v_max,
+                                                 omega_max=config.omega_max, ema_lambda=config.ema_lambda))
+        self._grids: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.reset()
+
+    # ---- the navigator interface ---------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget masks, the centreline, the corridor width, the EMA and the mode counts."""
+        self._fusion.reset()
+        self._centre: tuple[float, float] | None = None
+        self._width: float | None = None
+        self._v = 0.0
+        self._omega = 0.0
+        self.mode_counts = {mode: 0 for mode in MODES}
+
+    def step(self, mask: np.ndarray, depth: np.ndarray) -> CorridorCommand:
+        """Take one mask + depth frame and return the smoothed command."""
+        mask_b, depth_m = _validated_frame(mask, depth)
+        self._fusion.push_mask(mask_b)
+        fused = self._fusion.fused_mask()
+        assert fused is not None
+        return self._command(fused, depth_m)
+
+    def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
+        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`)."""
+        self._fusion.push_mask(mask, stamp)
+
+    def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
+        """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
+        return self._fusion.fused_mask(not_before)
+
+    def command(self, fused: np.ndarray, depth: np.ndarray) -> CorridorCommand:
+        """The smoothed command for an already fused mask and the newest depth frame."""
+        mask_b, depth_m = _validated_frame(fused, depth)
+        return self._command(mask_b, depth_m)
+
+    def stop(self) -> Command:
+        """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
+        self._v = self._omega = 0.0
+        self._centre = None
+        return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
+
+    # ---- one command -----------------------------------------------------------------------------
+    def _command(self, fused: np.ndarray, depth_m: np.ndarray) -> CorridorCommand:
+        config = self.config
+        if fused.shape != (self.camera.height, self.camera.width):
+            raise ValueError(f"mask is {fused.shape[1]}x{fused.shape[0]} but the camera geometry is "
+                             f"{self.camera.width}x{self.camera.height}")
+        histogram = moving_average(column_histogram(fused, depth_m, method="segmind",
+                                                    depth_threshold=config.depth_threshold), 11)
+        fallback_column = histogram_minimum(histogram)
+        centre, mode = self._centreline(fused, depth_m, fallback_column)
+        if centre is None:
+            self._centre = None
+            v, omega = control_law(fallback_column, fused.shape[1], self._fusion.config)
+            column = fallback_column
+        else:
+            if self._centre is not None:  # the row moves little between commands: average out noise
+                memory = config.centre_memory
+                centre = tuple((1 - memory) * old + memory * new for old, new in zip(self._centre, centre))
+            self._centre = centre
+            v, omega = self._pursuit(centre)
+            column = self.camera.column_of(config.lookahead, float(polyval(config.lookahead, centre)))
+        self.mode_counts[mode] += 1
+        lam = config.ema_lambda
+        self._v = (1.0 - lam) * self._v + lam * v
+        self._omega = (1.0 - lam) * self._omega + lam * omega
+        return CorridorCommand(v=self._v, omega=self._omega, target_column=float(column), histogram=histogram,
+                               valid=True, mode=mode, centre=centre)
+
+    def _centreline(self, fused: np.ndarray, depth_m: np.ndarray,
+                    fallback_column: float) -> tuple[tuple[float, float] | None, str]:
+        """(a, b) of the centreline and the mode that found it (None, "fallback" without one)."""
+        config = self.config
+        x, y, h = self._row_points(fused, depth_m)
+        if self._centre is not None:
+            split = self._centre
+        else:
+            split = (0.0, (self.camera.cx - fallback_column) / self.camera.fx / math.cos(math.radians(self.camera.tilt_deg)))
+        offset = y - polyval(x, split)
+        near = np.abs(offset) <= config.max_lateral
+        left = self._row(x[near & (offset > 0)], y[near & (offset > 0)])
+        right = self._row(x[near & (offset <= 0)], y[near & (offset <= 0)])
+        if left is not None and right is not None:
+            width = left[0] - right[0]
+            if self._under_roof(x, y, h, left, right):
+                return None, "fallback"
+            if width > 0:
+                memory = config.width_memory
+                self._width = width if self._width is None else (1 - memory) * self._width + memory * width
+                return tuple((l + r) / 2.0 for l, r in zip(left, right)), "both"
+        side = left if left is not None else right
+        if side is not None and self._width is not None:
+            shift = -self._width / 2.0 if side is left else self._width / 2.0
+            return (side[0] + shift, *side[1:]), "one_side"
+        return None, "fallback"
+
+    def _under_roof(self, x: np.ndarray, y: np.ndarray, h: np.ndarray,
+                    left: tuple[float, float], right: tuple[float, float]) -> bool:
+        """Whether vegetation above the robot fills the middle of the corridor (a roof)."""
+        config = self.config
+        y_left, y_right = polyval(x, left), polyval(x, right)
+        margin = config.roof_inner * (y_left - y_right)
+        inner = (y < y_left - margin) & (y > y_right + margin) & (h >= config.roof_min_height)
+        count = int(np.count_nonzero(inner))
+        return count >= config.min_points and count >= config.roof_share * x.shape[0]
+
+    def _row(self, x: np.ndarray, y: np.ndarray) -> tuple[float, ...] | None:
+        """A row's curve coefficients (c_0 up) when enough points spanning enough range support it."""
+        config = self.config
+        if x.shape[0] < config.min_points or float(x.max() - x.min()) < config.min_span:
+            return None
+        fit = fit_row_line(x, y, trim=config.trim, iterations=config.trim_iterations, degree=config.degree)
+        if fit is None or fit[1] < config.min_points:
+            return None
+        return fit[0]
+
+    def _row_points(self, fused: np.ndarray, depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Robot-frame (x, y, h) of the kept vegetation pixels (every `stride`-th, in range and height)."""
+        config = self.config
+        s = config.stride
+        mask = fused[::s, ::s]
+        depth = depth_m[::s, ::s]
+        rows_grid, cols_grid = self._grid(mask.shape, s)
+        kept = mask & (depth > 0) & np.isfinite(depth)
+        z = depth[kept]
+        x, y, h = self.camera.robot_frame(rows_grid[kept], cols_grid[kept], z)
+        ok = (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min) & (h <= config.h_max)
+        return x[ok], y[ok], h[ok]
+
+    def _grid(self, shape: tuple[int, int], stride: int) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel row and column coordinates of the strided grid (cached per shape)."""
+        key = (shape[0], shape[1])
+        if key not in self._grids:
+            rows, cols = np.meshgrid(np.arange(shape[0]) * stride, np.arange(shape[1]) * stride, indexing="ij")
+            self._grids[key] = (rows.astype(np.float32), cols.astype(np.float32))
+        return self._grids[key]
+
+    def _pursuit(self, centre: tuple[float, float]) -> tuple[float, float]:
+        """Unsmoothed (v, omega) of pure pursuit to the centreline point at the lookahead."""
+        config = self.config
+        lookahead = config.lookahead
+        y_goal = float(polyval(lookahead, centre))
+        kappa = 2.0 * y_goal / (lookahead * lookahead + y_goal * y_goal)
+        alpha = math.atan2(y_goal, lookahead)
+        alpha_max = math.atan2(self.camera.width / 2.0, self.camera.fx)
+        v = config.v_max * max(0.0, 1.0 - (alpha / alpha_max) ** 2)
+        # The nominal speed, not the slowed one: a robot that slows for a large bearing still turns.
+        omega = min(max(config.v_max * kappa, -config.omega_max), config.omega_max)
+        return v, omega

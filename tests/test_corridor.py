@@ -1,0 +1,215 @@
+"""SegCorridor (nav_eval.corridor): exact geometry on analytic scenes, properties, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_row_line
+from segmin.nav_eval.demo_scenes import DemoScene, render_scene
+from segmin.nav_eval.eval_config import load_nav_config
+from segmin.nav_eval.factories import make_navigator
+from segmin.nav_eval.runtime import RowFollower
+
+SIZE = 96
+
+
+def scene_camera(size: int = SIZE) -> CameraGeometry:
+    """The analytic demo scenes' camera: square pixels, centre (size - 1) / 2, 0.4 m, 15 deg up."""
+    focal = (size / 2) / math.tan(math.radians(69.0) / 2)
+    centre = (size - 1) / 2
+    return CameraGeometry(width=size, height=size, fx=focal, fy=focal, cx=centre, cy=centre,
+                          mount_height=0.4, tilt_deg=15.0)
+
+
+def vine_scene(offset: float = 0.0, yaw_deg: float = 0.0, holes: float = 0.25, half_gap: float = 0.9) -> DemoScene:
+    return DemoScene("vines", half_gap=half_gap, foliage_low=0.4, foliage_high=2.0, canopy_base=None,
+                     row_length=20.0, lateral_offset=offset, yaw=math.radians(yaw_deg), hole_fraction=holes)
+
+
+def settle(navigator: CorridorNavigator, scene: DemoScene, steps: int = 3):
+    mask, depth = render_scene(scene, size=SIZE)
+    for _ in range(steps):
+        command = navigator.step(mask, depth)
+    return command
+
+
+def navigator(**changes) -> CorridorNavigator:
+    return CorridorNavigator(CorridorConfig(depth_threshold=5.0, **changes), scene_camera())
+
+
+# ---- exact ---------------------------------------------------------------------------------------
+
+
+def test_back_projection_of_a_ground_pixel_lands_on_the_ground():
+    camera = scene_camera()
+    row, col = SIZE - 1.0, (SIZE - 1) / 2
+    theta = math.radians(camera.tilt_deg)
+    vertical = (row - camera.cy) / camera.fy
+    depth = camera.mount_height / (vertical * math.cos(theta) - math.sin(theta))  # h = 0
+    x, y, h = camera.robot_frame(np.array([row]), np.array([col]), np.array([depth]))
+    assert h[0] == pytest.approx(0.0, abs=1e-9)
+    assert y[0] == pytest.approx(0.0, abs=1e-12)
+    assert x[0] > 0
+
+
+@pytest.mark.parametrize("offset,yaw_deg", [(0.0, 0.0), (0.3, 8.0), (-0.25, -5.0), (0.1, 12.0)])
+def test_centreline_of_an_analytic_row_is_exact(offset, yaw_deg):
+    command = settle(navigator(), vine_scene(offset, yaw_deg))
+    assert command.mode == "both"
+    a, b = command.centre
+    assert a == pytest.approx(-offset, abs=0.02)
+    assert b == pytest.approx(-math.tan(math.radians(yaw_deg)), abs=0.01)
+
+
+def test_steers_back_towards_the_centre():
+    left = settle(navigator(), vine_scene(0.3))
+    right = settle(navigator(), vine_scene(-0.3))
+    assert left.omega < 0 < right.omega       # left of the centre: turn right (negative omega)
+    assert left.omega == pytest.approx(-right.omega, rel=0.05)
+    centred = settle(navigator(), vine_scene(0.0))
+    assert centred.omega == pytest.approx(0.0, abs=1e-6)
+    assert centred.v == pytest.approx(0.5 * (1 - 0.5 ** 3), rel=1e-6)  # three EMA steps from rest
+
+
+def test_one_row_seen_keeps_the_width_learnt_from_both():
+    nav = navigator()
+    settle(nav, vine_scene(0.0))
+    mask, depth = render_scene(vine_scene(0.0), size=SIZE)
+    right_half = mask.copy()
+    right_half[:, : SIZE // 2] = False                 # the left row is lost (e.g. a gap)
+    for _ in range(3):
+        command = nav.step(right_half, depth)
+    assert command.mode == "one_side"
+    assert command.centre[0] == pytest.approx(0.0, abs=0.05)
+
+
+def test_fallback_without_rows_is_segmind_and_is_counted():
+    nav = navigator()
+    mask = np.zeros((SIZE, SIZE), dtype=bool)
+    depth = np.full((SIZE, SIZE), 3.0, dtype=np.float32)
+    command = nav.step(mask, depth)
+    assert command.mode == "fallback" and command.centre is None and command.valid
+    assert command.target_column == pytest.approx((SIZE - 1) / 2)
+    assert nav.mode_counts == {"both": 0, "one_side": 0, "fallback": 1}
+    nav.reset()
+    assert sum(nav.mode_counts.values()) == 0
+
+
+def test_stop_is_invalid_and_restarts_from_rest():
+    nav = navigator()
+    settle(nav, vine_scene(0.2))
+    stop = nav.stop()
+    assert not stop.valid and stop.v == 0.0 and stop.omega == 0.0
+    after = settle(nav, vine_scene(0.2), steps=1)
+    fresh = settle(navigator(), vine_scene(0.2), steps=1)   # one EMA step from rest
+    assert after.v == pytest.approx(fresh.v) and after.omega == pytest.approx(fresh.omega)
+
+
+def test_robust_line_fit_ignores_outliers():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(1, 5, 400)
+    y = 0.8 + 0.05 * x + rng.normal(0, 0.01, x.shape)
+    y[:40] = rng.uniform(-0.5, 0.3, 40)        # 10 % clutter hanging into the row
+    (a, b), kept = fit_row_line(x, y, trim=2.5, iterations=2)
+    assert a == pytest.approx(0.8, abs=0.02) and b == pytest.approx(0.05, abs=0.01)
+    assert kept < 400
+    bend = 0.8 + 0.05 * x + 0.02 * x * x
+    (a2, b2, c2), _ = fit_row_line(x, bend, trim=2.5, iterations=2, degree=2)
+    assert (a2, b2, c2) == pytest.approx((0.8, 0.05, 0.02), abs=1e-9)
+    assert fit_row_line(np.ones(5), np.arange(5.0), trim=2.5, iterations=2) is None
+
+
+# ---- properties ----------------------------------------------------------------------------------
+
+
+@settings(max_examples=15, deadline=None)
+@given(offset=st.floats(-0.4, 0.4), yaw=st.floats(-10, 10))
+def test_mirrored_scene_gives_mirrored_command(offset, yaw):
+    mask, depth = render_scene(vine_scene(offset, yaw, holes=0.0), size=SIZE)
+    a = navigator().step(mask, depth)
+    b = navigator().step(mask[:, ::-1].copy(), depth[:, ::-1].copy())
+    assert a.mode == b.mode
+    # The camera's centre column is (SIZE - 1) / 2, so mirroring the image mirrors the scene.
+    assert a.omega == pytest.approx(-b.omega, abs=1e-6)
+    assert a.v == pytest.approx(b.v, abs=1e-6)
+
+
+@settings(max_examples=15, deadline=None)
+@given(offset=st.floats(-0.4, 0.4), yaw=st.floats(-15, 15), holes=st.floats(0.0, 0.6))
+def test_commands_stay_within_limits(offset, yaw, holes):
+    command = settle(navigator(), vine_scene(offset, yaw, holes), steps=1)
+    assert 0.0 <= command.v <= 0.5 and abs(command.omega) <= 1.0
+    assert math.isfinite(command.v) and math.isfinite(command.omega)
+
+
+def test_invalid_depth_is_no_reading():
+    mask, depth = render_scene(vine_scene(0.2), size=SIZE)
+    clean = navigator().step(mask, depth)
+    poisoned = depth.copy()
+    poisoned[::7, ::5] = np.nan
+    poisoned[1::9, ::3] = -1.0
+    noisy = navigator().step(mask, poisoned)
+    assert math.isfinite(noisy.omega)
+    assert noisy.centre[0] == pytest.approx(clean.centre[0], abs=0.03)
+
+
+# ---- wiring and bad input ------------------------------------------------------------------------
+
+
+def test_built_by_the_evaluation_with_the_config_section():
+    config = load_nav_config(overrides=["corridor.lookahead=3.0"])
+    nav = make_navigator("segcorridor", 5.0, config)
+    assert isinstance(nav, CorridorNavigator)
+    assert nav.config.lookahead == 3.0 and nav.config.method == "segcorridor"
+    assert nav.camera.width == 224 and nav.camera.mount_height == pytest.approx(0.40)
+
+
+def test_unknown_corridor_key_is_refused_at_load():
+    with pytest.raises(ValueError, match="corridor: unknown key"):
+        load_nav_config(overrides=["corridor.look_ahead=3"])
+
+
+@pytest.mark.parametrize("changes,field", [
+    ({"x_min": 9.0}, "x_min"), ({"h_min": 5.0}, "h_min"), ({"lookahead": 0.0}, "lookahead"),
+    ({"stride": 0}, "stride"), ({"ema_lambda": 1.5}, "ema_lambda"), ({"min_points": 2.5}, "min_points"),
+])
+def test_bad_settings_name_the_field(changes, field):
+    with pytest.raises(ValueError, match=field):
+        CorridorConfig(depth_threshold=5.0, **changes)
+
+
+def test_bad_camera_and_frames_are_refused():
+    with pytest.raises(ValueError, match="fx"):
+        dataclasses.replace(scene_camera(), fx=-1.0)
+    with pytest.raises(ValueError, match="tilt"):
+        dataclasses.replace(scene_camera(), tilt_deg=95.0)
+    nav = navigator()
+    with pytest.raises(ValueError, match="camera geometry"):
+        nav.step(np.zeros((SIZE, SIZE + 8), bool), np.ones((SIZE, SIZE + 8), np.float32))
+    with pytest.raises(ValueError, match="same shape"):
+        nav.step(np.zeros((SIZE, SIZE), bool), np.ones((SIZE, SIZE - 1), np.float32))
+
+
+def test_the_runtime_refuses_segcorridor_without_depth():
+    follower = RowFollower(None, navigator())
+    with pytest.raises(ValueError, match="segcorridor needs depth"):
+        follower.step(None, None, 0.0, mask=np.zeros((SIZE, SIZE), bool))
+
+
+def test_under_a_roof_it_steers_exactly_as_segmind():
+    from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+
+    roofed = dataclasses.replace(vine_scene(0.3, 5.0), canopy_base=2.2)
+    mask, depth = render_scene(roofed, size=SIZE)
+    corridor, segmind = navigator(), Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
+    for _ in range(3):
+        ours, paper = corridor.step(mask, depth), segmind.step(mask, depth)
+        assert ours.mode == "fallback"
+        assert ours.v == pytest.approx(paper.v) and ours.omega == pytest.approx(paper.omega)
+        assert ours.target_column == pytest.approx(paper.target_column)
