@@ -16,7 +16,8 @@ the robot frame. From there:
    with X = (u - c_x) / f_x and Y = (v - c_y) / f_y. Only pixels of the fused mask with valid
    depth, `x_min <= x <= x_max`, `h_min <= h <= h_max` (ground false positives and the crowns
    above the robot are dropped) and within `max_lateral` of the split line are kept; every
-   `stride`-th pixel in both directions is enough for a line fit and keeps the step cheap.
+   `stride`-th pixel in both directions, thinned evenly to at most `max_points`, is enough for
+   a line fit and keeps the step cheap.
 2. **Two rows.** The points left of the split line are the left row, the others the right row.
    The split line is the previous frame's centreline; without one (start, after a fallback) it
    is the ray through SegMinD's target column, which points into the free corridor even with a
@@ -45,10 +46,10 @@ calls (`step`, `push_mask`, `fused_mask`, `command`, `stop`, `reset`, `config.me
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.polynomial.polynomial import polyval
 
 from segmin.nav_eval.navigator import (
     Command,
@@ -138,6 +139,7 @@ class CorridorConfig:
     roof_min_height: float = 1.0
     stride: int = 2
     min_points: int = 30
+    max_points: int = 1500
     min_span: float = 1.0
     trim: float = 2.5
     trim_iterations: int = 2
@@ -154,7 +156,7 @@ class CorridorConfig:
         _check_threshold(self.depth_threshold)
         if self.degree not in (1, 2):
             raise ValueError(f"corridor.degree must be 1 (straight rows) or 2 (bends), got {self.degree!r}")
-        for name in ("fuse_frames", "stride", "min_points", "trim_iterations"):
+        for name in ("fuse_frames", "stride", "min_points", "max_points", "trim_iterations"):
             value = getattr(self, name)
             low = 0 if name == "trim_iterations" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -177,8 +179,9 @@ class CorridorConfig:
 
 @dataclass(frozen=True)
 class CorridorCommand(Command):
-    """A command plus how it was found: `mode` is one of MODES; `centre` the (a, b) of the
-    centreline y = a + b x in the robot frame (None in fallback)."""
+    """A command plus how it was found: `mode` is one of MODES; `centre` the coefficients
+    (c_0, c_1[, c_2]) of the centreline y = c_0 + c_1 x (+ c_2 x^2) in the robot frame (None in
+    fallback). `histogram` is SegMinD's smoothed histogram in fallback, else empty."""
 
     mode: str = "fallback"
     centre: tuple[float, float] | None = None
@@ -198,10 +201,9 @@ def fit_row_line(x: np.ndarray, y: np.ndarray, *, trim: float, iterations: int,
         xs, ys = x[keep] - x_mean, y[keep]
         if xs.shape[0] <= degree or float(np.ptp(xs)) <= 1e-6:
             return fit
-        centred = np.polynomial.polynomial.polyfit(xs, ys, degree)
-        # Back to powers of x (not x - x_mean): c(x) = sum_k centred_k (x - m)^k.
-        coefficients = np.polynomial.polynomial.Polynomial(centred)(np.polynomial.polynomial.Polynomial([-x_mean, 1.0])).coef
-        coefficients = np.pad(coefficients, (0, degree + 1 - coefficients.shape[0]))
+        powers = np.vander(xs, degree + 1, increasing=True)
+        centred = np.linalg.solve(powers.T @ powers, powers.T @ ys)
+        coefficients = _uncentre(centred, x_mean)
         fit = (tuple(float(c) for c in coefficients), int(xs.shape[0]))
         residual = np.abs(y - polyval(x, coefficients))
         spread = 1.4826 * float(np.median(residual[keep]))
@@ -212,6 +214,21 @@ def fit_row_line(x: np.ndarray, y: np.ndarray, *, trim: float, iterations: int,
             break
         keep = new_keep
     return fit
+
+
+def polyval(x: np.ndarray | float, c: tuple[float, ...] | np.ndarray) -> np.ndarray | float:
+    """c_0 + c_1 x + c_2 x^2 + ... by Horner's rule (numpy's polyval costs more than the fit here)."""
+    result = c[-1]
+    for coefficient in c[-2::-1]:
+        result = result * x + coefficient
+    return result
+
+
+def _uncentre(c: np.ndarray, m: float) -> np.ndarray:
+    """Coefficients in powers of x of the polynomial sum_k c_k (x - m)^k (degree 1 or 2)."""
+    if c.shape[0] == 2:
+        return np.array([c[0] - c[1] * m, c[1]])
+    return np.array([c[0] - c[1] * m + c[2] * m * m, c[1] - 2.0 * c[2] * m, c[2]])
 
 
 class CorridorNavigator:
@@ -269,14 +286,24 @@ class CorridorNavigator:
         if fused.shape != (self.camera.height, self.camera.width):
             raise ValueError(f"mask is {fused.shape[1]}x{fused.shape[0]} but the camera geometry is "
                              f"{self.camera.width}x{self.camera.height}")
-        histogram = moving_average(column_histogram(fused, depth_m, method="segmind",
-                                                    depth_threshold=config.depth_threshold), 11)
-        fallback_column = histogram_minimum(histogram)
-        centre, mode = self._centreline(fused, depth_m, fallback_column)
+        # SegMinD's histogram only when it is needed (the split without a previous centreline,
+        # the fallback): it costs as much as the rest of a step.
+        fallback: list[tuple[np.ndarray, float]] = []
+
+        def segmind_target() -> tuple[np.ndarray, float]:
+            if not fallback:
+                histogram = moving_average(column_histogram(fused, depth_m, method="segmind",
+                                                            depth_threshold=config.depth_threshold),
+                                           self._fusion.config.smooth_window)
+                fallback.append((histogram, histogram_minimum(histogram)))
+            return fallback[0]
+
+        centre, mode = self._centreline(fused, depth_m, segmind_target)
+        histogram = np.zeros(0)
         if centre is None:
             self._centre = None
-            v, omega = control_law(fallback_column, fused.shape[1], self._fusion.config)
-            column = fallback_column
+            histogram, column = segmind_target()
+            v, omega = control_law(column, fused.shape[1], self._fusion.config)
         else:
             if self._centre is not None:  # the row moves little between commands: average out noise
                 memory = config.centre_memory
@@ -292,14 +319,15 @@ class CorridorNavigator:
                                valid=True, mode=mode, centre=centre)
 
     def _centreline(self, fused: np.ndarray, depth_m: np.ndarray,
-                    fallback_column: float) -> tuple[tuple[float, float] | None, str]:
-        """(a, b) of the centreline and the mode that found it (None, "fallback" without one)."""
+                    segmind_target: Callable[[], tuple[np.ndarray, float]]) -> tuple[tuple[float, ...] | None, str]:
+        """Coefficients of the centreline and the mode that found it (None, "fallback" without one)."""
         config = self.config
         x, y, h = self._row_points(fused, depth_m)
         if self._centre is not None:
             split = self._centre
         else:
-            split = (0.0, (self.camera.cx - fallback_column) / self.camera.fx / math.cos(math.radians(self.camera.tilt_deg)))
+            column = segmind_target()[1]
+            split = (0.0, (self.camera.cx - column) / self.camera.fx / math.cos(math.radians(self.camera.tilt_deg)))
         offset = y - polyval(x, split)
         near = np.abs(offset) <= config.max_lateral
         left = self._row(x[near & (offset > 0)], y[near & (offset > 0)])
@@ -349,7 +377,11 @@ class CorridorNavigator:
         z = depth[kept]
         x, y, h = self.camera.robot_frame(rows_grid[kept], cols_grid[kept], z)
         ok = (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min) & (h <= config.h_max)
-        return x[ok], y[ok], h[ok]
+        x, y, h = x[ok], y[ok], h[ok]
+        if x.shape[0] > config.max_points:  # an even thinning bounds the step time on dense walls
+            every = -(-x.shape[0] // config.max_points)
+            x, y, h = x[::every], y[::every], h[::every]
+        return x, y, h
 
     def _grid(self, shape: tuple[int, int], stride: int) -> tuple[np.ndarray, np.ndarray]:
         """Pixel row and column coordinates of the strided grid (cached per shape)."""

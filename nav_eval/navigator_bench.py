@@ -13,6 +13,7 @@ from segmin.nav_eval.methods import METHODS
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
 TARGET_MEDIAN_MS = 0.2
+CORRIDOR_TARGET_MS = 0.5  # SegCorridor's budget (issue: <= 0.5 ms a step at 224 x 224, one thread)
 
 
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
@@ -38,10 +39,11 @@ def _navigator(method: str, size: int) -> object:
 
 
 def format_rows(rows: list[dict], size: int) -> str:
-    lines = [f"Navigator.step at {size} x {size}, fuse_frames 3, one thread (target median <= {TARGET_MEDIAN_MS} ms)"]
+    lines = [f"Navigator.step at {size} x {size}, fuse_frames 3, one thread (target median <= {TARGET_MEDIAN_MS} ms, "
+             f"segcorridor <= {CORRIDOR_TARGET_MS} ms)"]
     for row in rows:
-        ratio = row["median_ms"] / TARGET_MEDIAN_MS
-        lines.append(f"  {row['method']:<9} median {row['median_ms']:.3f} ms  p95 {row['p95_ms']:.3f} ms  "
+        ratio = row["median_ms"] / (CORRIDOR_TARGET_MS if row["method"] == "segcorridor" else TARGET_MEDIAN_MS)
+        lines.append(f"  {row['method']:<11} median {row['median_ms']:.3f} ms  p95 {row['p95_ms']:.3f} ms  "
                      f"({ratio:.2f}x the target budget)")
     return "\n".join(lines)
 
