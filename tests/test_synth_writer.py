@@ -167,6 +167,28 @@ def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_pa
     assert not lock_path(job).exists()  # released
 
 
+def test_a_killed_writers_lock_is_free_while_its_forked_workers_still_live(tmp_path):
+    """CI, 2026-12-02: a rerun right after kill -9 of a render was refused while its dying fork
+    workers still held copies of the locked descriptor."""
+    from segmin.data.synth.writer import lock_path
+
+    job = _job(tmp_path, frames=2)
+    code = ("import os, sys, time\nfrom segmin.common.lock import writer_lock\n"
+            "with writer_lock(sys.argv[1], 'test'):\n"
+            "    child = os.fork()\n"
+            "    if child == 0:\n        time.sleep(60)\n        os._exit(0)\n"
+            "    print(child, flush=True)\n    time.sleep(60)\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(lock_path(job))], stdout=subprocess.PIPE, text=True)
+    worker = int(holder.stdout.readline())
+    try:
+        holder.kill()  # the writer dies; its forked worker lives on
+        holder.wait()
+        os.kill(worker, 0)  # still alive
+        assert render_dataset(job)["written"] == 2
+    finally:
+        os.kill(worker, signal.SIGKILL)
+
+
 def test_a_rerun_with_fewer_frames_is_refused_and_more_frames_extend(tmp_path):
     """Issue 13.2: --frames 3 after --frames 5 exited 0 and rewrote meta.json for 3 frames."""
     domain = tmp_path / "synth_tiny_vineyard"

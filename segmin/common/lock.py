@@ -5,6 +5,11 @@ removes the first one's staging folders. `writer_lock` takes an `flock` on a loc
 kernel releases it when the holder dies (even by kill -9): a lock file left by a dead process
 is stale and is taken over, while a live holder makes the second writer fail at once with a
 message naming the holder. A clean exit removes the file.
+
+A forked child (the render's worker pool) inherits the locked descriptor, and an flock lives
+until every copy is closed: a writer killed with its workers would keep the lock until the last
+orphan finished dying, and a rerun started at once was refused. Forked children therefore close
+their copies at once (the parent's copy still holds the lock): the lock dies with its holder.
 """
 
 from __future__ import annotations
@@ -17,6 +22,19 @@ import socket
 import time
 from pathlib import Path
 from typing import Iterator
+
+
+_HELD: set[int] = set()  # descriptors this process holds locks on, closed in forked children
+
+
+def _close_inherited() -> None:
+    for fd in _HELD:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_close_inherited)
 
 
 class LockHeldError(FileExistsError):
@@ -65,6 +83,7 @@ def writer_lock(path: str | Path, what: str) -> Iterator[dict]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd = _open_locked(path, what)
+    _HELD.add(fd)
     try:
         previous = _holder(fd)
         record = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(), "what": what}
@@ -76,4 +95,5 @@ def writer_lock(path: str | Path, what: str) -> Iterator[dict]:
         finally:
             path.unlink(missing_ok=True)
     finally:
+        _HELD.discard(fd)
         os.close(fd)  # releases the flock
