@@ -13,7 +13,10 @@ the robot frame. From there:
 
        x = forward + z (cos theta + Y sin theta),   y = -z X,   h = height + z (sin theta - Y cos theta)
 
-   with X = (u - c_x) / f_x and Y = (v - c_y) / f_y. Only pixels of the fused mask with valid
+   with X = (u - c_x) / f_x and Y = (v - c_y) / f_y. When the robot's IMU gives its roll phi
+   and pitch psi (REP 103), the point is levelled, (x, y, h) <- R_y(psi) R_x(phi) (x, y, h):
+   rows stand along gravity, not along the robot's up axis, and on rough ground a roll of
+   2 degrees moves a crown 1.5 m above the camera by 5 cm. Only pixels of the fused mask with valid
    depth, `x_min <= x <= x_max`, `h_min <= h <= h_max` (ground false positives and the crowns
    above the robot are dropped) and within `max_lateral` of the split line are kept; every
    `stride`-th pixel in both directions, thinned evenly to at most `max_points`, is enough for
@@ -62,6 +65,7 @@ from segmin.nav_eval.navigator import (
     control_law,
     histogram_minimum,
     moving_average,
+    validated_attitude,
 )
 
 MODES = ("both", "one_side", "fallback")
@@ -102,8 +106,15 @@ class CameraGeometry:
                    cx=float(k["cx"]), cy=float(k["cy"]), mount_height=float(camera.mount_height),  # type: ignore[attr-defined]
                    tilt_deg=float(camera.tilt_deg), mount_forward=float(camera.mount_forward))  # type: ignore[attr-defined]
 
-    def robot_frame(self, rows: np.ndarray, cols: np.ndarray, depth_m: np.ndarray) -> tuple[np.ndarray, ...]:
-        """(x forward, y left, h up) in metres of pixels (rows, cols) with planar depth `depth_m`."""
+    def robot_frame(self, rows: np.ndarray, cols: np.ndarray, depth_m: np.ndarray,
+                    attitude: tuple[float, float] | None = None) -> tuple[np.ndarray, ...]:
+        """(x forward, y left, h up) in metres of pixels (rows, cols) with planar depth `depth_m`.
+
+        Without `attitude` the axes are the robot's (h along its up axis). With the IMU's
+        (roll, pitch) (REP 103: positive roll lifts the left side, positive pitch lowers the
+        nose) they are levelled, h along gravity: on rough ground the robot rolls by several
+        degrees, and a crown 1 m above the camera then appears 1 m x roll to the side.
+        """
         theta = math.radians(self.tilt_deg)
         s, c = math.sin(theta), math.cos(theta)
         lateral = (cols - self.cx) / self.fx
@@ -111,7 +122,13 @@ class CameraGeometry:
         x = self.mount_forward + depth_m * (c + vertical * s)
         y = -depth_m * lateral
         h = self.mount_height + depth_m * (s - vertical * c)
-        return x, y, h
+        if attitude is None:
+            return x, y, h
+        roll, pitch = attitude  # body-to-level rotation R_y(pitch) R_x(roll)
+        sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+        return (cp * x + sp * sr * y + sp * cr * h,
+                cr * y - sr * h,
+                -sp * x + cp * sr * y + cp * cr * h)
 
     def column_of(self, x: float, y: float) -> float:
         """Image column of the robot-frame point (x, y) at camera height (for overlays)."""
@@ -253,13 +270,14 @@ class CorridorNavigator:
         self._omega = 0.0
         self.mode_counts = {mode: 0 for mode in MODES}
 
-    def step(self, mask: np.ndarray, depth: np.ndarray) -> CorridorCommand:
-        """Take one mask + depth frame and return the smoothed command."""
+    def step(self, mask: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None) -> CorridorCommand:
+        """Take one mask + depth frame (and the IMU's (roll, pitch), if any) and return the
+        smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
         self._fusion.push_mask(mask_b)
         fused = self._fusion.fused_mask()
         assert fused is not None
-        return self._command(fused, depth_m)
+        return self._command(fused, depth_m, validated_attitude(attitude))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
         """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`)."""
@@ -269,10 +287,12 @@ class CorridorNavigator:
         """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
         return self._fusion.fused_mask(not_before)
 
-    def command(self, fused: np.ndarray, depth: np.ndarray) -> CorridorCommand:
-        """The smoothed command for an already fused mask and the newest depth frame."""
+    def command(self, fused: np.ndarray, depth: np.ndarray,
+                attitude: tuple[float, float] | None = None) -> CorridorCommand:
+        """The smoothed command for an already fused mask, the newest depth frame and the IMU's
+        (roll, pitch) in radians (None: level ground assumed)."""
         mask_b, depth_m = _validated_frame(fused, depth)
-        return self._command(mask_b, depth_m)
+        return self._command(mask_b, depth_m, validated_attitude(attitude))
 
     def stop(self) -> Command:
         """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
@@ -281,7 +301,7 @@ class CorridorNavigator:
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
     # ---- one command -----------------------------------------------------------------------------
-    def _command(self, fused: np.ndarray, depth_m: np.ndarray) -> CorridorCommand:
+    def _command(self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None) -> CorridorCommand:
         config = self.config
         if fused.shape != (self.camera.height, self.camera.width):
             raise ValueError(f"mask is {fused.shape[1]}x{fused.shape[0]} but the camera geometry is "
@@ -298,7 +318,7 @@ class CorridorNavigator:
                 fallback.append((histogram, histogram_minimum(histogram)))
             return fallback[0]
 
-        centre, mode = self._centreline(fused, depth_m, segmind_target)
+        centre, mode = self._centreline(fused, depth_m, attitude, segmind_target)
         histogram = np.zeros(0)
         if centre is None:
             self._centre = None
@@ -318,11 +338,11 @@ class CorridorNavigator:
         return CorridorCommand(v=self._v, omega=self._omega, target_column=float(column), histogram=histogram,
                                valid=True, mode=mode, centre=centre)
 
-    def _centreline(self, fused: np.ndarray, depth_m: np.ndarray,
+    def _centreline(self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None,
                     segmind_target: Callable[[], tuple[np.ndarray, float]]) -> tuple[tuple[float, ...] | None, str]:
         """Coefficients of the centreline and the mode that found it (None, "fallback" without one)."""
         config = self.config
-        x, y, h = self._row_points(fused, depth_m)
+        x, y, h = self._row_points(fused, depth_m, attitude)
         if self._centre is not None:
             split = self._centre
         else:
@@ -366,7 +386,8 @@ class CorridorNavigator:
             return None
         return fit[0]
 
-    def _row_points(self, fused: np.ndarray, depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _row_points(self, fused: np.ndarray, depth_m: np.ndarray,
+                    attitude: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Robot-frame (x, y, h) of the kept vegetation pixels (every `stride`-th, in range and height)."""
         config = self.config
         s = config.stride
@@ -375,7 +396,7 @@ class CorridorNavigator:
         rows_grid, cols_grid = self._grid(mask.shape, s)
         kept = mask & (depth > 0) & np.isfinite(depth)
         z = depth[kept]
-        x, y, h = self.camera.robot_frame(rows_grid[kept], cols_grid[kept], z)
+        x, y, h = self.camera.robot_frame(rows_grid[kept], cols_grid[kept], z, attitude)
         ok = (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min) & (h <= config.h_max)
         x, y, h = x[ok], y[ok], h[ok]
         if x.shape[0] > config.max_points:  # an even thinning bounds the step time on dense walls

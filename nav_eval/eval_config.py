@@ -54,6 +54,9 @@ class Perception:
     # "erode" shrinks the vegetation (missed leaves), "drop" empties the mask (a lost inference).
     mask_dropout: float = 0.0
     mask_dropout_mode: Literal["erode", "drop"] = "erode"
+    # The robot's IMU roll and pitch reach the navigator (SegCorridor levels its depth points
+    # with them; the paper's methods do not use them). false: level ground is assumed.
+    imu: bool = True
 
     def __post_init__(self) -> None:
         if self.fuse_frames < 1:

@@ -5,7 +5,8 @@ simulated time (the robot integrates at physics_hz and the end conditions are ch
 physics tick), and the observation is the next camera frame.
 
 - observation: Dict(rgb uint8 H x W x 3, depth float32 H x W metres (0 = no reading), t float64
-  seconds), what `nav_eval.runtime.RowFollower.step` takes;
+  seconds, attitude float64 (roll, pitch) radians: the IMU, REP 103), what
+  `nav_eval.runtime.RowFollower.step` takes;
 - action: Box([-max_v, -max_omega], [max_v, max_omega]) float64, the robot's hardware limits
   (float64 so a command reaches the robot unrounded);
 - reward: progress along the row's centreline during the step, in metres (negative when the
@@ -82,6 +83,7 @@ class RowFollowEnv(gymnasium.Env):
             "rgb": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
             "depth": spaces.Box(0.0, np.inf, (height, width), dtype=np.float32),
             "t": spaces.Box(0.0, np.inf, (), dtype=np.float64),
+            "attitude": spaces.Box(-np.pi / 2, np.pi / 2, (2,), dtype=np.float64),
         })
         self.action_space = spaces.Box(np.array([-robot.max_v, -robot.max_omega]),
                                        np.array([robot.max_v, robot.max_omega]), dtype=np.float64)
@@ -138,7 +140,8 @@ class RowFollowEnv(gymnasium.Env):
             depth = np.asarray(frame.depth, dtype=np.float32)
             info["mask"] = np.asarray(frame.mask, dtype=bool)
         self.skip_next_render = False
-        return {"rgb": rgb, "depth": depth, "t": np.array(self.row.t, dtype=np.float64)}, info
+        return {"rgb": rgb, "depth": depth, "t": np.array(self.row.t, dtype=np.float64),
+                "attitude": np.array(self.row.attitude, dtype=np.float64)}, info
 
     def close(self) -> None:
         if self._context is not None:

@@ -284,9 +284,14 @@ class Navigator:
             window = self._masks if keep.all() else self._masks[keep]
         return window.any(axis=0)
 
-    def command(self, fused: np.ndarray, depth: np.ndarray) -> Command:
-        """The smoothed command for an already fused mask and the newest depth frame (one EMA step)."""
+    def command(self, fused: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None) -> Command:
+        """The smoothed command for an already fused mask and the newest depth frame (one EMA step).
+
+        `attitude`, the IMU's (roll, pitch), is checked and not used: the paper's methods steer
+        on image columns (the runtime gives it to every navigator; SegCorridor levels with it).
+        """
         mask_b, depth_m = _validated_frame(fused, depth)
+        validated_attitude(attitude)
         return self._command(mask_b, depth_m)
 
     def stop(self) -> Command:
@@ -355,6 +360,19 @@ def _validated_mask(mask: np.ndarray) -> np.ndarray:
     if mask.size == 0:
         raise ValueError(f"mask must not be empty, got shape {mask.shape}")
     return _bool_mask(mask)
+
+
+def validated_attitude(attitude: object) -> tuple[float, float] | None:
+    """None, or the IMU's (roll, pitch) as two finite floats within +-90 degrees (else ValueError)."""
+    if attitude is None:
+        return None
+    try:
+        values = tuple(float(v) for v in np.asarray(attitude, dtype=float).reshape(-1))
+    except (TypeError, ValueError):
+        values = ()
+    if len(values) != 2 or not all(math.isfinite(v) and abs(v) < math.pi / 2 for v in values):
+        raise ValueError(f"attitude must be (roll, pitch) in radians, two finite numbers within +-pi/2, got {attitude!r}")
+    return values[0], values[1]
 
 
 def _validated_frame(mask: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -157,6 +157,24 @@ class Robot:
             s.roll = math.atan(-(-nx * sy + ny * cy) / nz)
 
 
+def imu_attitude(state: RobotState) -> tuple[float, float]:
+    """(roll, pitch) of the robot as its IMU reports them, in radians.
+
+    REP 103 (ROS): positive roll lifts the left side, positive pitch lowers the nose, and the
+    body-to-level rotation is R_y(pitch) R_x(roll). The state holds the ground's slope angles
+    along the heading and the left axis (a = tan(state.pitch), b = tan(state.roll)); the body
+    axes are those the renderer's camera rides on: up along the ground normal n ~ (-a, -b, 1),
+    forward the heading projected onto the ground. On a slope crossing the heading the forward
+    axis turns slightly (by about a b), so the angles are read off these axes, not the slopes.
+    """
+    a, b = math.tan(state.pitch), math.tan(state.roll)
+    n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)
+    forward = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    forward /= np.linalg.norm(forward)
+    left = np.cross(n, forward)
+    return math.atan2(float(left[2]), float(n[2])), -math.asin(max(-1.0, min(1.0, float(forward[2]))))
+
+
 def _actuate(current: float, target: float, dt: float, tau: float, max_acc: float) -> float:
     """One step of a first-order lag towards `target`, with the rate limited to max_acc."""
     desired = target if tau <= 0 else current + (target - current) * (1.0 - math.exp(-dt / tau))

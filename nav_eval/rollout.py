@@ -52,6 +52,7 @@ def run_episode(env: RowFollowEnv, follower: RowFollower, seed: int, *, video: b
     follower.reset()
     obs, info = env.reset(seed=seed, options=None if pose is None else {"pose": pose})
     period = env.camera_period
+    imu = env.config.perception.imu
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
     ended = info["reason"] is not None
@@ -60,7 +61,8 @@ def run_episode(env: RowFollowEnv, follower: RowFollower, seed: int, *, video: b
             t = float(obs["t"])
             rendered = info["rendered"]
             mask = background.submit(_Frame(obs["rgb"], obs["depth"], info["mask"])) if rendered else None
-            out = follower.step(obs["rgb"] if rendered else None, obs["depth"], t, mask=mask)
+            out = follower.step(obs["rgb"] if rendered else None, obs["depth"], t, mask=mask,
+                                attitude=obs["attitude"] if imu else None)
             if out.fresh:
                 cmd = out.command
                 column = cmd.target_column

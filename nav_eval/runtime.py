@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 from segmin.nav_eval.methods import DEPTH_METHODS
-from segmin.nav_eval.navigator import Command, Navigator, to_metres
+from segmin.nav_eval.navigator import Command, Navigator, to_metres, validated_attitude
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).
 TIME_EPS = 1e-6
@@ -86,6 +86,7 @@ class _Frame:
     rgb: np.ndarray | None
     depth: np.ndarray | None
     mask: Any = None              # bool array, or a future of one (.result()), or None: segment rgb
+    attitude: tuple[float, float] | None = None  # the IMU's (roll, pitch) at the frame
 
 
 STOP = Command(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
@@ -110,14 +111,18 @@ class RowFollower:
         self._command = STOP
         self._command_t: float | None = None
         self._newest_depth: np.ndarray | None = None
+        self._newest_attitude: tuple[float, float] | None = None
 
     # ---- the robot's calls ----------------------------------------------------------------------
-    def step(self, rgb: np.ndarray | None, depth: np.ndarray | None, t: float, *, mask: Any = None) -> FollowerOutput:
+    def step(self, rgb: np.ndarray | None, depth: np.ndarray | None, t: float, *, mask: Any = None,
+             attitude: Any = None) -> FollowerOutput:
         """Take one camera frame at time `t` (seconds); return the command in force.
 
         `mask` replaces the segmenter for this frame when given (the simulator's exact mask, or a
-        future from a background segmenter); `rgb` may then be None. Raises ValueError for a
-        frame out of time order or with mismatched sizes.
+        future from a background segmenter); `rgb` may then be None. `attitude` is the IMU's
+        (roll, pitch) in radians at the frame (REP 103), for navigators that level the depth
+        points (SegCorridor); None: level ground assumed. Raises ValueError for a frame out of
+        time order, with mismatched sizes or with an invalid attitude.
         """
         t = _check_time(t, self._last.t if self._last is not None else None)
         if depth is not None:
@@ -128,7 +133,7 @@ class RowFollower:
         elif self.navigator.config.method in DEPTH_METHODS:
             raise ValueError(f"{self.navigator.config.method} needs depth: give depth frames, or use segmin "
                              f"(which then runs on the mask alone)")
-        frame = _Frame(t, rgb, depth, mask)
+        frame = _Frame(t, rgb, depth, mask, validated_attitude(attitude))
         stopped = None
         if self._last is not None and t - self._last.t > self.config.frame_timeout_s + TIME_EPS:
             stopped = "frame_timeout"
@@ -208,6 +213,7 @@ class RowFollower:
             depth_m = to_metres(source.depth)
         self.navigator.push_mask(mask, source.t)
         self._newest_depth = depth_m
+        self._newest_attitude = source.attitude
         return computed
 
     def _emit(self, at: float) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
@@ -217,7 +223,7 @@ class RowFollower:
         if fused is None or self._newest_depth is None:
             self._command = self.navigator.stop()
             return None, None, "stale_masks"
-        self._command = self.navigator.command(fused, self._newest_depth)
+        self._command = self.navigator.command(fused, self._newest_depth, self._newest_attitude)
         return fused, self._newest_depth, None
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from segmin.nav_eval.eval_config import NavEvalConfig
 from segmin.nav_eval.metrics import Trajectory, polyline_length, project_onto_polyline
 from segmin.nav_eval.oracle import segment_frame
-from segmin.nav_eval.robot import footprint_distances
+from segmin.nav_eval.robot import footprint_distances, imu_attitude
 from segmin.nav_eval.skid_steer import make_robot
 
 
@@ -148,6 +148,11 @@ class RowEnv:
     def pose(self) -> tuple[float, float, float]:
         s = self.robot.state
         return (s.x, s.y, s.yaw)
+
+    @property
+    def attitude(self) -> tuple[float, float]:
+        """The robot's (roll, pitch) as its IMU reports them (`nav_eval.robot.imu_attitude`)."""
+        return imu_attitude(self.robot.state)
 
     @property
     def trajectory(self) -> Trajectory:

@@ -46,6 +46,72 @@ def navigator(**changes) -> CorridorNavigator:
 # ---- exact ---------------------------------------------------------------------------------------
 
 
+class TiltedGround:
+    """The plane z = a x + b y: a world on which the robot rolls and pitches."""
+
+    def __init__(self, a: float, b: float) -> None:
+        self.a, self.b = a, b
+
+    def terrain_height(self, x, y):
+        return self.a * np.asarray(x, float) + self.b * np.asarray(y, float)
+
+    def terrain_normal(self, x, y):
+        n = np.array([-self.a, -self.b, 1.0])
+        return n / np.linalg.norm(n)
+
+
+@pytest.mark.parametrize("a, b, yaw", [(0.0, 0.12, 0.0), (0.1, 0.0, 0.7), (-0.08, 0.15, -2.0)])
+def test_levelling_with_the_imu_recovers_the_world_point_the_renderer_saw(a, b, yaw):
+    """The renderer's camera rides on the terrain (data.synth.render.camera_pose); the IMU's
+    (roll, pitch) from the robot state (nav_eval.robot.imu_attitude) undo exactly that tilt."""
+    from segmin.data.synth.camera import CameraModel
+    from segmin.data.synth.render import camera_pose
+    from segmin.nav_eval.robot import Robot, imu_attitude
+
+    ground = TiltedGround(a, b)
+    cam = CameraModel()
+    geometry = CameraGeometry.from_camera(cam)
+    x0, y0 = 3.0, -1.0
+    robot = Robot(terrain_height=ground.terrain_height, terrain_normal=ground.terrain_normal)
+    attitude = imu_attitude(robot.reset(x0, y0, yaw))
+    pose = camera_pose(ground, cam, x0, y0, yaw)
+    base = np.array([x0, y0, float(ground.terrain_height(x0, y0))])
+    n = ground.terrain_normal(x0, y0)
+    f = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    f -= f.dot(n) * n
+    heading = math.atan2(f[1], f[0])  # the body's level frame (differs from yaw by about a b)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        p_robot = np.array([rng.uniform(1.0, 8.0), rng.uniform(-2.0, 2.0), rng.uniform(0.0, 2.5)])
+        c, s = math.cos(heading), math.sin(heading)
+        world = base + np.array([c * p_robot[0] - s * p_robot[1], s * p_robot[0] + c * p_robot[1], p_robot[2]])
+        pc = pose[:3, :3].T @ (world - pose[:3, 3])
+        col = geometry.cx + geometry.fx * pc[0] / pc[2]
+        row = geometry.cy + geometry.fy * pc[1] / pc[2]
+        levelled = geometry.robot_frame(np.array([row]), np.array([col]), np.array([pc[2]]), attitude)
+        assert np.allclose(np.concatenate(levelled), p_robot, atol=1e-9)
+        tilted = geometry.robot_frame(np.array([row]), np.array([col]), np.array([pc[2]]))
+        assert np.max(np.abs(np.concatenate(tilted) - p_robot)) > 0.01  # the tilt matters
+
+
+def test_a_level_attitude_changes_nothing():
+    camera = scene_camera()
+    rows, cols = np.array([10.0, 50.0, 90.0]), np.array([5.0, 48.0, 80.0])
+    depth = np.array([2.0, 5.0, 9.0])
+    assert np.allclose(camera.robot_frame(rows, cols, depth, (0.0, 0.0)), camera.robot_frame(rows, cols, depth))
+
+
+@pytest.mark.parametrize("bad", [(0.1,), (0.1, 0.2, 0.3), (float("nan"), 0.0), (0.0, 2.0), "level", (None, 0.0)])
+def test_an_invalid_attitude_is_refused_by_name(bad):
+    nav = navigator()
+    mask, depth = render_scene(vine_scene(), size=SIZE)
+    with pytest.raises(ValueError, match="attitude must be \\(roll, pitch\\)"):
+        nav.step(mask, depth, bad)
+    follower = RowFollower(None, nav)
+    with pytest.raises(ValueError, match="attitude must be"):
+        follower.step(None, depth, 0.0, mask=mask, attitude=bad)
+
+
 def test_back_projection_of_a_ground_pixel_lands_on_the_ground():
     camera = scene_camera()
     row, col = SIZE - 1.0, (SIZE - 1) / 2
