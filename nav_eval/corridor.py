@@ -151,9 +151,8 @@ class CorridorConfig:
     h_min: float = 0.1
     h_max: float = 4.0
     max_lateral: float = 3.5
-    roof_inner: float = 0.25
-    roof_share: float = 0.1
-    roof_min_height: float = 1.0
+    roof_share: float = 0.6
+    roof_min_height: float = 1.5
     stride: int = 2
     min_points: int = 30
     max_points: int = 1500
@@ -187,8 +186,6 @@ class CorridorConfig:
             raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.x_max ({self.x_max})")
         if self.h_min >= self.h_max:
             raise ValueError(f"corridor.h_min ({self.h_min}) must be below corridor.h_max ({self.h_max})")
-        if not 0.0 <= self.roof_inner < 0.5:
-            raise ValueError(f"corridor.roof_inner must be in [0, 0.5), got {self.roof_inner!r}")
         for name in ("ema_lambda", "width_memory", "centre_memory", "roof_share"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
@@ -349,13 +346,16 @@ class CorridorNavigator:
             column = segmind_target()[1]
             split = (0.0, (self.camera.cx - column) / self.camera.fx / math.cos(math.radians(self.camera.tilt_deg)))
         offset = y - polyval(x, split)
+        overhead = int(np.count_nonzero(h >= config.roof_min_height))
+        if overhead >= config.min_points and overhead >= config.roof_share * h.shape[0]:
+            return None, "fallback"  # most vegetation in range is overhead: a pergola, merged crowns
+        low = h <= config.h_max
+        x, y, offset = x[low], y[low], offset[low]
         near = np.abs(offset) <= config.max_lateral
         left = self._row(x[near & (offset > 0)], y[near & (offset > 0)])
         right = self._row(x[near & (offset <= 0)], y[near & (offset <= 0)])
         if left is not None and right is not None:
             width = left[0] - right[0]
-            if self._under_roof(x, y, h, left, right):
-                return None, "fallback"
             if width > 0:
                 memory = config.width_memory
                 self._width = width if self._width is None else (1 - memory) * self._width + memory * width
@@ -365,16 +365,6 @@ class CorridorNavigator:
             shift = -self._width / 2.0 if side is left else self._width / 2.0
             return (side[0] + shift, *side[1:]), "one_side"
         return None, "fallback"
-
-    def _under_roof(self, x: np.ndarray, y: np.ndarray, h: np.ndarray,
-                    left: tuple[float, float], right: tuple[float, float]) -> bool:
-        """Whether vegetation above the robot fills the middle of the corridor (a roof)."""
-        config = self.config
-        y_left, y_right = polyval(x, left), polyval(x, right)
-        margin = config.roof_inner * (y_left - y_right)
-        inner = (y < y_left - margin) & (y > y_right + margin) & (h >= config.roof_min_height)
-        count = int(np.count_nonzero(inner))
-        return count >= config.min_points and count >= config.roof_share * x.shape[0]
 
     def _row(self, x: np.ndarray, y: np.ndarray) -> tuple[float, ...] | None:
         """A row's curve coefficients (c_0 up) when enough points spanning enough range support it."""
@@ -388,7 +378,8 @@ class CorridorNavigator:
 
     def _row_points(self, fused: np.ndarray, depth_m: np.ndarray,
                     attitude: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Robot-frame (x, y, h) of the kept vegetation pixels (every `stride`-th, in range and height)."""
+        """Robot-frame (x, y, h) of the kept vegetation pixels (every `stride`-th, in range, above
+        `h_min`; those above `h_max` only count for the roof test)."""
         config = self.config
         s = config.stride
         mask = fused[::s, ::s]
@@ -397,7 +388,7 @@ class CorridorNavigator:
         kept = mask & (depth > 0) & np.isfinite(depth)
         z = depth[kept]
         x, y, h = self.camera.robot_frame(rows_grid[kept], cols_grid[kept], z, attitude)
-        ok = (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min) & (h <= config.h_max)
+        ok = (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min)
         x, y, h = x[ok], y[ok], h[ok]
         if x.shape[0] > config.max_points:  # an even thinning bounds the step time on dense walls
             every = -(-x.shape[0] // config.max_points)

@@ -271,7 +271,8 @@ def test_the_runtime_refuses_segcorridor_without_depth():
 def test_under_a_roof_it_steers_exactly_as_segmind():
     from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
-    roofed = dataclasses.replace(vine_scene(0.3, 5.0), canopy_base=2.2)
+    # A pergola: the foliage starts above the robot and closes over the row.
+    roofed = dataclasses.replace(vine_scene(0.3, 5.0), foliage_low=1.4, canopy_base=2.2)
     mask, depth = render_scene(roofed, size=SIZE)
     corridor, segmind = navigator(), Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
     for _ in range(3):
