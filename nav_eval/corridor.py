@@ -25,18 +25,24 @@ the robot frame. From there:
    The split line is the previous frame's centreline; without one (start, after a fallback) it
    is the ray through SegMinD's target column, which points into the free corridor even with a
    large heading error.
-3. **Robust line fit per row.** y = a + b x by least squares, then `trim_iterations` rounds
-   that drop points further than `trim` robust standard deviations (1.4826 MAD) from the line
-   and refit: gaps, leaves hanging into the row and a stray weed do not bend the row line. A
-   row is *seen* when at least `min_points` points span `min_span` metres in x.
-4. **Centreline.** Both rows seen: the mean of the two lines, and the corridor width a_L - a_R
+3. **Robust curve fit per row.** y = c_0 + c_1 x + c_2 x^2 (`degree` 2, the default; 1 drops
+   c_2) by least squares, then `trim_iterations` rounds that drop points further than `trim`
+   robust standard deviations (1.4826 MAD) from the curve and refit: gaps, leaves hanging into
+   the row and a stray weed do not bend the row curve. A straight line over 0.5-8 m is a chord
+   of a bend and sits inside it at the lookahead; the quadratic follows the bend once the
+   points are levelled (without levelling its extra freedom fitted the roll noise). A row is
+   *seen* when at least `min_points` points span `min_span` metres in x.
+4. **Centreline.** Both rows seen: the mean of the two curves, and the corridor width c_0L - c_0R
    updates a running estimate. One row seen: that line moved by half the running width towards
    the corridor. No row seen, or no width yet: SegMinD's column and control law (the fallback).
+   Under a roof, when at least `roof_share` of the vegetation points in range (and `min_points`)
+   lie above `roof_min_height` (pergola canopy, merged crowns: 0.84-1.00 of the points; vertical
+   vine walls and pear hedges 0.20-0.33), the rows are not walls and SegMinD steers.
    Between commands the robot moves about 0.1 m, so the new centreline is averaged with the
    previous one (weight `centre_memory` on the new), which halves the frame-to-frame noise that
    gaps and single trunks put into the fit.
 5. **Pure pursuit.** The goal point is the centreline at x = `lookahead`: (L, y_L) with
-   y_L = a + b L. The arc through it has curvature kappa = 2 y_L / (L^2 + y_L^2); the bearing
+   y_L = c(L). The arc through it has curvature kappa = 2 y_L / (L^2 + y_L^2); the bearing
    alpha = atan2(y_L, L) sets the speed as in the paper, v = v_max (1 - (alpha / alpha_max)^2)
    with alpha_max the half field of view, and omega = v_max kappa, clipped; both are smoothed with the
    paper's EMA.
@@ -159,7 +165,7 @@ class CorridorConfig:
     min_span: float = 1.0
     trim: float = 2.5
     trim_iterations: int = 2
-    degree: int = 1
+    degree: int = 2
     width_memory: float = 0.2
     centre_memory: float = 0.5
     lookahead: float = 2.5

@@ -128,9 +128,10 @@ def test_back_projection_of_a_ground_pixel_lands_on_the_ground():
 def test_centreline_of_an_analytic_row_is_exact(offset, yaw_deg):
     command = settle(navigator(), vine_scene(offset, yaw_deg))
     assert command.mode == "both"
-    a, b = command.centre
+    a, b, c = command.centre  # the default quadratic: straight rows give c = 0
     assert a == pytest.approx(-offset, abs=0.02)
     assert b == pytest.approx(-math.tan(math.radians(yaw_deg)), abs=0.01)
+    assert c == pytest.approx(0.0, abs=0.003)
 
 
 def test_steers_back_towards_the_centre():
