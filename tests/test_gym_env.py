@@ -13,6 +13,7 @@ from segmin.nav_eval.factories import make_follower
 from segmin.nav_eval.gym_env import RowFollowEnv
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.oracle import OracleSegmenter
+from segmin.nav_eval.robot import imu_attitude
 from segmin.nav_eval.rollout import run_episode
 from segmin.nav_eval.sim import RowEnv
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
@@ -100,6 +101,37 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
         assert obs["rgb"].shape == (32, 32, 3) and info["mask"].any()
         obs, _, terminated, truncated, info = env.step(np.array([0.4, 0.0]))
         assert float(obs["t"]) == pytest.approx(1 / 30) and not (terminated or truncated)
+        # The IMU: the robot's roll and pitch on this field's rough ground.
+        assert obs["attitude"].shape == (2,) and env.observation_space["attitude"].contains(obs["attitude"])
+        assert np.allclose(obs["attitude"], imu_attitude(env.unwrapped.row.robot.state))
+        assert np.abs(obs["attitude"]).max() > 1e-3
     finally:
         env.close()
     assert env.unwrapped._context is None                                    # pybullet released
+
+
+class _AttitudeSpy(Navigator):
+    """SegMin that records the attitude each command receives."""
+
+    def __init__(self) -> None:
+        super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
+        self.seen: list = []
+
+    def command(self, fused, depth, attitude=None):
+        self.seen.append(attitude)
+        return super().command(fused, depth, attitude)
+
+
+@pytest.mark.parametrize("imu", [True, False])
+def test_the_rollout_gives_the_imu_to_the_navigator_unless_switched_off(imu: bool) -> None:
+    from segmin.nav_eval.runtime import RowFollower
+
+    env = _fake_env(length_m=0.5)
+    env.config.perception.imu = imu
+    spy = _AttitudeSpy()
+    run_episode(env, RowFollower(OracleSegmenter(), spy), seed=0)
+    assert spy.seen
+    if imu:
+        assert all(a == pytest.approx((0.0, 0.0)) for a in spy.seen)   # flat stand-in ground
+    else:
+        assert all(a is None for a in spy.seen)
