@@ -11,6 +11,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from torch.utils.data import Dataset
 
+from segmin.data.canopy_region import canopy_region
 from segmin.data.domains import find_frames
 from segmin.data.frames import DatasetError, Frame
 from segmin.data.readers import load_frame
@@ -23,6 +24,7 @@ class AgriSegDataset(Dataset):
     `domains`: families, domain names, globs or prefixes (see `resolve_domains`); None = all.
     `split`: "train", "val" or "all"; splits are seeded per domain (`make_splits`), or read from
     `split_file` when given (exact reproduction of an earlier run).
+    `label_closing`: radius in px of the canopy-region label (`data.canopy_region`; 0 = exact).
     `transform`: a `data.augment.SegTransform` (or any callable `(image, mask, seed) -> (x, y)`);
     default: resize to `image_size` and normalise.
     An index may be an int or `(epoch, int)`: with the tuple the augmentation is seeded from
@@ -43,6 +45,7 @@ class AgriSegDataset(Dataset):
         skip_unpaired: bool = False,
         split_file: str | Path | None = None,
         frames: Sequence[Frame] | None = None,
+        label_closing: int = 0,
     ) -> None:
         if split not in ("train", "val", "all"):
             raise ValueError(f"split={split!r}: expected 'train', 'val' or 'all'")
@@ -67,6 +70,8 @@ class AgriSegDataset(Dataset):
 
             transform = eval_transform(self.image_size)
         self.transform = transform
+        canopy_region(np.zeros((1, 1), np.uint8), label_closing)  # checks the radius now, not at the first sample
+        self.label_closing = label_closing
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -84,4 +89,4 @@ class AgriSegDataset(Dataset):
         else:
             index, seed = item, None
         image, mask = load_frame(self.frames[index])
-        return self.transform(image, mask, seed)
+        return self.transform(image, canopy_region(mask, self.label_closing), seed)

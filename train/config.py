@@ -40,6 +40,9 @@ class DataConfig:
     skip_unpaired: bool = False
     max_train_frames: int | None = None  # subsample (seeded) for quick demos
     max_val_frames: int | None = None
+    # Canopy-region label: close the gaps between leaves with a disc of this radius in px of the
+    # stored frames, in training and validation masks (data/canopy_region.py); 0 = exact masks.
+    label_closing: int = 0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.val_fraction < 1.0:
@@ -48,6 +51,8 @@ class DataConfig:
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"data.{name}={value}: must be >= 1 or null")
+        if isinstance(self.label_closing, bool) or not isinstance(self.label_closing, int) or self.label_closing < 0:
+            raise ValueError(f"data.label_closing={self.label_closing!r}: must be an integer >= 0 (px)")
         # The shipped real photos are a test set: no training config may read them.
         check_not_real_data(
             "training data",

@@ -104,10 +104,11 @@ def _worker_init(_: int) -> None:
 
 def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame], val_frames: list[Frame]):
     size = config.image_size
+    closing = config.data.label_closing
     train_ds = AgriSegDataset(config.data.root, split="all", seed=config.seed, frames=train_frames,
-                              transform=train_transform(size, config.augment), image_size=size)
+                              transform=train_transform(size, config.augment), image_size=size, label_closing=closing)
     val_ds = AgriSegDataset(config.data.root, split="all", seed=config.seed, frames=val_frames,
-                            transform=eval_transform(size), image_size=size)
+                            transform=eval_transform(size), image_size=size, label_closing=closing)
     base = DistributedSampler(train_ds, num_replicas=dist.world_size, rank=dist.rank, shuffle=True,
                               seed=config.seed, drop_last=False)
     sampler = EpochSampler(base)
