@@ -15,11 +15,16 @@ import cv2
 import numpy as np
 
 
+def check_closing_radius(radius: object, name: str = "label closing radius") -> int:
+    """`radius` if it is an integer >= 0, else ValueError naming `name` (the config field)."""
+    if isinstance(radius, bool) or not isinstance(radius, int) or radius < 0:
+        raise ValueError(f"{name} must be an integer >= 0 px, got {radius!r}")
+    return radius
+
+
 def canopy_region(mask: np.ndarray, radius: int) -> np.ndarray:
     """`mask` (HxW, 0/1 or bool) closed with a disc of `radius` px; same dtype; 0 = unchanged."""
-    if isinstance(radius, bool) or not isinstance(radius, int) or radius < 0:
-        raise ValueError(f"label closing radius must be an integer >= 0 px, got {radius!r}")
-    if radius == 0:
+    if check_closing_radius(radius) == 0:
         return mask
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     # Pad by the radius so vegetation at the frame edge is closed as if the scene went on.

@@ -11,7 +11,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from torch.utils.data import Dataset
 
-from segmin.data.canopy_region import canopy_region
+from segmin.data.canopy_region import canopy_region, check_closing_radius
 from segmin.data.domains import find_frames
 from segmin.data.frames import DatasetError, Frame
 from segmin.data.readers import load_frame
@@ -70,8 +70,7 @@ class AgriSegDataset(Dataset):
 
             transform = eval_transform(self.image_size)
         self.transform = transform
-        canopy_region(np.zeros((1, 1), np.uint8), label_closing)  # checks the radius now, not at the first sample
-        self.label_closing = label_closing
+        self.label_closing = check_closing_radius(label_closing)  # now, not at the first sample
 
     def __len__(self) -> int:
         return len(self.frames)

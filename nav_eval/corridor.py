@@ -383,7 +383,7 @@ class CorridorNavigator:
         return fit[0]
 
     def _row_points(self, fused: np.ndarray, depth_m: np.ndarray,
-                    attitude: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    attitude: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Robot-frame (x, y, h) of the kept vegetation pixels (every `stride`-th, in range, above
         `h_min`; those above `h_max` only count for the roof test)."""
         config = self.config

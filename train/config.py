@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 from segmin.data.augment import AugmentConfig
+from segmin.data.canopy_region import check_closing_radius
 from segmin.common.config import load_config
 from segmin.data.real_sets import check_not_real_data
 
@@ -51,8 +52,7 @@ class DataConfig:
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise ValueError(f"data.{name}={value}: must be >= 1 or null")
-        if isinstance(self.label_closing, bool) or not isinstance(self.label_closing, int) or self.label_closing < 0:
-            raise ValueError(f"data.label_closing={self.label_closing!r}: must be an integer >= 0 (px)")
+        check_closing_radius(self.label_closing, "data.label_closing")
         # The shipped real photos are a test set: no training config may read them.
         check_not_real_data(
             "training data",
