@@ -18,22 +18,28 @@ the robot frame. From there:
    rows stand along gravity, not along the robot's up axis, and on rough ground a roll of
    2 degrees moves a crown 1.5 m above the camera by 5 cm. Only pixels of the fused mask with valid
    depth, `x_min <= x <= x_max`, `h_min <= h <= h_max` (ground false positives and the crowns
-   above the robot are dropped) and within `max_lateral` of the split line are kept; every
+   above the robot are dropped) and within `max_lateral` of the split line (and within the
+   running corridor width w of it, once known: the next rows stand at 1.5 w) are kept; every
    `stride`-th pixel in both directions, thinned evenly to at most `max_points`, is enough for
    a line fit and keeps the step cheap.
 2. **Two rows.** The points left of the split line are the left row, the others the right row.
    The split line is the previous frame's centreline; without one (start, after a fallback) it
    is the ray through SegMinD's target column, which points into the free corridor even with a
    large heading error.
-3. **Robust curve fit per row.** y = c_0 + c_1 x + c_2 x^2 (`degree` 2, the default; 1 drops
-   c_2) by least squares, then `trim_iterations` rounds that drop points further than `trim`
-   robust standard deviations (1.4826 MAD) from the curve and refit: gaps, leaves hanging into
-   the row and a stray weed do not bend the row curve. A straight line over 0.5-8 m is a chord
-   of a bend and sits inside it at the lookahead; the quadratic follows the bend once the
-   points are levelled (without levelling its extra freedom fitted the roll noise). A row is
-   *seen* when at least `min_points` points span `min_span` metres in x.
-4. **Centreline.** Both rows seen: the mean of the two curves, and the corridor width c_0L - c_0R
-   updates a running estimate. One row seen: that line moved by half the running width towards
+3. **Robust parallel fit of the rows.** The rows are parallel: y = c_0L + c_1 x + c_2 x^2 and
+   y = c_0R + c_1 x + c_2 x^2, one least-squares fit of both rows' points (design columns
+   [1, 0, x, x^2] for a left point, [0, 1, x, x^2] for a right one), then `trim_iterations`
+   rounds that drop points further than `trim` robust standard deviations (1.4826 MAD) from
+   their row's curve and refit: gaps, leaves hanging into the row and a stray weed do not bend
+   the corridor. A straight line over 0.5-8 m is a chord of a bend and sits inside it at the
+   lookahead, so with `degree` 2 (the default) the quadratic is used, but only when the bend is
+   seen in both rows: each row first gets its own c_2 (columns x^2 [left], x^2 [right]), and
+   unless both exceed `significance` standard errors with the same sign the rows are refitted
+   as lines (per-row quadratics left a straight vineyard with 15 % missing plants through a
+   gap and collided at 1.6 m row spacing). A row is *seen* when at least `min_points` points
+   span `min_span` metres in x and `min_points` survive the trimming.
+4. **Centreline.** Both rows seen: ((c_0L + c_0R) / 2, c_1, c_2), and the corridor width
+   c_0L - c_0R updates a running estimate. One row seen: that line moved by half the running width towards
    the corridor. No row seen, or no width yet: SegMinD's column and control law (the fallback).
    Under a roof, when at least `roof_share` of the vegetation points in range (and `min_points`)
    lie above `roof_min_height` (pergola canopy, merged crowns: 0.84-1.00 of the points; vertical
@@ -55,7 +61,7 @@ calls (`step`, `push_mask`, `fused_mask`, `command`, `stop`, `reset`, `config.me
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -166,6 +172,7 @@ class CorridorConfig:
     trim: float = 2.5
     trim_iterations: int = 2
     degree: int = 2
+    significance: float = 3.0
     width_memory: float = 0.2
     centre_memory: float = 0.5
     lookahead: float = 2.5
@@ -183,8 +190,11 @@ class CorridorConfig:
             low = 0 if name == "trim_iterations" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"corridor.{name} must be an integer >= {low}, got {value!r}")
-        for name in ("x_max", "h_max", "max_lateral", "roof_min_height", "min_span", "trim", "lookahead", "v_max", "omega_max"):
+        for name in ("x_max", "h_max", "max_lateral", "roof_min_height", "min_span", "trim", "lookahead", "v_max",
+                     "omega_max"):
             _check_positive(f"corridor.{name}", getattr(self, name))
+        if not (math.isfinite(self.significance) and self.significance >= 0.0):
+            raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
         for name in ("x_min", "h_min"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"corridor.{name} must be finite, got {getattr(self, name)!r}")
@@ -207,25 +217,84 @@ class CorridorCommand(Command):
     centre: tuple[float, float] | None = None
 
 
-def fit_row_line(x: np.ndarray, y: np.ndarray, *, trim: float, iterations: int,
-                 degree: int = 1) -> tuple[tuple[float, ...], int] | None:
-    """Robust y = c_0 + c_1 x (+ c_2 x^2) through the points: least squares, then trimmed refits.
+@dataclass(frozen=True)
+class RowsFit:
+    """Parallel row curves y = offsets[k] + shape[0] x (+ shape[1] x^2): one offset per row,
+    one shape for all; `kept` counts each row's points that survived the trimming."""
 
-    Returns (coefficients from c_0 up, points kept), or None with too few points or no spread
-    in x. Coordinates are centred before the fit, so the normal equations stay well conditioned.
+    offsets: tuple[float, ...]
+    shape: tuple[float, ...]
+    kept: tuple[int, ...]
+
+    def row(self, k: int) -> tuple[float, ...]:
+        """Coefficients (c_0 up) of row k."""
+        return (self.offsets[k], *self.shape)
+
+
+def fit_parallel_rows(sides: Sequence[tuple[np.ndarray, np.ndarray]], *, trim: float, iterations: int,
+                      degree: int = 1, significance: float = 0.0) -> RowsFit | None:
+    """Robust parallel curves through the points (x, y) of one or more rows: least squares, then
+    `iterations` refits without the points further than `trim` robust spreads (1.4826 MAD).
+
+    The rows of a field are parallel, so they share c_1 (and c_2) and differ in c_0 only: the
+    heading of the corridor is fitted on the points of every row at once. A bend, though, must
+    be seen in every row: with `degree` 2 each row first gets its own c_2, and the quadratic is
+    kept only when all of them bend the same way by more than `significance` standard errors;
+    otherwise the rows are fitted as lines. A gap in one row through which the next row shows
+    bends that row's quadratic alone, and in straight rows the extra freedom only follows noise
+    (a straight vineyard with 15 % missing plants was left through a gap with per-row quadratics).
+    Returns None with too few points or no spread in x. Coordinates are centred first, so the
+    normal equations stay well conditioned.
     """
-    keep = np.ones(x.shape[0], dtype=bool)
-    fit = None
-    x_mean = float(x.mean()) if x.shape[0] else 0.0
+    counts = [xs.shape[0] for xs, _ in sides]
+    if min(counts, default=0) == 0:
+        return None
+    x = np.concatenate([xs for xs, _ in sides])
+    y = np.concatenate([ys for _, ys in sides])
+    side = np.repeat(np.arange(len(sides)), counts)
+    one_hot = (side[:, None] == np.arange(len(sides))).astype(float)
+    x_mean = float(x.mean())
+    xc = x - x_mean
+    c2 = 0.0
+    if degree == 2:
+        bent = _trimmed_least_squares(np.column_stack([one_hot, xc, one_hot * (xc * xc)[:, None]]), y,
+                                      trim=trim, iterations=iterations)
+        if bent is None:
+            return None
+        coefficients, keep, standard_errors = bent
+        curvatures, errors = coefficients[-len(sides):], standard_errors[-len(sides):]
+        if (np.all(np.abs(curvatures) > significance * errors)
+                and (np.all(curvatures > 0) or np.all(curvatures < 0))):
+            joint = np.column_stack([one_hot, xc, xc * xc])[keep]
+            coefficients = np.linalg.solve(joint.T @ joint, joint.T @ y[keep])
+            c2 = float(coefficients[-1])
+            return _rows_fit(coefficients[: len(sides)], float(coefficients[len(sides)]), c2, x_mean, side[keep],
+                             len(sides), degree)
+    line = _trimmed_least_squares(np.column_stack([one_hot, xc]), y, trim=trim, iterations=iterations)
+    if line is None:
+        return None
+    coefficients, keep, _ = line
+    return _rows_fit(coefficients[: len(sides)], float(coefficients[-1]), c2, x_mean, side[keep], len(sides), degree)
+
+
+def _trimmed_least_squares(design: np.ndarray, y: np.ndarray, *, trim: float,
+                           iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(coefficients, points kept, coefficient standard errors) of the trimmed least-squares fit
+    of y on the design's columns, or None when the kept points do not determine them."""
+    keep = np.ones(y.shape[0], dtype=bool)
+    result = None
     for _ in range(iterations + 1):
-        xs, ys = x[keep] - x_mean, y[keep]
-        if xs.shape[0] <= degree or float(np.ptp(xs)) <= 1e-6:
-            return fit
-        powers = np.vander(xs, degree + 1, increasing=True)
-        centred = np.linalg.solve(powers.T @ powers, powers.T @ ys)
-        coefficients = _uncentre(centred, x_mean)
-        fit = (tuple(float(c) for c in coefficients), int(xs.shape[0]))
-        residual = np.abs(y - polyval(x, coefficients))
+        a = design[keep]
+        if a.shape[0] <= a.shape[1]:
+            break
+        normal = a.T @ a
+        if np.linalg.cond(normal) > 1e12:  # a row without spread in x, a column without points
+            break
+        inverse = np.linalg.inv(normal)
+        coefficients = inverse @ (a.T @ y[keep])
+        residual = np.abs(y - design @ coefficients)
+        variance = float(np.sum(residual[keep] ** 2)) / (a.shape[0] - a.shape[1])
+        result = (coefficients, keep, np.sqrt(np.maximum(variance * np.diag(inverse), 0.0)))
         spread = 1.4826 * float(np.median(residual[keep]))
         if spread <= 1e-9:
             break
@@ -233,7 +302,15 @@ def fit_row_line(x: np.ndarray, y: np.ndarray, *, trim: float, iterations: int,
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
-    return fit
+    return result
+
+
+def _rows_fit(offsets: np.ndarray, c1: float, c2: float, x_mean: float, kept_sides: np.ndarray,
+              rows: int, degree: int) -> RowsFit:
+    """The RowsFit of coefficients fitted in x - x_mean, given back in powers of x."""
+    shape = (c1 - 2.0 * c2 * x_mean, c2) if degree == 2 else (c1,)
+    return RowsFit(offsets=tuple(float(o - c1 * x_mean + c2 * x_mean * x_mean) for o in offsets), shape=shape,
+                   kept=tuple(int(n) for n in np.bincount(kept_sides, minlength=rows)))
 
 
 def polyval(x: np.ndarray | float, c: tuple[float, ...] | np.ndarray) -> np.ndarray | float:
@@ -242,13 +319,6 @@ def polyval(x: np.ndarray | float, c: tuple[float, ...] | np.ndarray) -> np.ndar
     for coefficient in c[-2::-1]:
         result = result * x + coefficient
     return result
-
-
-def _uncentre(c: np.ndarray, m: float) -> np.ndarray:
-    """Coefficients in powers of x of the polynomial sum_k c_k (x - m)^k (degree 1 or 2)."""
-    if c.shape[0] == 2:
-        return np.array([c[0] - c[1] * m, c[1]])
-    return np.array([c[0] - c[1] * m + c[2] * m * m, c[1] - 2.0 * c[2] * m, c[2]])
 
 
 class CorridorNavigator:
@@ -332,8 +402,9 @@ class CorridorNavigator:
                 memory = config.centre_memory
                 centre = tuple((1 - memory) * old + memory * new for old, new in zip(self._centre, centre))
             self._centre = centre
-            v, omega = self._pursuit(centre)
-            column = self.camera.column_of(config.lookahead, float(polyval(config.lookahead, centre)))
+            y_goal = float(polyval(config.lookahead, centre))
+            v, omega = self._pursuit(y_goal)
+            column = self.camera.column_of(config.lookahead, y_goal)
         self.mode_counts[mode] += 1
         lam = config.ema_lambda
         self._v = (1.0 - lam) * self._v + lam * v
@@ -357,30 +428,37 @@ class CorridorNavigator:
             return None, "fallback"  # most vegetation in range is overhead: a pergola, merged crowns
         low = h <= config.h_max
         x, y, offset = x[low], y[low], offset[low]
-        near = np.abs(offset) <= config.max_lateral
-        left = self._row(x[near & (offset > 0)], y[near & (offset > 0)])
-        right = self._row(x[near & (offset <= 0)], y[near & (offset <= 0)])
-        if left is not None and right is not None:
-            width = left[0] - right[0]
-            if width > 0:
-                memory = config.width_memory
-                self._width = width if self._width is None else (1 - memory) * self._width + memory * width
-                return tuple((l + r) / 2.0 for l, r in zip(left, right)), "both"
-        side = left if left is not None else right
-        if side is not None and self._width is not None:
-            shift = -self._width / 2.0 if side is left else self._width / 2.0
-            return (side[0] + shift, *side[1:]), "one_side"
-        return None, "fallback"
+        # Once the corridor width w is known, points further than w from the centreline belong to
+        # the next rows (at 1.5 w): in tight rows and through gaps they would pull the fit.
+        reach = config.max_lateral if self._width is None else min(config.max_lateral, self._width)
+        near = np.abs(offset) <= reach
+        candidates = {"left": near & (offset > 0), "right": near & (offset <= 0)}
+        seen = [name for name, chosen in candidates.items() if self._enough(x[chosen])]
+        fit = None
+        while seen:
+            fit = fit_parallel_rows([(x[candidates[name]], y[candidates[name]]) for name in seen],
+                                    trim=config.trim, iterations=config.trim_iterations,
+                                    degree=config.degree, significance=config.significance)
+            if fit is None or min(fit.kept) >= config.min_points:
+                break
+            seen.pop(int(np.argmin(fit.kept)))  # a row the trimming thinned out is not seen
+            fit = None
+        if fit is None:
+            return None, "fallback"
+        if len(seen) == 2 and fit.offsets[0] > fit.offsets[1]:
+            width = fit.offsets[0] - fit.offsets[1]
+            memory = config.width_memory
+            self._width = width if self._width is None else (1 - memory) * self._width + memory * width
+            return ((fit.offsets[0] + fit.offsets[1]) / 2.0, *fit.shape), "both"
+        if self._width is None:
+            return None, "fallback"
+        k = 0 if len(seen) == 1 else int(np.argmax(fit.kept))
+        shift = -self._width / 2.0 if seen[k] == "left" else self._width / 2.0
+        return (fit.offsets[k] + shift, *fit.shape), "one_side"
 
-    def _row(self, x: np.ndarray, y: np.ndarray) -> tuple[float, ...] | None:
-        """A row's curve coefficients (c_0 up) when enough points spanning enough range support it."""
-        config = self.config
-        if x.shape[0] < config.min_points or float(x.max() - x.min()) < config.min_span:
-            return None
-        fit = fit_row_line(x, y, trim=config.trim, iterations=config.trim_iterations, degree=config.degree)
-        if fit is None or fit[1] < config.min_points:
-            return None
-        return fit[0]
+    def _enough(self, x: np.ndarray) -> bool:
+        """Whether a row's points can support a fit: `min_points` of them spanning `min_span` in x."""
+        return x.shape[0] >= self.config.min_points and float(x.max() - x.min()) >= self.config.min_span
 
     def _row_points(self, fused: np.ndarray, depth_m: np.ndarray,
                     attitude: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -409,11 +487,10 @@ class CorridorNavigator:
             self._grids[key] = (rows.astype(np.float32), cols.astype(np.float32))
         return self._grids[key]
 
-    def _pursuit(self, centre: tuple[float, float]) -> tuple[float, float]:
-        """Unsmoothed (v, omega) of pure pursuit to the centreline point at the lookahead."""
+    def _pursuit(self, y_goal: float) -> tuple[float, float]:
+        """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""
         config = self.config
         lookahead = config.lookahead
-        y_goal = float(polyval(lookahead, centre))
         kappa = 2.0 * y_goal / (lookahead * lookahead + y_goal * y_goal)
         alpha = math.atan2(y_goal, lookahead)
         alpha_max = math.atan2(self.camera.width / 2.0, self.camera.fx)

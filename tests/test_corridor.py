@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_row_line
+from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_parallel_rows
 from segmin.nav_eval.demo_scenes import DemoScene, render_scene
 from segmin.nav_eval.eval_config import load_nav_config
 from segmin.nav_eval.factories import make_navigator
@@ -183,13 +183,55 @@ def test_robust_line_fit_ignores_outliers():
     x = rng.uniform(1, 5, 400)
     y = 0.8 + 0.05 * x + rng.normal(0, 0.01, x.shape)
     y[:40] = rng.uniform(-0.5, 0.3, 40)        # 10 % clutter hanging into the row
-    (a, b), kept = fit_row_line(x, y, trim=2.5, iterations=2)
+    fit = fit_parallel_rows([(x, y)], trim=2.5, iterations=2)
+    (a, b) = fit.row(0)
     assert a == pytest.approx(0.8, abs=0.02) and b == pytest.approx(0.05, abs=0.01)
-    assert kept < 400
+    assert fit.kept[0] < 400
     bend = 0.8 + 0.05 * x + 0.02 * x * x
-    (a2, b2, c2), _ = fit_row_line(x, bend, trim=2.5, iterations=2, degree=2)
-    assert (a2, b2, c2) == pytest.approx((0.8, 0.05, 0.02), abs=1e-9)
-    assert fit_row_line(np.ones(5), np.arange(5.0), trim=2.5, iterations=2) is None
+    exact = fit_parallel_rows([(x, bend)], trim=2.5, iterations=2, degree=2)
+    assert exact.row(0) == pytest.approx((0.8, 0.05, 0.02), abs=1e-9)
+    assert fit_parallel_rows([(np.ones(5), np.arange(5.0))], trim=2.5, iterations=2) is None
+    assert fit_parallel_rows([(x, y), (np.zeros(0), np.zeros(0))], trim=2.5, iterations=2) is None
+
+
+def test_parallel_rows_share_their_shape_and_keep_their_offsets():
+    rng = np.random.default_rng(1)
+    xl, xr = rng.uniform(0.5, 8, 300), rng.uniform(0.5, 8, 200)
+    shape = lambda x: 0.03 * x + 0.01 * x * x  # noqa: E731  (a bend to the left)
+    fit = fit_parallel_rows([(xl, 1.2 + shape(xl)), (xr, -1.1 + shape(xr))], trim=2.5, iterations=2, degree=2)
+    assert fit.offsets == pytest.approx((1.2, -1.1), abs=1e-9)
+    assert fit.shape == pytest.approx((0.03, 0.01), abs=1e-9)
+    assert fit.kept == (300, 200)
+
+
+def test_a_bend_must_be_seen_in_both_rows():
+    """One row curving away (the next row showing through a gap, canes hanging in) is not a bend
+    of the corridor: the pair is fitted as lines; both rows curving the same way is a bend."""
+    rng = np.random.default_rng(2)
+    xl, xr = rng.uniform(0.5, 8, 400), rng.uniform(0.5, 8, 400)
+    noise = lambda x: rng.normal(0, 0.03, x.shape)  # noqa: E731
+    kwargs = dict(trim=2.5, iterations=2, degree=2, significance=3.0)
+    one = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 + noise(xr))], **kwargs)
+    assert one.shape[1] == 0.0
+    both = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 + 0.02 * xr * xr + noise(xr))],
+                             **kwargs)
+    assert both.shape[1] == pytest.approx(0.02, abs=0.002) and both.offsets == pytest.approx((1.2, -1.2), abs=0.03)
+    opposite = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 - 0.02 * xr * xr + noise(xr))],
+                                 **kwargs)
+    assert opposite.shape[1] == 0.0
+
+
+def test_the_quadratic_term_is_kept_only_when_significant():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.5, 8, 600)
+    straight = 1.0 + rng.normal(0, 0.05, x.shape)
+    bent = 1.0 + x * x / (2 * 35.0) + rng.normal(0, 0.05, x.shape)   # a 35 m bend
+    kwargs = dict(trim=2.5, iterations=2, degree=2)
+    free = fit_parallel_rows([(x, straight)], **kwargs)
+    gated = fit_parallel_rows([(x, straight)], significance=1e6, **kwargs)
+    assert free.shape[1] != 0.0 and gated.shape[1] == 0.0 and len(gated.shape) == 2
+    assert fit_parallel_rows([(x, bent)], significance=3.0, **kwargs).shape[1] == pytest.approx(1 / 70.0, rel=0.1)
+    assert fit_parallel_rows([(x, straight)], significance=3.0, **kwargs).shape[1] == 0.0
 
 
 # ---- properties ----------------------------------------------------------------------------------
@@ -281,3 +323,4 @@ def test_under_a_roof_it_steers_exactly_as_segmind():
         assert ours.mode == "fallback"
         assert ours.v == pytest.approx(paper.v) and ours.omega == pytest.approx(paper.omega)
         assert ours.target_column == pytest.approx(paper.target_column)
+
