@@ -255,7 +255,6 @@ def fit_parallel_rows(sides: Sequence[tuple[np.ndarray, np.ndarray]], *, trim: f
     one_hot = (side[:, None] == np.arange(len(sides))).astype(float)
     x_mean = float(x.mean())
     xc = x - x_mean
-    c2 = 0.0
     if degree == 2:
         bent = _trimmed_least_squares(np.column_stack([one_hot, xc, one_hot * (xc * xc)[:, None]]), y,
                                       trim=trim, iterations=iterations)
@@ -267,22 +266,22 @@ def fit_parallel_rows(sides: Sequence[tuple[np.ndarray, np.ndarray]], *, trim: f
                 and (np.all(curvatures > 0) or np.all(curvatures < 0))):
             joint = np.column_stack([one_hot, xc, xc * xc])[keep]
             coefficients = np.linalg.solve(joint.T @ joint, joint.T @ y[keep])
-            c2 = float(coefficients[-1])
-            return _rows_fit(coefficients[: len(sides)], float(coefficients[len(sides)]), c2, x_mean, side[keep],
-                             len(sides), degree)
+            return _rows_fit(coefficients[: len(sides)], float(coefficients[len(sides)]), float(coefficients[-1]),
+                             x_mean, side[keep], len(sides), degree)
     line = _trimmed_least_squares(np.column_stack([one_hot, xc]), y, trim=trim, iterations=iterations)
     if line is None:
         return None
     coefficients, keep, _ = line
-    return _rows_fit(coefficients[: len(sides)], float(coefficients[-1]), c2, x_mean, side[keep], len(sides), degree)
+    return _rows_fit(coefficients[: len(sides)], float(coefficients[-1]), 0.0, x_mean, side[keep], len(sides), degree)
 
 
 def _trimmed_least_squares(design: np.ndarray, y: np.ndarray, *, trim: float,
                            iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(coefficients, points kept, coefficient standard errors) of the trimmed least-squares fit
-    of y on the design's columns, or None when the kept points do not determine them."""
+    of y on the design's columns, or None when the kept points do not determine them. The
+    standard errors are of the last refit only, computed once after the trimming rounds."""
     keep = np.ones(y.shape[0], dtype=bool)
-    result = None
+    last = None
     for _ in range(iterations + 1):
         a = design[keep]
         if a.shape[0] <= a.shape[1]:
@@ -293,8 +292,7 @@ def _trimmed_least_squares(design: np.ndarray, y: np.ndarray, *, trim: float,
         inverse = np.linalg.inv(normal)
         coefficients = inverse @ (a.T @ y[keep])
         residual = np.abs(y - design @ coefficients)
-        variance = float(np.sum(residual[keep] ** 2)) / (a.shape[0] - a.shape[1])
-        result = (coefficients, keep, np.sqrt(np.maximum(variance * np.diag(inverse), 0.0)))
+        last = (coefficients, keep, residual, inverse)
         spread = 1.4826 * float(np.median(residual[keep]))
         if spread <= 1e-9:
             break
@@ -302,7 +300,11 @@ def _trimmed_least_squares(design: np.ndarray, y: np.ndarray, *, trim: float,
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
-    return result
+    if last is None:
+        return None
+    coefficients, kept, residual, inverse = last
+    variance = float(np.sum(residual[kept] ** 2)) / (int(np.count_nonzero(kept)) - design.shape[1])
+    return coefficients, kept, np.sqrt(np.maximum(variance * np.diag(inverse), 0.0))
 
 
 def _rows_fit(offsets: np.ndarray, c1: float, c2: float, x_mean: float, kept_sides: np.ndarray,
