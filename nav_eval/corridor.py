@@ -454,7 +454,7 @@ class CorridorNavigator:
             return ((fit.offsets[0] + fit.offsets[1]) / 2.0, *fit.shape), "both"
         if self._width is None:
             return None, "fallback"
-        k = 0 if len(seen) == 1 else int(np.argmax(fit.kept))
+        k = int(np.argmax(fit.kept))  # the row with more support (the only one, if one)
         shift = -self._width / 2.0 if seen[k] == "left" else self._width / 2.0
         return (fit.offsets[k] + shift, *fit.shape), "one_side"
 
