@@ -263,6 +263,7 @@ def test_invalid_depth_is_no_reading():
     poisoned = depth.copy()
     poisoned[::7, ::5] = np.nan
     poisoned[1::9, ::3] = -1.0
+    poisoned[2::6, 1::4] = np.inf
     noisy = navigator().step(mask, poisoned)
     assert math.isfinite(noisy.omega)
     assert noisy.centre[0] == pytest.approx(clean.centre[0], abs=0.03)
