@@ -77,6 +77,7 @@ from segmin.nav_eval.navigator import (
     control_law,
     histogram_minimum,
     moving_average,
+    target_column,
     validated_attitude,
 )
 
@@ -503,10 +504,11 @@ class CorridorNavigator:
         line only needs the direction of the free corridor, and the strided grid finds it for a
         fraction of the full histogram's cost (the fallback's command still uses the full one)."""
         s = self.config.stride
-        histogram = column_histogram(fused[::s, ::s], depth_m[::s, ::s], method="segmind",
-                                     depth_threshold=self.config.depth_threshold)
         window = max(1, self._fusion.config.smooth_window // s) | 1  # odd, about the same width in pixels
-        return s * histogram_minimum(moving_average(histogram, window))
+        column = target_column(fused[::s, ::s], depth_m[::s, ::s], method="segmind",
+                               depth_threshold=self.config.depth_threshold, smooth_window=window)
+        assert column is not None  # only SegZeros finds no target
+        return s * column
 
     def _enough(self, x: np.ndarray) -> bool:
         """Whether a row's points can support a fit: `min_points` of them spanning `min_span` in x."""
