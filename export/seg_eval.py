@@ -38,6 +38,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from segmin.common.atomic import write_bytes, write_json, write_text
+from segmin.common.outputs import check_results_absent
 from segmin.data.agriseg_loader import DatasetError, Frame, find_frames, load_frame
 from segmin.data.overlay import tint_mask
 from segmin.export import metadata as md
@@ -405,13 +406,7 @@ def _progress(items: Sequence[Frame], enabled: bool, label: str) -> Iterable[Fra
 
 def check_out_dir(out: str | Path, force: bool) -> Path:
     """Refuse to overwrite earlier results unless forced (called before any work is done)."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: --out exists and is not a folder")
-    existing = [name for name in RESULT_FILES if (out / name).exists()]
-    if existing and not force:
-        raise ValueError(f"{out}: already holds eval-seg results ({', '.join(existing)}); use --force to overwrite")
-    return out
+    return check_results_absent(out, RESULT_FILES, force, "eval-seg")
 
 
 def write_results(summary: EvalSummary, sheet: np.ndarray | None, out: str | Path, *, force: bool = False) -> dict[str, str]:

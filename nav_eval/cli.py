@@ -31,7 +31,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
                         help="'all' (the five test fields), comma-separated names, or world spec YAML paths")
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (refused if it holds results, unless --force)")
+    parser.add_argument("--force", action="store_true", help="overwrite the results of an earlier nav-eval in --out")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     parser.add_argument("--video", action="store_true", help="MP4 (else GIF) of the camera view, mask and chosen column for run 0 of each field and method")
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
@@ -74,13 +75,15 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def _nav_eval(args: argparse.Namespace) -> int:
+    from segmin.common.outputs import check_results_absent
     from segmin.nav_eval.eval_config import load_nav_config
     from segmin.nav_eval.evaluate import run_evaluation
-    from segmin.nav_eval.report import table3_markdown
+    from segmin.nav_eval.report import RESULT_FILES, table3_markdown
 
     config = load_nav_config(args.config, overrides_of(args))
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    check_results_absent(args.out, RESULT_FILES, args.force, "nav-eval")
     results = run_evaluation(args.model, args.fields, args.methods, args.runs, args.out, args.workers, config,
                              seed=args.seed, video=args.video, progress=not args.no_progress,
                              plots=not args.no_plots)

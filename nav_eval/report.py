@@ -21,6 +21,9 @@ import numpy as np
 from segmin.nav_eval.metrics import mean_std
 from segmin.common.atomic import write_bytes, write_json, write_text
 
+# What one evaluation writes to its --out (the figures and videos beside them are named per field).
+RESULT_FILES: tuple[str, ...] = ("results.csv", "results.json", "trajectories.json", "report.md")
+
 # Paper Table 3 (reference-facts section 2): clearance s, MAE m, MSE m^2, heading rad, v_avg, omega std.
 PAPER_TABLE3: dict[tuple[str, str], tuple[float, ...]] = {
     ("high_trees", "segmin"): (40.41, 0.265, 0.084, 0.079, 0.487, 0.054),

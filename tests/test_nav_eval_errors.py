@@ -37,6 +37,16 @@ def test_a_model_that_is_not_a_segmin_export_fails_before_any_run(tmp_path, caps
     assert not (out / "results.json").exists()  # no run started
 
 
+def test_earlier_results_are_not_overwritten_without_force(tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "results.csv").write_text("earlier\n")
+    assert main(["nav-eval", "--model", "oracle", "--out", str(out), *FAST]) == 2
+    err = capsys.readouterr().err
+    assert "results.csv" in err and "--force" in err and len(err.strip().splitlines()) == 1
+    assert (out / "results.csv").read_text() == "earlier\n"
+
+
 @pytest.mark.parametrize("setting, message", [
     ("navigator.v_max=-1", "v_max"),
     ("navigator.smooth_window=4", "smooth_window"),

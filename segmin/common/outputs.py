@@ -36,3 +36,16 @@ def check_output_file(path: str | Path, what: str = "--out") -> Path:
         raise IsADirectoryError(f"{what} {path}: is a folder, expected a file name")
     _check_parents(path, what)
     return path
+
+
+def check_results_absent(out: str | Path, names: tuple[str, ...], force: bool, command: str) -> Path:
+    """`out` is a folder (or will be) that holds none of `command`'s result files `names`, unless
+    `force`: ValueError naming the files otherwise. Called before any work, so a refusal wastes
+    nothing and earlier results are never overwritten silently."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: --out exists and is not a folder")
+    existing = [name for name in names if (out / name).exists()]
+    if existing and not force:
+        raise ValueError(f"{out}: already holds {command} results ({', '.join(existing)}); use --force to overwrite")
+    return out
