@@ -60,6 +60,7 @@ calls (`step`, `push_mask`, `fused_mask`, `command`, `stop`, `reset`, `config.me
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -141,9 +142,10 @@ class CameraGeometry:
         vertical = (rows - self.cy) / self.fy
         return c + vertical * s, -lateral, s - vertical * c
 
-    def points_on_rays(self, rays: tuple[np.ndarray, np.ndarray, np.ndarray], depth_m: np.ndarray,
+    def points_on_rays(self, rays: Sequence[np.ndarray], depth_m: np.ndarray,
                        attitude: tuple[float, float] | None = None) -> tuple[np.ndarray, ...]:
-        """`robot_frame` of the pixels whose `ray_coefficients` are `rays`."""
+        """`robot_frame` of the pixels whose `ray_coefficients` are `rays` (a, b, c: a tuple or
+        the rows of a 3 x n array)."""
         a, b, c = rays
         x = self.mount_forward + depth_m * a
         y = depth_m * b
@@ -264,10 +266,10 @@ def fit_parallel_rows(sides: Sequence[tuple[np.ndarray, np.ndarray]], *, trim: f
     if min(counts, default=0) == 0:
         return None
     rows = len(sides)
-    bounds = np.cumsum([0, *counts])
+    bounds = np.array([0, *itertools.accumulate(counts)])
     x = np.concatenate([xs for xs, _ in sides], dtype=np.float64)
     y = np.concatenate([ys for _, ys in sides], dtype=np.float64)
-    x_mean = float(x.mean())
+    x_mean = float(x.sum()) / x.shape[0]  # as x.mean(), without its generic machinery
     xc = x - x_mean
     # Design columns: one offset per row, the shared slope, and (degree 2) each row's own x^2,
     # stored one column per array row. The rows' points are consecutive blocks, so each row's
@@ -326,7 +328,8 @@ def _trimmed_least_squares(columns: np.ndarray, y: np.ndarray, *, trim: float, i
             inverse = np.linalg.inv(normal)
         except np.linalg.LinAlgError:
             break
-        if np.abs(normal).max() * np.abs(inverse).max() > 1e10:
+        # N and N^-1 are positive semi-definite, so their largest entries lie on the diagonals.
+        if normal.diagonal().max() * inverse.diagonal().max() > 1e10:
             break  # a row without spread in x, a column without points
         coefficients = inverse @ (weighted @ y)
         residual = np.abs(y - coefficients @ columns)
@@ -383,7 +386,7 @@ class CorridorNavigator:
         self._fusion = Navigator(NavigatorConfig(method="segmind", depth_threshold=config.depth_threshold,
                                                  fuse_frames=config.fuse_frames, v_max=config.v_max,
                                                  omega_max=config.omega_max, ema_lambda=config.ema_lambda))
-        self._ray_grids: dict[tuple[int, ...], tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+        self._ray_grids: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self.reset()
 
     # ---- the navigator interface ---------------------------------------------------------------
@@ -522,24 +525,22 @@ class CorridorNavigator:
         pixel_index, rays = self._strided_rays(fused.shape)
         chosen = np.flatnonzero(fused[:: config.stride, :: config.stride])
         z = depth_m.ravel()[pixel_index[chosen]]
-        x, y, h = self.camera.points_on_rays(tuple(r[chosen] for r in rays), z, attitude)
+        x, y, h = self.camera.points_on_rays(np.take(rays, chosen, axis=1), z, attitude)
         # NaN and infinite depth fail the range tests (NaN compares false, inf lands out of range).
-        ok = (z > 0) & (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min)
-        x, y, h = x[ok], y[ok], h[ok]
-        if x.shape[0] > config.max_points:  # an even thinning bounds the step time on dense walls
-            every = -(-x.shape[0] // config.max_points)
-            x, y, h = x[::every], y[::every], h[::every]
-        return x, y, h
+        ok = np.flatnonzero((z > 0) & (x >= config.x_min) & (x <= config.x_max) & (h >= config.h_min))
+        if ok.shape[0] > config.max_points:  # an even thinning bounds the step time on dense walls
+            ok = ok[:: -(-ok.shape[0] // config.max_points)]
+        return x[ok], y[ok], h[ok]
 
-    def _strided_rays(self, shape: tuple[int, int]) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def _strided_rays(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """For every `stride`-th pixel in both directions, in row-major order: its flat index in
-        the full image and the camera's ray coefficients (cached per image shape). A step then
-        looks up only the vegetation pixels instead of masking whole images."""
+        the full image and the camera's ray coefficients (a 3 x n array, cached per image shape).
+        A step then looks up only the vegetation pixels instead of masking whole images."""
         if shape not in self._ray_grids:
             s = self.config.stride
             rows, cols = np.meshgrid(np.arange(0, shape[0], s), np.arange(0, shape[1], s), indexing="ij")
             rays = self.camera.ray_coefficients(rows.ravel().astype(np.float32), cols.ravel().astype(np.float32))
-            self._ray_grids[shape] = ((rows * shape[1] + cols).ravel(), tuple(r.astype(np.float32) for r in rays))
+            self._ray_grids[shape] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
         return self._ray_grids[shape]
 
     def _pursuit(self, y_goal: float) -> tuple[float, float]:
