@@ -140,3 +140,25 @@ def test_nested_configs_are_checked_before_the_first_stage(tmp_path, override, m
     with pytest.raises(ValueError, match=message):
         runner.run()
     assert not (tmp_path / "render").exists()  # nothing ran
+
+
+def test_a_family_can_render_its_own_number_of_frames_per_world(tmp_path: Path) -> None:
+    """`families.<f>.frames_per_world` lets a family with more worlds keep its frame budget; it
+    replaces render.frames_per_world for that family's training worlds only, and is part of the
+    render stage's inputs (a cached render with other counts is not reused)."""
+    from segmin.app.pipeline import stages
+    from segmin.app.pipeline.cache import hash_inputs
+
+    config = load_pipeline_config("micro", ["families.trees.frames_per_world=3"])
+    with pytest.raises(ConfigError, match="frames_per_world"):
+        load_pipeline_config("micro", ["families.trees.frames_per_world=0"])
+    outputs = stages.render_stage(config, tmp_path, overwrite=False, log=lambda message: None)
+
+    def frames(split: str, domain: str) -> int:
+        return len(list((tmp_path / split / domain).rglob("images/*/*.png")))
+
+    trees, vineyards = outputs["domains"]["trees"], outputs["domains"]["vineyards"]
+    assert [frames("train", d) for d in trees["train"]] == [3]
+    assert [frames("train", d) for d in vineyards["train"]] == [config.render.frames_per_world]
+    assert [frames("val", d) for d in trees["val"]] == [config.render.val_frames_per_world]
+    assert hash_inputs("render", *stages.render_inputs(config)) != hash_inputs("render", *stages.render_inputs(micro_config()))

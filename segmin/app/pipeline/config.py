@@ -30,11 +30,16 @@ class FamilyPlan:
     fields: list[str]
     train_config: str = "quick"  # a shipped training config or a YAML path
     train_overrides: list[str] = field(default_factory=list)
+    # Frames rendered per training world for this family (default: render.frames_per_world), so
+    # a family with more worlds can keep the same number of frames, and the same training time.
+    frames_per_world: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("train_worlds", "val_worlds", "fields"):
             if not getattr(self, name):
                 raise ValueError(f"{name}: list at least one world")
+        if self.frames_per_world is not None and (isinstance(self.frames_per_world, bool) or self.frames_per_world < 1):
+            raise ValueError(f"frames_per_world must be >= 1 or null, got {self.frames_per_world!r}")
 
 
 @dataclass

@@ -45,7 +45,7 @@ class PipelineRunner:
         # Checked before anything runs: a missing photo folder should not wait for training to fail.
         real_fingerprint = (stages.dataset_fingerprint(config.real_eval.resolved_data())
                             if config.real_eval.enabled else None)
-        render_hash = hash_inputs("render", to_dict(config.render), stages.world_specs(config))
+        render_hash = hash_inputs("render", *stages.render_inputs(config))
         render = self._stage("render", "render", render_hash,
                              lambda folder, fresh: stages.render_stage(config, folder, overwrite=fresh, log=self.log))
 

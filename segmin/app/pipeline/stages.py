@@ -47,6 +47,13 @@ def world_specs(config: PipelineConfig) -> dict[str, dict[str, Any]]:
     return specs
 
 
+def render_inputs(config: PipelineConfig) -> tuple[Any, ...]:
+    """What the rendered frames depend on (the render stage's hash): the render settings, every
+    world's spec and each family's frames per training world."""
+    family_frames = {family: plan.frames_per_world for family, plan in config.families.items()}
+    return to_dict(config.render), world_specs(config), family_frames
+
+
 def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]:
     """Validation worlds are the same kind of field grown from another seed, under their own domain."""
     if split == "train":
@@ -68,7 +75,8 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
     outputs: dict[str, Any] = {"domains": {}}
     for family, plan in config.families.items():
         domains: dict[str, list[str]] = {"train": [], "val": []}
-        for split, names, frames in (("train", plan.train_worlds, config.render.frames_per_world),
+        train_frames = plan.frames_per_world or config.render.frames_per_world
+        for split, names, frames in (("train", plan.train_worlds, train_frames),
                                      ("val", plan.val_worlds, config.render.val_frames_per_world)):
             for name in names:
                 spec = load_world_spec(name, _world_overrides(config, name, split))
