@@ -170,9 +170,12 @@ def test_invalid_variety_fields_name_the_field(changes, field):
 
 
 def test_shipped_training_worlds_use_the_variety():
+    from segmin.common.shipped import shipped_names
     from segmin.data.synth.spec import load_world_spec
 
-    for name in ("train_vineyard_a", "train_vineyard_b", "train_pergola_a", "train_pear_a", "train_trees_a", "train_trees_b"):
+    training = [name for name in shipped_names("worlds") if name.startswith("train_")]
+    assert len(training) >= 7, training  # three vineyard worlds, four tree worlds (the fruit wall too)
+    for name in training:
         spec = load_world_spec(name)
         assert spec.backdrop.trees > 0 and spec.capture.hfov_deg[1] >= 100, name
         assert spec.sky.overcast_probability > 0 and spec.render.shadow_probability > 0, name
