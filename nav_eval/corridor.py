@@ -74,10 +74,9 @@ from segmin.nav_eval.navigator import (
     _check_positive,
     _check_threshold,
     _validated_frame,
-    column_histogram,
     control_law,
     histogram_minimum,
-    moving_average,
+    smoothed_histogram,
     target_column,
     validated_attitude,
 )
@@ -439,9 +438,8 @@ class CorridorNavigator:
         histogram = np.zeros(0)
         if centre is None:
             self._centre = None
-            histogram = moving_average(column_histogram(fused, depth_m, method="segmind",
-                                                        depth_threshold=config.depth_threshold),
-                                       self._fusion.config.smooth_window)
+            histogram = smoothed_histogram(fused, depth_m, method="segmind", depth_threshold=config.depth_threshold,
+                                           smooth_window=self._fusion.config.smooth_window)
             column = histogram_minimum(histogram)
             v, omega = control_law(column, fused.shape[1], self._fusion.config)
         else:

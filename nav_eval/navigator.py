@@ -113,11 +113,11 @@ def target_column(
     _check_threshold(depth_threshold)
     _check_window(smooth_window)
     mask_b, depth_m = _validated_frame(mask, depth)
-    histogram = column_histogram(mask_b, depth_m, method=method, depth_threshold=depth_threshold)
     if method == "segzeros":
-        runs = free_runs(histogram, min_width=ZEROS_MIN_WIDTH)
-        return widest_run_centre(runs, histogram.shape[0])
-    return histogram_minimum(moving_average(histogram, smooth_window))
+        histogram = column_histogram(mask_b, depth_m, method=method, depth_threshold=depth_threshold)
+        return widest_run_centre(free_runs(histogram, min_width=ZEROS_MIN_WIDTH), histogram.shape[0])
+    return histogram_minimum(smoothed_histogram(mask_b, depth_m, method=method, depth_threshold=depth_threshold,
+                                                smooth_window=smooth_window))
 
 
 def to_metres(depth: np.ndarray) -> np.ndarray:
@@ -144,6 +144,14 @@ def column_histogram(mask: np.ndarray, depth_m: np.ndarray, *, method: str, dept
         kept_depth = np.where(near, depth_m, np.float32(0.0))
         return counts - kept_depth.sum(axis=0, dtype=np.float64) / depth_threshold
     return counts
+
+
+def smoothed_histogram(mask: np.ndarray, depth_m: np.ndarray, *, method: str, depth_threshold: float,
+                       smooth_window: int) -> np.ndarray:
+    """The column histogram after the paper's moving average: what SegMin and SegMinD take the
+    minimum of (the navigators, SegCorridor's fallback and the histogram figures share it)."""
+    return moving_average(column_histogram(mask, depth_m, method=method, depth_threshold=depth_threshold),
+                          smooth_window)
 
 
 def moving_average(histogram: np.ndarray, window: int) -> np.ndarray:
@@ -302,13 +310,14 @@ class Navigator:
 
     def _command(self, fused: np.ndarray, depth_m: np.ndarray) -> Command:
         config = self.config
-        histogram = column_histogram(fused, depth_m, method=config.method, depth_threshold=config.depth_threshold)
-        width = histogram.shape[0]
         if config.method == "segzeros":
+            histogram = column_histogram(fused, depth_m, method=config.method, depth_threshold=config.depth_threshold)
             target = self._track_free_run(histogram)
         else:
-            histogram = moving_average(histogram, config.smooth_window)
+            histogram = smoothed_histogram(fused, depth_m, method=config.method, depth_threshold=config.depth_threshold,
+                                           smooth_window=config.smooth_window)
             target = histogram_minimum(histogram)
+        width = histogram.shape[0]
         if target is None:
             self._v = 0.0
             self._omega = 0.0

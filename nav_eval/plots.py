@@ -89,12 +89,12 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
 
 def histogram_figure(path: Path, field: str, frame: Any, mask: np.ndarray, depth_threshold: float) -> None:
     """RGB (mask tinted, targets marked) | SegMin histogram | SegMinD histogram of one frame."""
-    from segmin.nav_eval.navigator import column_histogram, histogram_minimum, moving_average
+    from segmin.nav_eval.navigator import histogram_minimum, smoothed_histogram
 
     depth = np.asarray(frame.depth, dtype=np.float32)
     hists, targets = {}, {}
     for method in ("segmin", "segmind"):
-        h = moving_average(column_histogram(mask, depth, method=method, depth_threshold=depth_threshold), 11)
+        h = smoothed_histogram(mask, depth, method=method, depth_threshold=depth_threshold, smooth_window=11)
         hists[method], targets[method] = h, histogram_minimum(h)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     axes[0].imshow(tint_mask(frame.rgb, mask, GREEN, opacity=0.4))
