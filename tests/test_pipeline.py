@@ -61,6 +61,10 @@ def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureF
     assert 'src="render/' not in html  # every figure embedded, the page stands alone
     rows = json.loads((run_dir / "nav-eval" / "oracle" / "results.json").read_text())["rows"]
     assert sorted(r["field"] for r in rows) == sorted(FIELDS)
+    # micro's nav.oracle_methods ([segmin]) replaces nav.methods ([segmind]) for the oracle only.
+    assert {r["method"] for r in rows} == {"segmin"}
+    model_rows = json.loads((run_dir / "nav-eval" / "trees" / "results.json").read_text())["rows"]
+    assert {r["method"] for r in model_rows} == {"segmind"}
 
 
 def test_a_second_run_skips_every_stage(run_dir: Path) -> None:
@@ -123,6 +127,8 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
 @pytest.mark.parametrize("override, message", [
     ("export.exporter=foo", "export.exporter"),
     ("nav.methods=[segmax]", "nav.methods"),
+    ("nav.oracle_methods=[segmax]", "nav.oracle_methods: unknown"),
+    ("nav.oracle_methods=[]", "nav.oracle_methods: name at least one method"),
 ])
 def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:
     """Issue 13.12: these failed only when their stage ran, after render and training."""

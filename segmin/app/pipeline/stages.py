@@ -238,9 +238,9 @@ def nav_stage(config: PipelineConfig, model: str, fields: list[str], folder: Pat
     """Drive every method through `fields` with `model` (an ONNX path or 'oracle')."""
     from segmin.nav_eval.evaluate import raise_for_errors, run_evaluation
 
-    log(f"nav-eval: {model} on {', '.join(fields)} with {', '.join(config.nav.methods)}, "
-        f"{config.nav.runs} run(s) each")
-    results = run_evaluation(model, fields=fields, methods=config.nav.methods, runs=config.nav.runs,
+    methods = config.nav.methods_for(model)
+    log(f"nav-eval: {model} on {', '.join(fields)} with {', '.join(methods)}, {config.nav.runs} run(s) each")
+    results = run_evaluation(model, fields=fields, methods=methods, runs=config.nav.runs,
                              out_dir=folder, workers=config.nav.workers, config=nav_config(config),
                              seed=config.nav.seed, video=config.nav.video)
     raise_for_errors(results, f"nav-eval in {folder}")  # never cache a stage whose runs raised
