@@ -94,6 +94,20 @@ def test_an_interrupted_stage_resumes_and_later_stages_stay_cached(run_dir: Path
     assert cache.record("render").finished and cache.record("train/trees").finished
 
 
+def test_the_oracle_s_methods_rerun_the_oracle_stage_only(run_dir: Path) -> None:
+    """Each nav-eval stage hashes its own methods: other oracle methods do not redo the models'
+    loops, and going back reruns the oracle alone again (which leaves the shared run as it was)."""
+    other = load_pipeline_config("micro", ["export.exporter=legacy", "nav.oracle_methods=[segmind]"])
+    runner = PipelineRunner(other, run_dir, log=lambda message: None)
+    runner.run()
+    assert runner.ran == ["nav-eval/oracle", "report"]
+    rows = json.loads((run_dir / "nav-eval" / "oracle" / "results.json").read_text())["rows"]
+    assert {r["method"] for r in rows} == {"segmind"}
+    back = runner_for(run_dir, [])
+    back.run()
+    assert back.ran == ["nav-eval/oracle", "report"]
+
+
 def test_from_reruns_that_stage_and_later_ones(run_dir: Path) -> None:
     messages: list[str] = []
     runner = runner_for(run_dir, messages, from_stage="report")

@@ -89,6 +89,14 @@ class RealEvalPlan:
         return Path(self.data) if self.data is not None else shipped_real_data()
 
 
+def _check_methods(key: str, methods: list[str]) -> None:
+    """A non-empty list of known navigation methods, or one error naming `key`."""
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        problem = f"unknown {unknown}" if unknown else "name at least one method"
+        raise ValueError(f"{key}: {problem}; choose from {list(METHODS)}")
+
+
 @dataclass
 class NavPlan:
     """Closed-loop evaluation: nav config, methods, runs; the oracle runs beside the model."""
@@ -109,14 +117,9 @@ class NavPlan:
     def __post_init__(self) -> None:
         if self.runs < 1 or self.workers < 1:
             raise ValueError("nav.runs and nav.workers must be >= 1")
-        for name in ("methods", "oracle_methods"):
-            methods = getattr(self, name)
-            if methods is None and name == "oracle_methods":
-                continue
-            unknown = [m for m in methods if m not in METHODS]
-            if unknown or not methods:
-                problem = f"unknown {unknown}" if unknown else "name at least one method"
-                raise ValueError(f"nav.{name}: {problem}; choose from {list(METHODS)}")
+        _check_methods("nav.methods", self.methods)
+        if self.oracle_methods is not None:
+            _check_methods("nav.oracle_methods", self.oracle_methods)
 
     def methods_for(self, model: str) -> list[str]:
         """The methods driven with `model` ('oracle' or an exported model)."""

@@ -79,16 +79,17 @@ class PipelineRunner:
                 self._stage("real-eval", key, upstream[key],
                             lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log))
 
-        nav_common = (to_dict(config.nav), to_dict(nav_config))
         for family, plan in config.families.items():
             onnx_path, export_hash = models[family]
             key = f"nav-eval/{family}"
-            upstream[key] = hash_inputs("nav", export_hash, nav_common, plan.fields)
+            upstream[key] = hash_inputs("nav", export_hash, _nav_inputs(config, onnx_path), to_dict(nav_config),
+                                        plan.fields)
             self._stage("nav-eval", key, upstream[key],
                         lambda folder, fresh, m=onnx_path, f=plan.fields: stages.nav_stage(config, m, f, folder, self.log))
         if config.nav.oracle:
             fields = [f for plan in config.families.values() for f in plan.fields]
-            upstream["nav-eval/oracle"] = hash_inputs("nav-oracle", nav_common, fields)
+            upstream["nav-eval/oracle"] = hash_inputs("nav-oracle", _nav_inputs(config, "oracle"), to_dict(nav_config),
+                                                      fields)
             self._stage("nav-eval", "nav-eval/oracle", upstream["nav-eval/oracle"],
                         lambda folder, fresh: stages.nav_stage(config, "oracle", fields, folder, self.log))
 
@@ -143,3 +144,11 @@ class PipelineRunner:
 
 def _default_log(message: str) -> None:
     print(f"[pipeline {time.strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+def _nav_inputs(config: PipelineConfig, model: str) -> dict:
+    """What one nav-eval stage's runs depend on: the nav section with that stage's own methods in
+    place of both method lists and the oracle switch, so that changing the oracle's methods
+    (or turning it off) does not rerun the models' closed loops, and the reverse."""
+    settings = {k: v for k, v in to_dict(config.nav).items() if k not in ("methods", "oracle", "oracle_methods")}
+    return {**settings, "methods": config.nav.methods_for(model)}
