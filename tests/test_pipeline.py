@@ -182,3 +182,32 @@ def test_a_family_can_render_its_own_number_of_frames_per_world(tmp_path: Path) 
     assert [frames("train", d) for d in vineyards["train"]] == [config.render.frames_per_world]
     assert [frames("val", d) for d in trees["val"]] == [config.render.val_frames_per_world]
     assert hash_inputs("render", *stages.render_inputs(config)) != hash_inputs("render", *stages.render_inputs(micro_config()))
+
+
+def test_families_train_side_by_side_with_a_thread_each(run_dir: Path) -> None:
+    """micro (like quick) trains both families at once: one process, one thread and one log each."""
+    import yaml
+
+    for family in ("trees", "vineyards"):
+        config = yaml.safe_load((run_dir / "train" / family / "config.yaml").read_text())
+        assert config["threads"] == 1
+        assert "epoch 1/1" in (run_dir / "train" / family / "train.log").read_text()
+    assert "ran side by side" in (run_dir / "report.md").read_text()
+
+
+@pytest.mark.parametrize("parallel", [True, False])
+def test_a_failing_family_keeps_the_family_that_trained(run_dir: Path, tmp_path: Path, parallel: bool) -> None:
+    """One family's error is raised and the family that trained stays recorded as done (a rerun
+    skips it), side by side and one after the other."""
+    from segmin.data.agriseg_loader import DatasetError
+    from segmin.train.config import load_train_config
+
+    config = load_pipeline_config("micro", ["export.exporter=legacy", f"parallel_training={parallel}"])
+    runner = PipelineRunner(config, tmp_path, log=lambda message: None)
+    good = load_train_config(run_dir / "train" / "trees" / "config.yaml")
+    bad = load_train_config(run_dir / "train" / "trees" / "config.yaml", ["data.domains=[synth_no_such_world]"])
+    with pytest.raises(DatasetError, match="synth_no_such_world"):
+        runner._train_families({"good": (good, "hash-good"), "bad": (bad, "hash-bad")})
+    assert runner.cache.record("train/good").finished
+    assert (tmp_path / "train" / "good" / "best.pt").is_file()
+    assert not runner.cache.record("train/bad").finished

@@ -54,6 +54,9 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
         record = cache.record(key)
         if record is not None:
             lines.append(f"| {key} | {record.seconds:.1f} | `{record.input_hash}` |")
+    if config.parallel_training:
+        lines += ["", "The families' training stages ran side by side (one process and one thread each): "
+                  "their times overlap."]
     lines += ["", "## 1. Data: rendered training worlds", ""]
     render = cache.record("render")
     if render and render.outputs:

@@ -121,6 +121,8 @@ def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, rend
         f"data.domains=[{', '.join(domains['train'])}]",
         f"data.val_domains=[{', '.join(domains['val'])}]",
         f"backbone_weights={backbone}",
+        # Side by side, each training gets one core's thread (a family's own override still wins).
+        *(["threads=1"] if config.parallel_training else []),
         *plan.train_overrides,
     ]
     train_config = load_train_config(plan.train_config, overrides)
@@ -148,6 +150,17 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
     return {"checkpoint": str(best), "epochs": len(history), "best_val_iou": best_row.get("val_iou"),
             "best_val_pixel_acc": best_row.get("val_pixel_acc", best_row.get("val_acc")),
             "backbone_weights": train_config.backbone_weights, "image_size": train_config.image_size}
+
+
+def train_stage_logged(train_config, folder: Path, resume: bool) -> dict[str, Any]:
+    """`train_stage` in a process of its own (trainings side by side): its output, progress bars
+    included, goes to `folder/train.log` instead of a terminal the processes would share."""
+    import contextlib
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "train.log", "a" if resume else "w", buffering=1) as handle, \
+            contextlib.redirect_stdout(handle), contextlib.redirect_stderr(handle):
+        return train_stage(train_config, folder, resume=resume, log=print)
 
 
 def read_metrics_csv(path: Path) -> list[dict[str, float]]:
