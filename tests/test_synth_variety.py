@@ -174,7 +174,7 @@ def test_shipped_training_worlds_use_the_variety():
     from segmin.data.synth.spec import load_world_spec
 
     training = [name for name in shipped_names("worlds") if name.startswith("train_")]
-    assert len(training) >= 8, training  # three vineyard worlds, five tree worlds (fruit wall, espalier)
+    assert len(training) >= 9, training  # three vineyard worlds, six tree worlds (fruit wall, espalier, young)
     for name in training:
         spec = load_world_spec(name)
         assert spec.backdrop.trees > 0 and spec.capture.hfov_deg[1] >= 100, name
