@@ -211,3 +211,45 @@ def test_a_failing_family_keeps_the_family_that_trained(run_dir: Path, tmp_path:
     assert runner.cache.record("train/good").finished
     assert (tmp_path / "train" / "good" / "best.pt").is_file()
     assert not runner.cache.record("train/bad").finished
+
+
+def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(tmp_path: Path) -> None:
+    """The trainings run in process groups of their own: a Ctrl-C to the pipeline reaches them
+    through it, once; each finishes its step, saves last.pt and stops, and the stages stay
+    unfinished (a rerun resumes them). No training process outlives the pipeline."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    profile = yaml.safe_load((Path(__file__).parents[1] / "configs" / "pipeline" / "micro.yaml").read_text())
+    for plan in profile["families"].values():  # long enough to be interrupted
+        plan["train_overrides"] = [o for o in plan["train_overrides"] if not o.startswith(("epochs", "max_steps"))]
+        plan["train_overrides"] += ["epochs=50"]
+    profile["render"]["frames_per_world"] = 24
+    (tmp_path / "long.yaml").write_text(yaml.safe_dump(profile))
+    out = tmp_path / "run"
+    process = subprocess.Popen([sys.executable, "-m", "segmin.app.cli", "pipeline", "--config", str(tmp_path / "long.yaml"),
+                                "--out", str(out), "export.exporter=legacy"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    metrics = [out / "train" / family / "metrics.csv" for family in ("trees", "vineyards")]
+    deadline = time.monotonic() + 240
+    while not all(len(read_rows(m)) >= 1 for m in metrics):
+        assert process.poll() is None and time.monotonic() < deadline, "training did not start"
+        time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr.decode()
+    for family in ("trees", "vineyards"):
+        folder = out / "train" / family
+        assert (folder / "last.pt").is_file()
+        assert "interrupted: saved" in (folder / "train.log").read_text()
+        assert not StageCache(out).record(f"train/{family}").finished
+        assert len(read_rows(folder / "metrics.csv")) < 50
+
+
+def read_rows(path: Path) -> list[str]:
+    """The data rows of a metrics.csv (none while it does not exist)."""
+    return path.read_text().splitlines()[1:] if path.is_file() else []
