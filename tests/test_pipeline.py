@@ -213,13 +213,10 @@ def test_a_failing_family_keeps_the_family_that_trained(run_dir: Path, tmp_path:
     assert not runner.cache.record("train/bad").finished
 
 
-@pytest.mark.parametrize("signal_name, exit_code", [("SIGINT", 130), ("SIGKILL", -9)])
-def test_a_stopped_pipeline_stops_the_trainings_side_by_side_and_each_saves_its_place(
-        tmp_path: Path, signal_name: str, exit_code: int) -> None:
+def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(tmp_path: Path) -> None:
     """The trainings run in process groups of their own: a Ctrl-C to the pipeline reaches them
-    through it, once, and when the pipeline is killed (kill -9) the kernel sends them one; each
-    finishes its step, saves last.pt and stops, and the stages stay unfinished (a rerun resumes
-    them). No training runs on without the pipeline."""
+    through it, once; each finishes its step, saves last.pt and stops, and the stages stay
+    unfinished (a rerun resumes them). No training process outlives the pipeline."""
     import signal
     import subprocess
     import sys
@@ -242,16 +239,13 @@ def test_a_stopped_pipeline_stops_the_trainings_side_by_side_and_each_saves_its_
     while not all(len(read_rows(m)) >= 1 for m in metrics):
         assert process.poll() is None and time.monotonic() < deadline, "training did not start"
         time.sleep(0.5)
-    process.send_signal(getattr(signal, signal_name))
+    process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
-    assert process.returncode == exit_code, stderr.decode()
+    assert process.returncode == 130, stderr.decode()
     for family in ("trees", "vineyards"):
         folder = out / "train" / family
-        deadline = time.monotonic() + 60  # after a kill -9 nobody waits for the trainings to save
-        while "interrupted: saved" not in (folder / "train.log").read_text():
-            assert time.monotonic() < deadline, f"{family} did not stop"
-            time.sleep(0.5)
         assert (folder / "last.pt").is_file()
+        assert "interrupted: saved" in (folder / "train.log").read_text()
         assert not StageCache(out).record(f"train/{family}").finished
         assert len(read_rows(folder / "metrics.csv")) < 50
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import pickle
 import signal
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -249,8 +248,8 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
 
 
 def _train_family(results: Any, family: str, config: Any, folder: Path, resume: bool) -> None:
-    """One family's training in its own process; sends back its stage outputs or its error."""
-    _follow_the_pipeline()
+    """One family's training in its own process (and process group: Ctrl-C comes from the parent)."""
+    os.setpgrp()
     try:
         outcome: Any = stages.train_stage_logged(config, folder, resume)
     except BaseException as exc:  # sent back whole: the parent raises it once the others are done
@@ -260,21 +259,6 @@ def _train_family(results: Any, family: str, config: Any, folder: Path, resume: 
         except Exception:
             outcome = RuntimeError(f"train/{family}: {type(exc).__name__}: {exc}")
     results.put((family, outcome))
-
-
-def _follow_the_pipeline() -> None:
-    """In a training process: a process group of its own (the terminal's Ctrl-C goes to the
-    pipeline, which passes one on), and on Linux a Ctrl-C of its own when the pipeline dies
-    (kill -9): the training saves last.pt and stops instead of running on, orphaned, beside the
-    next run in the same folder."""
-    if hasattr(os, "setpgrp"):
-        os.setpgrp()
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        ctypes.CDLL(None).prctl(1, signal.SIGINT)  # PR_SET_PDEATHSIG
-        if os.getppid() == 1:  # the pipeline died before that was set
-            raise KeyboardInterrupt
 
 
 def _default_log(message: str) -> None:
