@@ -217,6 +217,7 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
     with tqdm(total=total, unit="epoch", desc="train") as bar:
         for process in processes.values():
             process.start()
+        log("train: processes " + ", ".join(f"{family} {process.pid}" for family, process in processes.items()))
         try:
             while len(outcomes) < len(processes):
                 try:
