@@ -8,9 +8,6 @@ else. `--from STAGE` reruns that stage and every later one from scratch.
 
 from __future__ import annotations
 
-import os
-import pickle
-import signal
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -18,6 +15,7 @@ from typing import Any, Callable
 from segmin.common.config import to_dict
 from segmin.common.outputs import check_output_dir
 from segmin.app.pipeline import stages
+from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.app.pipeline.cache import StageCache, Timer, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig
 
@@ -187,79 +185,6 @@ class PipelineRunner:
 def _resumable(folder: Path, fresh: bool) -> bool:
     """Continue the folder's training run: it was interrupted with the same inputs."""
     return not fresh and (folder / "last.pt").is_file()
-
-
-def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[str], None]) -> dict[str, Any]:
-    """Train several families at once, one process each (their configs say how many threads).
-
-    On the 2-core demo machine two 1-thread trainings finish sooner than the same two one after
-    the other with 2 threads (0.62 against 0.75 s a training step of 16 frames at 192 px):
-    torch's second thread gains far less than a second process. Each process writes its own
-    log to `train.log` in its stage folder; this one shows one progress bar over all epochs.
-    The processes sit in process groups of their own, so a Ctrl-C reaches this process only,
-    which passes exactly one on to each: they finish their step, save `last.pt` and stop.
-    Returns each family's stage outputs, or the exception that ended it.
-    """
-    import multiprocessing
-    import queue as queues
-
-    from tqdm import tqdm
-
-    total = sum(config.epochs for config, _, _ in todo.values())
-    log(f"train: {', '.join(todo)} side by side, {len(todo)} processes; logs in "
-        f"{', '.join(str(folder / 'train.log') for _, folder, _ in todo.values())}")
-    context = multiprocessing.get_context("spawn")  # torch's thread pools do not survive a fork
-    results = context.Queue()
-    processes = {family: context.Process(target=_train_family, args=(results, family, config, folder, resume),
-                                         name=f"train-{family}")
-                 for family, (config, folder, resume) in todo.items()}
-    outcomes: dict[str, Any] = {}
-    with tqdm(total=total, unit="epoch", desc="train") as bar:
-        for process in processes.values():
-            process.start()
-        log("train: processes " + ", ".join(f"{family} {process.pid}" for family, process in processes.items()))
-        try:
-            while len(outcomes) < len(processes):
-                try:
-                    family, outputs = results.get(timeout=5.0)
-                    outcomes[family] = outputs
-                except queues.Empty:
-                    ended = [f for f, p in processes.items() if f not in outcomes and p.exitcode is not None]
-                    while ended:  # a result sent just before the end may still be in the pipe
-                        try:
-                            family, outputs = results.get_nowait()
-                            outcomes[family] = outputs
-                        except queues.Empty:
-                            break
-                    for family in ended:  # killed, or died without a word
-                        outcomes.setdefault(family, RuntimeError(
-                            f"train/{family}: the training process ended with exit code "
-                            f"{processes[family].exitcode} and no result; see {todo[family][1] / 'train.log'}"))
-                epochs = sum(len(stages.read_metrics_csv(folder / "metrics.csv")) for _, folder, _ in todo.values())
-                bar.update(epochs - bar.n)
-        except KeyboardInterrupt:
-            for process in processes.values():
-                if process.is_alive():
-                    os.kill(process.pid, signal.SIGINT)
-            raise
-        finally:
-            for process in processes.values():
-                process.join()
-    return outcomes
-
-
-def _train_family(results: Any, family: str, config: Any, folder: Path, resume: bool) -> None:
-    """One family's training in its own process (and process group: Ctrl-C comes from the parent)."""
-    os.setpgrp()
-    try:
-        outcome: Any = stages.train_stage_logged(config, folder, resume)
-    except BaseException as exc:  # sent back whole: the parent raises it once the others are done
-        outcome = exc
-        try:
-            pickle.dumps(exc)
-        except Exception:
-            outcome = RuntimeError(f"train/{family}: {type(exc).__name__}: {exc}")
-    results.put((family, outcome))
 
 
 def _default_log(message: str) -> None:
