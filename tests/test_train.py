@@ -262,6 +262,23 @@ def test_bench_runs_and_reports_both_rates():
     result = bench_train(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
     assert result["model_step_ips"] > 0 and result["full_pipeline_ips"] > 0
     assert result["ratio"] == pytest.approx(result["full_pipeline_ips"] / result["model_step_ips"])
+    assert result["model_step_nchw_ips"] > 0
+    assert result["channels_last_speedup"] == pytest.approx(result["model_step_ips"] / result["model_step_nchw_ips"])
+
+
+def test_cpu_training_uses_channels_last_and_can_turn_it_off(tmp_path, dataset_root):
+    """channels_last is a speed setting on every device: the same run in both layouts learns the same."""
+    from segmin.train.run import fit
+
+    results = {}
+    for layout in (True, False):
+        config = tiny_config(dataset_root, epochs=1, channels_last=layout, tensorboard=False)
+        result = fit(config, tmp_path / f"cl_{layout}")
+        state = torch.load(result.best_path, weights_only=True)["model"]
+        conv = next(v for k, v in state.items() if v.ndim == 4 and v.shape[1] > 1 and v.shape[-1] > 1)
+        results[layout] = (conv.is_contiguous(memory_format=torch.channels_last), result.history[-1]["train_loss"])
+    assert results[True][0] and not results[False][0]
+    assert results[True][1] == pytest.approx(results[False][1], rel=1e-3)
 
 
 # ----------------------------------------------------------------------------- resolution ceiling

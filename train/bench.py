@@ -51,7 +51,11 @@ def _timed(fn, steps: int) -> float:
 
 def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_size: int = 8, threads: int = 2,
                 steps: int = 6, warmup: int = 2, workers: int = 1, repeats: int = 2, device: str = "cpu") -> dict[str, Any]:
-    """Images/s of the model step alone and of the full pipeline (best of `repeats`, alternating)."""
+    """Images/s of the model step alone and of the full pipeline (best of `repeats`, alternating).
+
+    The model step is timed in the channels-last layout training uses and, alternating with it, in the
+    plain NCHW layout, so the layout's gain is a ratio measured under the same load.
+    """
     from torch.utils.data import DataLoader, RandomSampler
 
     from segmin.data.agriseg_loader import AgriSegDataset
@@ -80,12 +84,15 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
             extra = {"prefetch_factor": 4, "persistent_workers": True, "worker_init_fn": _worker_init}
         loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=workers,
                             pin_memory=dev.type == "cuda", drop_last=True, **extra)
-        model = build_model("none").to(dev)
+        def step_context(channels_last: bool) -> StepContext:
+            model = build_model("none").to(dev)
+            if channels_last:
+                model.to(memory_format=torch.channels_last)
+            return StepContext(model, torch.optim.Adam(model.parameters(), lr=3e-4), SegLoss(), dev,
+                               torch.amp.GradScaler("cuda") if amp else None, amp=amp, channels_last=channels_last)
+
         amp = dev.type == "cuda"
-        if amp:
-            model.to(memory_format=torch.channels_last)
-        ctx = StepContext(model, torch.optim.Adam(model.parameters(), lr=3e-4), SegLoss(), dev,
-                          torch.amp.GradScaler("cuda") if amp else None, amp=amp, channels_last=amp)
+        ctx, ctx_nchw = step_context(True), step_context(False)  # what training uses, and the plain layout
         batches = iter(loader)
         fixed = next(batches)
 
@@ -93,10 +100,13 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
             if dev.type == "cuda":
                 torch.cuda.synchronize()
 
-        def model_only(n: int) -> None:
+        def model_only(n: int, context: StepContext | None = None) -> None:
             for _ in range(n):
-                train_step(ctx, *fixed)
+                train_step(context or ctx, *fixed)
             sync()
+
+        def model_only_nchw(n: int) -> None:
+            model_only(n, ctx_nchw)
 
         def full(n: int) -> None:
             for _ in range(n):
@@ -108,19 +118,23 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
                 dataset[(1, i % len(dataset))]
 
         model_only(warmup)
+        model_only_nchw(warmup)
         full(warmup)
-        t_model, t_full, t_data = [], [], []
+        t_model, t_nchw, t_full, t_data = [], [], [], []
         for _ in range(repeats):
             t_model.append(_timed(model_only, steps))
+            t_nchw.append(_timed(model_only_nchw, steps))
             t_full.append(_timed(full, steps))
             t_data.append(_timed(data_only, steps))
         model_ips = steps * batch_size / min(t_model)
+        nchw_ips = steps * batch_size / min(t_nchw)
         full_ips = steps * batch_size / min(t_full)
         data_ips = steps * batch_size / min(t_data)
         del batches
         return {"image_size": image_size, "batch_size": batch_size, "threads": threads, "workers": workers,
                 "device": str(dev), "frames": len(dataset), "model_step_ips": model_ips,
-                "full_pipeline_ips": full_ips, "data_only_ips": data_ips, "ratio": full_ips / model_ips,
+                "model_step_nchw_ips": nchw_ips,
+                "channels_last_speedup": model_ips / nchw_ips, "full_pipeline_ips": full_ips, "data_only_ips": data_ips, "ratio": full_ips / model_ips,
                 # what the ratio would be if loading ran serially in the training process (workers=0)
                 "serial_bound": 1.0 / (1.0 + model_ips / data_ips)}
     finally:

@@ -70,7 +70,9 @@ def _bench(args: argparse.Namespace) -> int:
     print(f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
           f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames; "
           f"{load_average()}")
-    print(f"  model step alone : {r['model_step_ips']:7.2f} images/s")
+    print(f"  model step alone : {r['model_step_ips']:7.2f} images/s (channels-last)")
+    print(f"  same, plain NCHW : {r['model_step_nchw_ips']:7.2f} images/s; channels-last gain "
+          f"{r['channels_last_speedup']:.2f}x")
     print(f"  full pipeline    : {r['full_pipeline_ips']:7.2f} images/s")
     print(f"  ratio            : {r['ratio']:.3f}  (target >= 0.90)")
     print(f"  data alone       : {r['data_only_ips']:7.2f} images/s (decode + augment, 1 process); "
