@@ -43,10 +43,25 @@ the robot frame. From there:
    the corridor. No row seen, or no width yet: SegMinD's column and control law (the fallback).
    Under a roof, when at least `roof_share` of the vegetation points in range (and `min_points`)
    lie above `roof_min_height` (pergola canopy, merged crowns: 0.84-1.00 of the points; vertical
-   vine walls and pear hedges 0.20-0.33), the rows are not walls and SegMinD steers.
+   vine walls and pear hedges 0.20-0.33), the rows are not walls: see 4b.
    Between commands the robot moves about 0.1 m, so the new centreline is averaged with the
    previous one (weight `centre_memory` on the new), which halves the frame-to-frame noise that
    gaps and single trunks put into the fit.
+4b. **Under a roof: the opening, or the trunks.** The roof points' lateral offsets from the split
+   line, binned in 0.25 m within `roof_opening_reach`, show whether the roof has an opening along
+   the corridor (the widest run of bins with fewer than 2 points). An opening of at least
+   `roof_opening` (a pergola's free band: 0.75-1.25 m on the test field) is what SegMinD's
+   column follows, so SegMinD steers (the fallback). A closed canopy (merged crowns: 0-0.25 m)
+   has no such column, and the rows are found on their trunks and posts instead: the pixels that
+   are not vegetation in the fused mask (nor green in the image, when the runtime gives one:
+   excess green 2G - R - B <= `trunk_max_excess_green`, so leaves the mask missed do not count),
+   every `trunk_stride`-th, back-projected as in 1 and kept when `x_min <= x <= trunk_x_max` and
+   `trunk_h_min <= h <= trunk_h_max` (above the ground's roughness, below the crowns) and within
+   `trunk_max_lateral` of the split line. A trunk or two a side give no reliable heading, so the
+   centreline is taken along the robot: y = (median y_L + median y_R) / 2, each side needing
+   `trunk_min_points`; the goal is then the middle between the trunks ahead, which also turns a
+   heading error out. With one side seen, that side moved by half a running trunk-to-trunk width.
+   With neither (or `trunks: false`), SegMinD steers.
 5. **Pure pursuit.** The goal point is the centreline at x = `lookahead`: (L, y_L) with
    y_L = c(L). The arc through it has curvature kappa = 2 y_L / (L^2 + y_L^2); the bearing
    alpha = atan2(y_L, L) sets the speed as in the paper, v = v_max (1 - (alpha / alpha_max)^2)
@@ -81,7 +96,8 @@ from segmin.nav_eval.navigator import (
     validated_attitude,
 )
 
-MODES = ("both", "one_side", "fallback")
+MODES = ("both", "one_side", "trunks", "fallback")
+ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
 
 @dataclass(frozen=True)
@@ -191,6 +207,16 @@ class CorridorConfig:
     width_memory: float = 0.2
     centre_memory: float = 0.5
     lookahead: float = 2.5
+    trunks: bool = True
+    roof_opening: float = 0.5
+    roof_opening_reach: float = 2.5
+    trunk_h_min: float = 0.3
+    trunk_h_max: float = 1.3
+    trunk_x_max: float = 12.0
+    trunk_stride: int = 2
+    trunk_min_points: int = 15
+    trunk_max_lateral: float = 6.0
+    trunk_max_excess_green: float = 10.0
     v_max: float = 0.5
     omega_max: float = 1.0
     ema_lambda: float = 0.5
@@ -200,19 +226,27 @@ class CorridorConfig:
         _check_threshold(self.depth_threshold)
         if self.degree not in (1, 2):
             raise ValueError(f"corridor.degree must be 1 (straight rows) or 2 (bends), got {self.degree!r}")
-        for name in ("fuse_frames", "stride", "min_points", "max_points", "trim_iterations"):
+        for name in ("fuse_frames", "stride", "min_points", "max_points", "trim_iterations", "trunk_stride",
+                     "trunk_min_points"):
             value = getattr(self, name)
             low = 0 if name == "trim_iterations" else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"corridor.{name} must be an integer >= {low}, got {value!r}")
         for name in ("x_max", "h_max", "max_lateral", "roof_min_height", "min_span", "trim", "lookahead", "v_max",
-                     "omega_max"):
+                     "omega_max", "trunk_x_max", "trunk_h_max", "trunk_max_lateral", "roof_opening_reach"):
             _check_positive(f"corridor.{name}", getattr(self, name))
         if not (math.isfinite(self.significance) and self.significance >= 0.0):
             raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
-        for name in ("x_min", "h_min"):
+        for name in ("x_min", "h_min", "trunk_h_min", "trunk_max_excess_green"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"corridor.{name} must be finite, got {getattr(self, name)!r}")
+        if self.trunk_h_min >= self.trunk_h_max:
+            raise ValueError(f"corridor.trunk_h_min ({self.trunk_h_min}) must be below corridor.trunk_h_max "
+                             f"({self.trunk_h_max})")
+        if not (math.isfinite(self.roof_opening) and self.roof_opening >= 0.0):
+            raise ValueError(f"corridor.roof_opening must be a finite number >= 0, got {self.roof_opening!r}")
+        if not isinstance(self.trunks, bool):
+            raise ValueError(f"corridor.trunks must be true or false, got {self.trunks!r}")
         if self.x_min >= self.x_max:
             raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.x_max ({self.x_max})")
         if self.h_min >= self.h_max:
@@ -376,6 +410,16 @@ def polyval(x: np.ndarray | float, c: tuple[float, ...] | np.ndarray) -> np.ndar
     return result
 
 
+def _validated_rgb(rgb: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray | None:
+    """The image as an H x W x 3 array of the depth frame's size, or None; ValueError otherwise."""
+    if rgb is None:
+        return None
+    image = np.asarray(rgb)
+    if image.shape != (*shape, 3):
+        raise ValueError(f"rgb must be {shape[1]}x{shape[0]}x3 like the depth frame, got shape {image.shape}")
+    return image
+
+
 class CorridorNavigator:
     """The stateful SegCorridor navigator (module docstring); the runtime's navigator interface."""
 
@@ -394,18 +438,22 @@ class CorridorNavigator:
         self._fusion.reset()
         self._centre: tuple[float, float] | None = None
         self._width: float | None = None
+        self._trunk_width: float | None = None
         self._v = 0.0
         self._omega = 0.0
         self.mode_counts = {mode: 0 for mode in MODES}
 
-    def step(self, mask: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None) -> CorridorCommand:
-        """Take one mask + depth frame (and the IMU's (roll, pitch), if any) and return the
-        smoothed command."""
+    reads_rgb = True  # the runtime passes the newest image to `command` (the trunk test reads its colour)
+
+    def step(self, mask: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None,
+             rgb: np.ndarray | None = None) -> CorridorCommand:
+        """Take one mask + depth frame (and the IMU's (roll, pitch) and the image, if any) and
+        return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
         self._fusion.push_mask(mask_b)
         fused = self._fusion.fused_mask()
         assert fused is not None
-        return self._command(fused, depth_m, validated_attitude(attitude))
+        return self._command(fused, depth_m, validated_attitude(attitude), _validated_rgb(rgb, depth_m.shape))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
         """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`)."""
@@ -415,12 +463,13 @@ class CorridorNavigator:
         """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
         return self._fusion.fused_mask(not_before)
 
-    def command(self, fused: np.ndarray, depth: np.ndarray,
-                attitude: tuple[float, float] | None = None) -> CorridorCommand:
-        """The smoothed command for an already fused mask, the newest depth frame and the IMU's
-        (roll, pitch) in radians (None: level ground assumed)."""
+    def command(self, fused: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None,
+                rgb: np.ndarray | None = None) -> CorridorCommand:
+        """The smoothed command for an already fused mask, the newest depth frame, the IMU's
+        (roll, pitch) in radians (None: level ground assumed) and the newest image (None: the
+        trunk test trusts the mask alone)."""
         mask_b, depth_m = _validated_frame(fused, depth)
-        return self._command(mask_b, depth_m, validated_attitude(attitude))
+        return self._command(mask_b, depth_m, validated_attitude(attitude), _validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
         """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
@@ -429,12 +478,13 @@ class CorridorNavigator:
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
     # ---- one command -----------------------------------------------------------------------------
-    def _command(self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None) -> CorridorCommand:
+    def _command(self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None,
+                 rgb: np.ndarray | None = None) -> CorridorCommand:
         config = self.config
         if fused.shape != (self.camera.height, self.camera.width):
             raise ValueError(f"mask is {fused.shape[1]}x{fused.shape[0]} but the camera geometry is "
                              f"{self.camera.width}x{self.camera.height}")
-        centre, mode = self._centreline(fused, depth_m, attitude)
+        centre, mode = self._centreline(fused, depth_m, attitude, rgb)
         histogram = np.zeros(0)
         if centre is None:
             self._centre = None
@@ -457,19 +507,21 @@ class CorridorNavigator:
         return CorridorCommand(v=self._v, omega=self._omega, target_column=float(column), histogram=histogram,
                                valid=True, mode=mode, centre=centre)
 
-    def _centreline(self, fused: np.ndarray, depth_m: np.ndarray,
-                    attitude: tuple[float, float] | None) -> tuple[tuple[float, ...] | None, str]:
+    def _centreline(self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None,
+                    rgb: np.ndarray | None) -> tuple[tuple[float, ...] | None, str]:
         """Coefficients of the centreline and the mode that found it (None, "fallback" without one)."""
         config = self.config
         x, y, h = self._row_points(fused, depth_m, attitude)
         overhead = int(np.count_nonzero(h >= config.roof_min_height))
+        split = self._split_line(fused, depth_m)
         if overhead >= config.min_points and overhead >= config.roof_share * h.shape[0]:
-            return None, "fallback"  # most vegetation in range is overhead: a pergola, merged crowns
-        if self._centre is not None:
-            split = self._centre
-        else:
-            column = self._split_column(fused, depth_m)
-            split = (0.0, (self.camera.cx - column) / self.camera.fx / math.cos(math.radians(self.camera.tilt_deg)))
+            # Most vegetation in range is overhead: the rows are not walls. Under a roof with an
+            # opening along the corridor (a pergola's free band) SegMinD's column follows the
+            # opening; under a closed canopy (merged crowns) the trunks give the rows.
+            roof = h >= config.roof_min_height
+            if not config.trunks or self._roof_opening(y[roof] - polyval(x[roof], split)) >= config.roof_opening:
+                return None, "fallback"
+            return self._trunk_centreline(fused, depth_m, attitude, rgb, split)
         offset = y - polyval(x, split)
         # Once the corridor width w is known, points further than w from the centreline belong to
         # the next rows (at 1.5 w): in tight rows and through gaps they would pull the fit.
@@ -500,6 +552,61 @@ class CorridorNavigator:
         shift = -self._width / 2.0 if seen[k] == "left" else self._width / 2.0
         return (fit.offsets[k] + shift, *fit.shape), "one_side"
 
+    def _roof_opening(self, lateral: np.ndarray) -> float:
+        """Width (m) of the widest band along the corridor, within `roof_opening_reach` of the split
+        line, that holds (almost) no roof point: 0.75-1.25 m under the test pergola, 0-0.25 m
+        under the merged crowns of the high trees (docs/nav_eval.md)."""
+        reach = self.config.roof_opening_reach
+        counts = np.histogram(lateral, bins=int(round(2 * reach / ROOF_BIN)), range=(-reach, reach))[0]
+        widest = run = 0
+        for empty in counts < 2:
+            run = run + 1 if empty else 0
+            widest = max(widest, run)
+        return widest * ROOF_BIN
+
+    def _split_line(self, fused: np.ndarray, depth_m: np.ndarray) -> tuple[float, ...]:
+        """The line that splits left from right: the previous centreline, or the ray through
+        SegMinD's column."""
+        if self._centre is not None:
+            return self._centre
+        column = self._split_column(fused, depth_m)
+        return (0.0, (self.camera.cx - column) / self.camera.fx / math.cos(math.radians(self.camera.tilt_deg)))
+
+    def _trunk_centreline(self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None,
+                          rgb: np.ndarray | None, split: tuple[float, ...]) -> tuple[tuple[float, ...] | None, str]:
+        """Under a roof: the centreline between the trunks (and posts) of the two rows, from the
+        non-vegetation pixels standing `trunk_h_min`-`trunk_h_max` above the ground."""
+        config = self.config
+        pixel_index, rays = self._strided_rays(fused.shape, config.trunk_stride)
+        chosen = np.flatnonzero(~fused[:: config.trunk_stride, :: config.trunk_stride])
+        if rgb is not None:  # bark and posts are not green; leaves the mask missed are
+            colour = rgb.reshape(-1, 3)[pixel_index[chosen]].astype(np.float32)
+            excess_green = 2.0 * colour[:, 1] - colour[:, 0] - colour[:, 2]
+            chosen = chosen[excess_green <= config.trunk_max_excess_green]
+        z = depth_m.ravel()[pixel_index[chosen]]
+        valid = np.flatnonzero(z > 0)
+        x, y, h = self.camera.points_on_rays(np.take(rays, chosen[valid], axis=1), z[valid], attitude)
+        ok = (x >= config.x_min) & (x <= config.trunk_x_max) & (h >= config.trunk_h_min) & (h <= config.trunk_h_max)
+        x, y = x[ok], y[ok]
+        offset = y - polyval(x, split)
+        near = np.abs(offset) <= config.trunk_max_lateral
+        # A trunk or two a side give no reliable heading: the centreline is taken along the robot
+        # (the goal is then the middle between the trunks ahead, which also turns out a heading error).
+        shape = (0.0,)
+        sides = {}
+        for name, chosen_side in (("left", near & (offset > 0)), ("right", near & (offset <= 0))):
+            if np.count_nonzero(chosen_side) >= config.trunk_min_points:
+                sides[name] = float(np.median(y[chosen_side]))
+        if len(sides) == 2:
+            width = sides["left"] - sides["right"]
+            memory = config.width_memory
+            self._trunk_width = width if self._trunk_width is None else (1 - memory) * self._trunk_width + memory * width
+            return ((sides["left"] + sides["right"]) / 2.0, *shape), "trunks"
+        if len(sides) == 1 and self._trunk_width is not None:
+            name, row = next(iter(sides.items()))
+            return (row + (-self._trunk_width / 2.0 if name == "left" else self._trunk_width / 2.0), *shape), "trunks"
+        return None, "fallback"
+
     def _split_column(self, fused: np.ndarray, depth_m: np.ndarray) -> float:
         """SegMinD's target column, found on every `stride`-th pixel in both directions: the split
         line only needs the direction of the free corridor, and the strided grid finds it for a
@@ -520,7 +627,7 @@ class CorridorNavigator:
         """Robot-frame (x, y, h) of the kept vegetation pixels (every `stride`-th, in range, above
         `h_min`; those above `h_max` only count for the roof test)."""
         config = self.config
-        pixel_index, rays = self._strided_rays(fused.shape)
+        pixel_index, rays = self._strided_rays(fused.shape, config.stride)
         chosen = np.flatnonzero(fused[:: config.stride, :: config.stride])
         z = depth_m.ravel()[pixel_index[chosen]]
         x, y, h = self.camera.points_on_rays(np.take(rays, chosen, axis=1), z, attitude)
@@ -530,16 +637,15 @@ class CorridorNavigator:
             ok = ok[:: -(-ok.shape[0] // config.max_points)]
         return x[ok], y[ok], h[ok]
 
-    def _strided_rays(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    def _strided_rays(self, shape: tuple[int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
         """For every `stride`-th pixel in both directions, in row-major order: its flat index in
         the full image and the camera's ray coefficients (a 3 x n array, cached per image shape).
         A step then looks up only the vegetation pixels instead of masking whole images."""
-        if shape not in self._ray_grids:
-            s = self.config.stride
+        if (*shape, s) not in self._ray_grids:
             rows, cols = np.meshgrid(np.arange(0, shape[0], s), np.arange(0, shape[1], s), indexing="ij")
             rays = self.camera.ray_coefficients(rows.ravel().astype(np.float32), cols.ravel().astype(np.float32))
-            self._ray_grids[shape] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
-        return self._ray_grids[shape]
+            self._ray_grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
+        return self._ray_grids[(*shape, s)]
 
     def _pursuit(self, y_goal: float) -> tuple[float, float]:
         """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""

@@ -1,7 +1,9 @@
 """Analytic mask + depth frames for the navigator demo, ray-cast in numpy (no simulator needed).
 
 A row is modelled as a vertical sheet of foliage with holes on each side of the robot, an
-optional canopy slab closing over the row (tall trees), and flat ground. Rays from a camera
+optional canopy slab closing over the row (tall trees; optionally with a free band over the
+corridor, as a pergola's), optional trunks (vertical cylinders, not vegetation) in the row lines,
+and flat ground. Rays from a camera
 mounted like the paper's (tilted 15 degrees up, about 69 degrees field of view) hit the nearest
 surface; its planar depth and whether it is vegetation give the depth frame and the mask. This
 is enough to show what SegMin, SegMinD and SegZeros do on typical scenes, in milliseconds.
@@ -29,6 +31,9 @@ class DemoScene:
     yaw: float = 0.0  # robot heading, positive turns left
     hole_fraction: float = 0.25
     depth_threshold: float = 5.0
+    canopy_opening: float = 0.0  # width of a free band in the canopy slab over the row centre
+    trunk_spacing: float | None = None  # trunks every this many metres along both row lines, None for none
+    trunk_radius: float = 0.12
 
 
 DEMO_SCENES: tuple[DemoScene, ...] = (
@@ -41,6 +46,12 @@ DEMO_SCENES: tuple[DemoScene, ...] = (
     DemoScene("end of the row", half_gap=0.9, foliage_low=0.4, foliage_high=2.0, canopy_base=None,
               row_length=0.0, depth_threshold=5.0),
 )
+
+
+# Merged crowns from 1.6 m over a 7 m corridor, trunks every 4 m: SegCorridor's trunk mode (bench).
+CLOSED_CANOPY_SCENE = DemoScene("orchard, merged crowns over trunks, 0.3 m right", half_gap=3.5, foliage_low=1.6,
+                                foliage_high=4.0, canopy_base=2.5, row_length=30.0, lateral_offset=-0.3,
+                                hole_fraction=0.0, depth_threshold=10.0, trunk_spacing=4.0)
 
 
 def render_scene(
@@ -92,12 +103,32 @@ def render_scene(
             t = (scene.canopy_base - origin[2]) / yawed[..., 2]
             hit = origin + t[..., None] * yawed
             inside = (t > 0) & (hit[..., 0] > 1.0) & (hit[..., 0] < scene.row_length)
-            inside &= ~holes(hit[..., 0], hit[..., 1], 0.0)
+            inside &= ~holes(hit[..., 0], hit[..., 1], 0.0) & (np.abs(hit[..., 1]) >= scene.canopy_opening / 2)
             consider(np.where(inside, t, np.inf), True)
+        if scene.trunk_spacing is not None:
+            top = scene.canopy_base if scene.canopy_base is not None else scene.foliage_high
+            for x_trunk in np.arange(scene.trunk_spacing / 2, scene.row_length, scene.trunk_spacing):
+                for side in (+1.0, -1.0):
+                    consider(_cylinder_hits(origin, yawed, x_trunk, side * scene.half_gap, scene.trunk_radius, top), False)
 
     # The ray's forward component is 1, so the ray parameter is the planar depth.
     depth = np.where(np.isfinite(best), best, 0.0).astype(np.float32)
     return vegetation & np.isfinite(best), depth
+
+
+def _cylinder_hits(origin: np.ndarray, rays: np.ndarray, x: float, y: float, radius: float,
+                   top: float) -> np.ndarray:
+    """Ray parameter of the first hit on the vertical cylinder at (x, y) from the ground to `top`
+    (inf for a miss): the ray's (x, y) path meets the circle where |o + t d - c|^2 = r^2."""
+    dx, dy = rays[..., 0], rays[..., 1]
+    ox, oy = origin[0] - x, origin[1] - y
+    a = dx * dx + dy * dy
+    b = 2.0 * (ox * dx + oy * dy)
+    c = ox * ox + oy * oy - radius * radius
+    disc = b * b - 4.0 * a * c
+    t = np.where(disc >= 0, (-b - np.sqrt(np.maximum(disc, 0.0))) / (2.0 * a), np.inf)
+    z = origin[2] + t * rays[..., 2]
+    return np.where((t > 0) & (z >= 0) & (z <= top), t, np.inf)
 
 
 class _HoleTexture:

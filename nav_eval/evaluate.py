@@ -70,6 +70,7 @@ class RunResult:
     start_yaw: float = math.nan
     # SegCorridor only (NaN for the paper's methods): share of commands from one row / the fallback.
     one_side_share: float = math.nan
+    trunk_share: float = math.nan
     fallback_share: float = math.nan
     trajectory: Trajectory | None = dataclasses.field(default=None, repr=False)
     commands: list = dataclasses.field(default_factory=list, repr=False)
@@ -258,6 +259,7 @@ def _record_modes(result: RunResult, navigator: Any) -> None:
     total = sum(counts.values()) if counts else 0
     if total:
         result.one_side_share = counts["one_side"] / total
+        result.trunk_share = counts["trunks"] / total
         result.fallback_share = counts["fallback"] / total
 
 

@@ -112,6 +112,7 @@ class RowFollower:
         self._command_t: float | None = None
         self._newest_depth: np.ndarray | None = None
         self._newest_attitude: tuple[float, float] | None = None
+        self._newest_rgb: np.ndarray | None = None
 
     # ---- the robot's calls ----------------------------------------------------------------------
     def step(self, rgb: np.ndarray | None, depth: np.ndarray | None, t: float, *, mask: Any = None,
@@ -214,6 +215,7 @@ class RowFollower:
         self.navigator.push_mask(mask, source.t)
         self._newest_depth = depth_m
         self._newest_attitude = source.attitude
+        self._newest_rgb = None if source.rgb is None else np.asarray(source.rgb)
         return computed
 
     def _emit(self, at: float) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
@@ -223,7 +225,8 @@ class RowFollower:
         if fused is None or self._newest_depth is None:
             self._command = self.navigator.stop()
             return None, None, "stale_masks"
-        self._command = self.navigator.command(fused, self._newest_depth, self._newest_attitude)
+        extra = {"rgb": self._newest_rgb} if getattr(self.navigator, "reads_rgb", False) else {}
+        self._command = self.navigator.command(fused, self._newest_depth, self._newest_attitude, **extra)
         return fused, self._newest_depth, None
 
 

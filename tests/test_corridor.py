@@ -163,7 +163,7 @@ def test_fallback_without_rows_is_segmind_and_is_counted():
     command = nav.step(mask, depth)
     assert command.mode == "fallback" and command.centre is None and command.valid
     assert command.target_column == pytest.approx((SIZE - 1) / 2)
-    assert nav.mode_counts == {"both": 0, "one_side": 0, "fallback": 1}
+    assert nav.mode_counts == {"both": 0, "one_side": 0, "trunks": 0, "fallback": 1}
     nav.reset()
     assert sum(nav.mode_counts.values()) == 0
 
@@ -288,6 +288,8 @@ def test_unknown_corridor_key_is_refused_at_load():
 @pytest.mark.parametrize("changes,field", [
     ({"x_min": 9.0}, "x_min"), ({"h_min": 5.0}, "h_min"), ({"lookahead": 0.0}, "lookahead"),
     ({"stride": 0}, "stride"), ({"ema_lambda": 1.5}, "ema_lambda"), ({"min_points": 2.5}, "min_points"),
+    ({"trunk_h_min": 2.0}, "trunk_h_min"), ({"trunk_stride": 0}, "trunk_stride"), ({"roof_opening": -1.0}, "roof_opening"),
+    ({"trunks": "yes"}, "trunks"), ({"trunk_max_excess_green": float("nan")}, "trunk_max_excess_green"),
 ])
 def test_bad_settings_name_the_field(changes, field):
     with pytest.raises(ValueError, match=field):
@@ -312,11 +314,11 @@ def test_the_runtime_refuses_segcorridor_without_depth():
         follower.step(None, None, 0.0, mask=np.zeros((SIZE, SIZE), bool))
 
 
-def test_under_a_roof_it_steers_exactly_as_segmind():
+def test_under_a_roof_with_an_opening_it_steers_exactly_as_segmind():
     from segmin.nav_eval.navigator import Navigator, NavigatorConfig
 
-    # A pergola: the foliage starts above the robot and closes over the row.
-    roofed = dataclasses.replace(vine_scene(0.3, 5.0), foliage_low=1.4, canopy_base=2.2)
+    # A pergola: the foliage starts above the robot and closes over the row but for a free band.
+    roofed = dataclasses.replace(vine_scene(0.3, 5.0), foliage_low=1.4, canopy_base=2.2, canopy_opening=1.0)
     mask, depth = render_scene(roofed, size=SIZE)
     corridor, segmind = navigator(), Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
     for _ in range(3):
@@ -324,4 +326,67 @@ def test_under_a_roof_it_steers_exactly_as_segmind():
         assert ours.mode == "fallback"
         assert ours.v == pytest.approx(paper.v) and ours.omega == pytest.approx(paper.omega)
         assert ours.target_column == pytest.approx(paper.target_column)
+
+
+def orchard_scene(offset: float = 0.0, yaw_deg: float = 0.0, opening: float = 0.0) -> DemoScene:
+    """Merged crowns from 1.6 m over a 7 m corridor, trunks every 4 m in both row lines."""
+    return DemoScene("orchard", half_gap=3.5, foliage_low=1.6, foliage_high=4.0, canopy_base=2.5, row_length=30.0,
+                     lateral_offset=offset, yaw=math.radians(yaw_deg), hole_fraction=0.0, depth_threshold=10.0,
+                     trunk_spacing=4.0, canopy_opening=opening)
+
+
+def orchard_navigator(**changes) -> CorridorNavigator:
+    # 96 px see about 14 trunk pixels a side at trunk_stride 2: fewer than the 224 px default asks for
+    return CorridorNavigator(CorridorConfig(depth_threshold=10.0, trunk_min_points=5, **changes), scene_camera())
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.3, -0.4])
+def test_under_a_closed_canopy_the_trunks_give_the_centre(offset):
+    mask, depth = render_scene(orchard_scene(offset), size=SIZE)
+    nav = orchard_navigator()
+    for _ in range(3):
+        command = nav.step(mask, depth)
+    assert command.mode == "trunks"
+    assert command.centre[0] == pytest.approx(-offset, abs=0.06)
+    assert not any(command.centre[1:])  # taken along the robot (docstring)
+    assert nav.mode_counts["trunks"] == 3
+    assert np.sign(command.omega) == -np.sign(offset) or offset == 0.0
+
+
+def test_an_opening_in_the_canopy_hands_the_trunk_scene_to_segmind():
+    mask, depth = render_scene(orchard_scene(0.3, opening=1.0), size=SIZE)
+    assert orchard_navigator().step(mask, depth).mode == "fallback"
+    assert orchard_navigator(trunks=False).step(*render_scene(orchard_scene(0.3), size=SIZE)).mode == "fallback"
+
+
+def test_green_pixels_are_not_trunks_when_the_image_is_given():
+    """Leaves the mask missed are green; bark and posts are not."""
+    mask, depth = render_scene(orchard_scene(0.3), size=SIZE)
+    brown = np.broadcast_to(np.array([90, 60, 40], np.uint8), (SIZE, SIZE, 3))
+    green = np.broadcast_to(np.array([60, 140, 50], np.uint8), (SIZE, SIZE, 3))
+    assert orchard_navigator().step(mask, depth, rgb=brown).mode == "trunks"
+    assert orchard_navigator().step(mask, depth, rgb=green).mode == "fallback"
+    half_green = brown.copy()
+    half_green[:, : SIZE // 2] = green[:, : SIZE // 2]  # the left row's trunks look like leaves
+    nav = orchard_navigator()
+    nav.step(mask, depth, rgb=brown)  # learns the trunk width from both rows
+    command = nav.step(mask, depth, rgb=half_green)
+    assert command.mode == "trunks" and command.centre[0] == pytest.approx(-0.3, abs=0.08)
+
+
+def test_the_runtime_hands_the_image_to_segcorridor():
+    mask, depth = render_scene(orchard_scene(0.3), size=SIZE)
+    green = np.broadcast_to(np.array([60, 140, 50], np.uint8), (SIZE, SIZE, 3))
+    modes = {}
+    for name, rgb in (("no image", None), ("green image", green)):
+        nav = orchard_navigator(fuse_frames=1)
+        out = RowFollower(None, nav).step(rgb, depth, 0.0, mask=mask)
+        modes[name] = out.command.mode
+    assert modes == {"no image": "trunks", "green image": "fallback"}
+
+
+def test_an_image_of_the_wrong_size_is_refused():
+    mask, depth = render_scene(orchard_scene(), size=SIZE)
+    with pytest.raises(ValueError, match="rgb must be 96x96x3"):
+        orchard_navigator().step(mask, depth, rgb=np.zeros((SIZE, SIZE), np.uint8))
 
