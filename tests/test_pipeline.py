@@ -124,6 +124,21 @@ def test_profiles_are_validated() -> None:
         load_pipeline_config("micro", ["render.val_seed_offset=0"])
     for profile in ("quick", "paper", "micro"):
         assert load_pipeline_config(profile).families.keys() == {"trees", "vineyards"}
+    assert load_pipeline_config("paper_cpu").families.keys() == {"vineyards"}
+
+
+@pytest.mark.parametrize("profile", sorted(p.stem for p in (Path(__file__).parents[1] / "configs" / "pipeline").glob("*.yaml")))
+def test_every_shipped_profile_builds_its_training_configs(profile: str, tmp_path: Path) -> None:
+    """A family's train_overrides are applied only when its training starts: a typo there would
+    surface hours into a run, so each shipped profile's training configs are built here."""
+    from segmin.app.pipeline.stages import train_config_for
+
+    config = load_pipeline_config(profile)
+    for family, plan in config.families.items():
+        train = train_config_for(config, family, plan, tmp_path, {"train": ["synth_a"], "val": ["synth_val_a"]}, "none")
+        assert train.family == family
+        if profile != "micro":  # the full-size profiles train on the canopy-region label
+            assert train.data.label_closing == 4, (profile, family)
     with pytest.raises(ConfigError, match="unknown key"):
         load_pipeline_config("micro", ["real_eval.dat=x"])
 
