@@ -70,7 +70,9 @@ the robot frame. From there:
 
 The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` offers the same
 calls (`step`, `push_mask`, `fused_mask`, `command`, `stop`, `reset`, `config.method`,
-`config.depth_threshold`, `config.fuse_frames`), so the runtime drives it like the others.
+`config.depth_threshold`, `config.fuse_frames`), so the runtime drives it like the others; `step`
+and `command` also take the image (`rgb`, uint8), which the runtime passes to navigators that
+declare `reads_rgb`: without it the trunk test trusts the mask alone.
 """
 
 from __future__ import annotations
@@ -243,8 +245,14 @@ class CorridorConfig:
         if self.trunk_h_min >= self.trunk_h_max:
             raise ValueError(f"corridor.trunk_h_min ({self.trunk_h_min}) must be below corridor.trunk_h_max "
                              f"({self.trunk_h_max})")
-        if not (math.isfinite(self.roof_opening) and self.roof_opening >= 0.0):
-            raise ValueError(f"corridor.roof_opening must be a finite number >= 0, got {self.roof_opening!r}")
+        if self.roof_opening_reach < ROOF_BIN:
+            raise ValueError(f"corridor.roof_opening_reach must be at least {ROOF_BIN} m (one bin), "
+                             f"got {self.roof_opening_reach!r}")
+        if not (math.isfinite(self.roof_opening) and 0.0 <= self.roof_opening <= 2 * self.roof_opening_reach):
+            raise ValueError(f"corridor.roof_opening must be within [0, 2 x roof_opening_reach] = "
+                             f"[0, {2 * self.roof_opening_reach}] m, got {self.roof_opening!r}")
+        if self.x_min >= self.trunk_x_max:
+            raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.trunk_x_max ({self.trunk_x_max})")
         if not isinstance(self.trunks, bool):
             raise ValueError(f"corridor.trunks must be true or false, got {self.trunks!r}")
         if self.x_min >= self.x_max:
@@ -417,11 +425,15 @@ def _validated_rgb(rgb: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray
     image = np.asarray(rgb)
     if image.shape != (*shape, 3):
         raise ValueError(f"rgb must be {shape[1]}x{shape[0]}x3 like the depth frame, got shape {image.shape}")
+    if image.dtype != np.uint8:  # the green test's threshold is on the 0-255 scale
+        raise ValueError(f"rgb must be uint8 (0-255), got {image.dtype}")
     return image
 
 
 class CorridorNavigator:
     """The stateful SegCorridor navigator (module docstring); the runtime's navigator interface."""
+
+    reads_rgb = True  # the runtime passes the newest image to `command` (the trunk test reads its colour)
 
     def __init__(self, config: CorridorConfig, camera: CameraGeometry) -> None:
         self.config = config
@@ -442,8 +454,6 @@ class CorridorNavigator:
         self._v = 0.0
         self._omega = 0.0
         self.mode_counts = {mode: 0 for mode in MODES}
-
-    reads_rgb = True  # the runtime passes the newest image to `command` (the trunk test reads its colour)
 
     def step(self, mask: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None,
              rgb: np.ndarray | None = None) -> CorridorCommand:
@@ -513,16 +523,14 @@ class CorridorNavigator:
         config = self.config
         x, y, h = self._row_points(fused, depth_m, attitude)
         overhead = int(np.count_nonzero(h >= config.roof_min_height))
-        split = self._split_line(fused, depth_m)
         if overhead >= config.min_points and overhead >= config.roof_share * h.shape[0]:
             # Most vegetation in range is overhead: the rows are not walls. Under a roof with an
             # opening along the corridor (a pergola's free band) SegMinD's column follows the
             # opening; under a closed canopy (merged crowns) the trunks give the rows.
-            roof = h >= config.roof_min_height
-            if not config.trunks or self._roof_opening(y[roof] - polyval(x[roof], split)) >= config.roof_opening:
+            if not config.trunks or self._roof_opening(y[h >= config.roof_min_height]) >= config.roof_opening:
                 return None, "fallback"
-            return self._trunk_centreline(fused, depth_m, attitude, rgb, split)
-        offset = y - polyval(x, split)
+            return self._trunk_centreline(fused, depth_m, attitude, rgb, self._split_line(fused, depth_m))
+        offset = y - polyval(x, self._split_line(fused, depth_m))
         # Once the corridor width w is known, points further than w from the centreline belong to
         # the next rows (at 1.5 w): in tight rows and through gaps they would pull the fit.
         reach = config.max_lateral if self._width is None else min(config.max_lateral, self._width)
@@ -553,8 +561,8 @@ class CorridorNavigator:
         return (fit.offsets[k] + shift, *fit.shape), "one_side"
 
     def _roof_opening(self, lateral: np.ndarray) -> float:
-        """Width (m) of the widest band along the corridor, within `roof_opening_reach` of the split
-        line, that holds (almost) no roof point: 0.75-1.25 m under the test pergola, 0-0.25 m
+        """Width (m) of the widest band along the robot, within `roof_opening_reach` of it (`lateral`:
+        the roof points' y), that holds (almost) no roof point: 0.75-1.25 m under the test pergola, 0-0.25 m
         under the merged crowns of the high trees (docs/nav_eval.md)."""
         reach = self.config.roof_opening_reach
         counts = np.histogram(lateral, bins=int(round(2 * reach / ROOF_BIN)), range=(-reach, reach))[0]
@@ -580,7 +588,8 @@ class CorridorNavigator:
         pixel_index, rays = self._strided_rays(fused.shape, config.trunk_stride)
         chosen = np.flatnonzero(~fused[:: config.trunk_stride, :: config.trunk_stride])
         if rgb is not None:  # bark and posts are not green; leaves the mask missed are
-            colour = rgb.reshape(-1, 3)[pixel_index[chosen]].astype(np.float32)
+            rows, cols = np.divmod(pixel_index[chosen], fused.shape[1])
+            colour = rgb[rows, cols].astype(np.float32)
             excess_green = 2.0 * colour[:, 1] - colour[:, 0] - colour[:, 2]
             chosen = chosen[excess_green <= config.trunk_max_excess_green]
         z = depth_m.ravel()[pixel_index[chosen]]
@@ -589,21 +598,25 @@ class CorridorNavigator:
         ok = (x >= config.x_min) & (x <= config.trunk_x_max) & (h >= config.trunk_h_min) & (h <= config.trunk_h_max)
         x, y = x[ok], y[ok]
         offset = y - polyval(x, split)
-        near = np.abs(offset) <= config.trunk_max_lateral
+        # Once the trunk-to-trunk width w is known, the next rows' trunks (at 1.5 w) are left out.
+        reach = config.trunk_max_lateral if self._trunk_width is None else min(config.trunk_max_lateral, self._trunk_width)
+        near = np.abs(offset) <= reach
         # A trunk or two a side give no reliable heading: the centreline is taken along the robot
         # (the goal is then the middle between the trunks ahead, which also turns out a heading error).
-        shape = (0.0,)
-        sides = {}
+        shape = (0.0,) * config.degree  # as many coefficients as the row fits give: the centreline
+        # is averaged with the next one coefficient by coefficient
+        sides, counts = {}, {}
         for name, chosen_side in (("left", near & (offset > 0)), ("right", near & (offset <= 0))):
-            if np.count_nonzero(chosen_side) >= config.trunk_min_points:
+            counts[name] = int(np.count_nonzero(chosen_side))
+            if counts[name] >= config.trunk_min_points:
                 sides[name] = float(np.median(y[chosen_side]))
-        if len(sides) == 2:
+        if len(sides) == 2 and sides["left"] > sides["right"]:
             width = sides["left"] - sides["right"]
             memory = config.width_memory
             self._trunk_width = width if self._trunk_width is None else (1 - memory) * self._trunk_width + memory * width
             return ((sides["left"] + sides["right"]) / 2.0, *shape), "trunks"
-        if len(sides) == 1 and self._trunk_width is not None:
-            name, row = next(iter(sides.items()))
+        if len(sides) >= 1 and self._trunk_width is not None:
+            name, row = max(sides.items(), key=lambda side: counts[side[0]])  # the side with more support
             return (row + (-self._trunk_width / 2.0 if name == "left" else self._trunk_width / 2.0), *shape), "trunks"
         return None, "fallback"
 
@@ -638,8 +651,8 @@ class CorridorNavigator:
         return x[ok], y[ok], h[ok]
 
     def _strided_rays(self, shape: tuple[int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
-        """For every `stride`-th pixel in both directions, in row-major order: its flat index in
-        the full image and the camera's ray coefficients (a 3 x n array, cached per image shape).
+        """For every `s`-th pixel in both directions, in row-major order: its flat index in the full
+        image and the camera's ray coefficients (a 3 x n array, cached per image shape and stride).
         A step then looks up only the vegetation pixels instead of masking whole images."""
         if (*shape, s) not in self._ray_grids:
             rows, cols = np.meshgrid(np.arange(0, shape[0], s), np.arange(0, shape[1], s), indexing="ij")

@@ -68,7 +68,7 @@ class RunResult:
     start_x: float = math.nan
     start_y: float = math.nan
     start_yaw: float = math.nan
-    # SegCorridor only (NaN for the paper's methods): share of commands from one row / the fallback.
+    # SegCorridor only (NaN for the paper's methods): share of commands from one row / the trunks / the fallback.
     one_side_share: float = math.nan
     trunk_share: float = math.nan
     fallback_share: float = math.nan

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from segmin.common.timing import time_calls
+from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
 from segmin.nav_eval.demo_scenes import CLOSED_CANOPY_SCENE, DEMO_SCENES, render_scene
 from segmin.nav_eval.methods import METHODS
 from segmin.nav_eval.navigator import Navigator, NavigatorConfig
@@ -21,8 +22,10 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     and SegCorridor's on a closed canopy over trunks (its trunk mode: another code path)."""
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
+    # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
+    # the check removes nothing here).
     rgb = np.where(mask[..., None], np.uint8([60, 140, 50]), np.uint8([90, 60, 40])).astype(np.uint8)
-    canopy = [(mask, depth, None, rgb)]  # with the image: the trunk test reads its colour
+    canopy = [(mask, depth, None, rgb)]
     runs = [(method, method, frames) for method in METHODS] + [("segcorridor", "segcorridor, trunk mode", canopy)]
     rows = []
     for method, label, inputs in runs:
@@ -40,10 +43,13 @@ def _navigator(method: str, size: int) -> object:
     if method != "segcorridor":
         return Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
     from segmin.data.synth.camera import CameraModel
-    from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
 
     camera = CameraGeometry.from_camera(CameraModel(width=size, height=size))
-    return CorridorNavigator(CorridorConfig(depth_threshold=5.0, fuse_frames=3), camera)
+    # Trunk pixels scale with the image's area: below 224 px the trunk test's minimum shrinks with it.
+    trunk_min_points = min(CorridorConfig.trunk_min_points,
+                           max(1, round(CorridorConfig.trunk_min_points * (size / 224) ** 2)))
+    return CorridorNavigator(CorridorConfig(depth_threshold=5.0, fuse_frames=3, trunk_min_points=trunk_min_points),
+                             camera)
 
 
 def format_rows(rows: list[dict], size: int) -> str:

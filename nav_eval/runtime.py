@@ -120,7 +120,8 @@ class RowFollower:
         """Take one camera frame at time `t` (seconds); return the command in force.
 
         `mask` replaces the segmenter for this frame when given (the simulator's exact mask, or a
-        future from a background segmenter); `rgb` may then be None. `attitude` is the IMU's
+        future from a background segmenter); `rgb` may then be None (SegCorridor's trunk test then
+        trusts the mask alone, without its colour check). `attitude` is the IMU's
         (roll, pitch) in radians at the frame (REP 103), for navigators that level the depth
         points (SegCorridor); None: level ground assumed. Raises ValueError for a frame out of
         time order, with mismatched sizes or with an invalid attitude.

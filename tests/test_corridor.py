@@ -290,6 +290,8 @@ def test_unknown_corridor_key_is_refused_at_load():
     ({"stride": 0}, "stride"), ({"ema_lambda": 1.5}, "ema_lambda"), ({"min_points": 2.5}, "min_points"),
     ({"trunk_h_min": 2.0}, "trunk_h_min"), ({"trunk_stride": 0}, "trunk_stride"), ({"roof_opening": -1.0}, "roof_opening"),
     ({"trunks": "yes"}, "trunks"), ({"trunk_max_excess_green": float("nan")}, "trunk_max_excess_green"),
+    ({"roof_opening_reach": 0.1}, "roof_opening_reach"), ({"roof_opening": 6.0}, "roof_opening"),
+    ({"trunk_x_max": 0.4}, "trunk_x_max"),
 ])
 def test_bad_settings_name_the_field(changes, field):
     with pytest.raises(ValueError, match=field):
@@ -349,6 +351,7 @@ def test_under_a_closed_canopy_the_trunks_give_the_centre(offset):
     assert command.mode == "trunks"
     assert command.centre[0] == pytest.approx(-offset, abs=0.06)
     assert not any(command.centre[1:])  # taken along the robot (docstring)
+    assert len(command.centre) == 1 + nav.config.degree  # as long as the row fits' centrelines
     assert nav.mode_counts["trunks"] == 3
     assert np.sign(command.omega) == -np.sign(offset) or offset == 0.0
 
@@ -389,4 +392,21 @@ def test_an_image_of_the_wrong_size_is_refused():
     mask, depth = render_scene(orchard_scene(), size=SIZE)
     with pytest.raises(ValueError, match="rgb must be 96x96x3"):
         orchard_navigator().step(mask, depth, rgb=np.zeros((SIZE, SIZE), np.uint8))
+    with pytest.raises(ValueError, match="rgb must be uint8"):  # a 0-1 float image would pass every pixel as not green
+        orchard_navigator().step(mask, depth, rgb=np.zeros((SIZE, SIZE, 3), np.float32))
+
+
+def test_the_row_fit_after_the_trunks_keeps_every_coefficient():
+    """Leaving a closed canopy for walls of vines: the first row fit's curvature term survives the
+    averaging with the trunk mode's centreline (both have the same number of coefficients)."""
+    nav = orchard_navigator()
+    trunk_frame = render_scene(orchard_scene(0.3), size=SIZE)
+    nav.step(*trunk_frame)
+    command = nav.step(*trunk_frame)
+    assert command.mode == "trunks"
+    curved = CorridorNavigator(CorridorConfig(depth_threshold=10.0, trunk_min_points=5), scene_camera())
+    bend = dataclasses.replace(vine_scene(0.0, 8.0), hole_fraction=0.0)
+    mask, depth = render_scene(bend, size=SIZE)
+    fresh, after = curved.step(mask, depth), nav.step(mask, depth)
+    assert fresh.mode == after.mode == "both" and len(after.centre) == len(fresh.centre)
 

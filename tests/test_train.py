@@ -278,7 +278,7 @@ def test_cpu_training_uses_channels_last_and_can_turn_it_off(tmp_path, dataset_r
         conv = next(v for k, v in state.items() if v.ndim == 4 and v.shape[1] > 1 and v.shape[-1] > 1)
         results[layout] = (conv.is_contiguous(memory_format=torch.channels_last), result.history[-1]["train_loss"])
     assert results[True][0] and not results[False][0]
-    assert results[True][1] == pytest.approx(results[False][1], rel=1e-3)
+    assert results[True][1] == pytest.approx(results[False][1], rel=1e-2)
 
 
 # ----------------------------------------------------------------------------- resolution ceiling
