@@ -594,7 +594,13 @@ class CorridorNavigator:
             chosen = chosen[excess_green <= config.trunk_max_excess_green]
         z = depth_m.ravel()[pixel_index[chosen]]
         valid = np.flatnonzero(z > 0)
-        x, y, h = self.camera.points_on_rays(np.take(rays, chosen[valid], axis=1), z[valid], attitude)
+        ray_columns = np.take(rays, chosen[valid], axis=1)
+        x, y, _ = self.camera.points_on_rays(ray_columns, z[valid], attitude)
+        # The height band is measured from the ground the robot stands on (its own frame, not
+        # levelled): across a slope the level plane through the robot cuts the uphill row's ground
+        # and passes under the downhill row's crowns. The positions are levelled (trunks stand
+        # along gravity).
+        h = self.camera.points_on_rays(ray_columns, z[valid])[2] if attitude is not None else _
         ok = (x >= config.x_min) & (x <= config.trunk_x_max) & (h >= config.trunk_h_min) & (h <= config.trunk_h_max)
         x, y = x[ok], y[ok]
         offset = y - polyval(x, split)
