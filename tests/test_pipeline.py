@@ -56,6 +56,13 @@ def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureF
         assert f"| {family} | " in real and f"real-eval/{family}/contact_sheet.png" in real
         results = json.loads((run_dir / "real-eval" / family / "results.json").read_text())
         assert len(results["rows"]) == 8 and results["kind"] == "onnx"
+    # micro's vineyards family averages its weights (swa.pt) and exports that; the trees family best.pt
+    training = report[report.index("## 2. Training"):report.index("## 3. Export")]
+    assert "| exported | its val IoU |" in training
+    for family, kept in (("trees", "best"), ("vineyards", "swa")):
+        outputs = StageCache(run_dir).record(f"train/{family}").outputs
+        assert outputs["kept"] == kept and outputs["checkpoint"] == str(run_dir / "train" / family / f"{kept}.pt")
+        assert f" | {kept} | {outputs['kept_val_iou']:.3f} |" in training
     html = (run_dir / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 2 + 2 + 2 * len(FIELDS)
     assert 'src="render/' not in html  # every figure embedded, the page stands alone

@@ -165,6 +165,32 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(dataset_root, tmp
     assert strip(straight) == strip(resumed)
 
 
+def test_weight_averaging_averages_the_last_epochs_recomputes_batchnorm_and_resumes(dataset_root, tmp_path):
+    from segmin.train.run import fit, train_model
+
+    one = tiny_config(dataset_root, epochs=1, swa_start_epoch=1, bn_momentum=0.2)
+    two = tiny_config(dataset_root, epochs=2, swa_start_epoch=1, bn_momentum=0.2)
+    fit(one, tmp_path / "one")
+    assert train_model(two, tmp_path / "two") == tmp_path / "two" / "swa.pt"
+    first, last = _weights(tmp_path / "one" / "last.pt"), _weights(tmp_path / "two" / "last.pt")
+    average = torch.load(tmp_path / "two" / "swa.pt", map_location="cpu", weights_only=True)
+    assert average["metrics"]["swa_epochs"] == 2 and 0.0 <= average["metrics"]["val_iou"] <= 1.0
+    weights = average["model"]
+    parameters = [k for k in weights if not k.endswith(("running_mean", "running_var", "num_batches_tracked"))]
+    assert len(parameters) > 100
+    for key in parameters:
+        torch.testing.assert_close(weights[key], (first[key] + last[key]) / 2)
+    # BatchNorm statistics belong to the average, not to the last epoch's weights
+    stats = [k for k in weights if k.endswith("running_var")]
+    assert sum(not torch.allclose(weights[k], last[k]) for k in stats) > len(stats) // 2
+    # the average of an interrupted run continues where it stopped
+    fit(two, tmp_path / "one", resume=True)
+    _assert_same_weights(tmp_path / "two" / "swa.pt", tmp_path / "one" / "swa.pt")
+    # without averaging the run's result stays best.pt, and no swa.pt is written
+    assert train_model(tiny_config(dataset_root, epochs=1), tmp_path / "plain") == tmp_path / "plain" / "best.pt"
+    assert not (tmp_path / "plain" / "swa.pt").exists()
+
+
 def test_ctrl_c_saves_a_checkpoint_and_resume_is_exact(dataset_root, tmp_path, monkeypatch):
     import segmin.train.loop as loop_module
     from segmin.train.run import fit
@@ -421,6 +447,8 @@ def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp
 @pytest.mark.parametrize("override, message", [
     ("threads=-1", "threads=-1"),
     ("device=gpu", "device='gpu'"),
+    ("swa_start_epoch=0", "swa_start_epoch=0"),
+    ("swa_start_epoch=9", r"swa_start_epoch=9: must be in \[1, epochs=8\]"),
 ])
 def test_bad_runtime_settings_are_refused_by_the_config(override, message):
     """Issue 13.8: threads=-1 and device=gpu failed (or not) deep inside torch."""

@@ -81,6 +81,13 @@ class TrainConfig:
     # tuned for ImageNet-length runs). From random init, 0.1 lets the running statistics catch up
     # within an epoch instead of leaving eval-mode predictions off for the first few epochs.
     bn_momentum: float | None = None
+    # Stochastic weight averaging (Izmailov et al. 2018, torch.optim.swa_utils): from this epoch
+    # (1-based) on, the weights at every epoch end are averaged; after the last epoch the average
+    # gets BatchNorm statistics recomputed over the training frames, is validated and saved as
+    # swa.pt, and is the run's result instead of best.pt. Why: with a constant LR the weights
+    # wander between epochs, and the rendered validation IoU does not tell which epoch transfers
+    # to real photos (docs/sim_to_real.md). null = off (the paper keeps the best epoch).
+    swa_start_epoch: int | None = None
     seed: int = 0
     device: str = "auto"  # "auto", "cpu", "cuda", "cuda:N"
     amp: bool = True  # GPU only
@@ -112,6 +119,8 @@ class TrainConfig:
             raise ValueError(f"dice_weight={self.dice_weight}: must be >= 0")
         if self.bn_momentum is not None and not 0 < self.bn_momentum <= 1:
             raise ValueError(f"bn_momentum={self.bn_momentum}: must be in (0, 1] or null")
+        if self.swa_start_epoch is not None and not 1 <= self.swa_start_epoch <= self.epochs:
+            raise ValueError(f"swa_start_epoch={self.swa_start_epoch}: must be in [1, epochs={self.epochs}] or null")
         if not 0 < self.threshold < 1:
             raise ValueError(f"threshold={self.threshold}: must be in (0, 1)")
         if self.threads is not None and self.threads < 1:

@@ -3,7 +3,8 @@
 Reads top to bottom like torchvision's reference `train.py`. `train_model(config, out_dir)` is
 the entry point for other stages; `segmin train` and `torchrun -m segmin.train.cli` call `fit`.
 
-Run folder (written by rank 0 only): `best.pt` (best val IoU), `last.pt` (end of the last epoch,
+Run folder (written by rank 0 only): `best.pt` (best val IoU), `swa.pt` (the weight average, when
+`swa_start_epoch` is set), `last.pt` (end of the last epoch,
 the step boundary of a Ctrl-C, or a mid-epoch checkpoint every `checkpoint_every_steps` steps /
 `checkpoint_every_minutes` minutes; with the state for `--resume`), `metrics.csv`, `tensorboard/`,
 `previews/epoch_NNN.png`, `split.json` (the exact frames of each split), `config.yaml`.
@@ -11,6 +12,7 @@ the step boundary of a Ctrl-C, or a mid-epoch checkpoint every `checkpoint_every
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
+from torch.optim.swa_utils import AveragedModel, update_bn
 from torch.utils.data import DataLoader, DistributedSampler
 
 from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
@@ -51,14 +54,15 @@ class FitResult:
     interrupted: bool = False
     rank: int = 0
     world_size: int = 1
+    swa_path: Path | None = None  # written when weight averaging is on and every epoch is done
 
 
 def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force: bool = False) -> Path:
-    """Train and return the path of the best checkpoint (by validation IoU)."""
+    """Train and return the path of the run's result: swa.pt with weight averaging, else best.pt."""
     result = fit(config, out_dir, resume=resume, force=force)
     if result.interrupted:
         raise KeyboardInterrupt(f"training interrupted; resume with --resume from {result.last_path}")
-    return result.best_path
+    return result.swa_path or result.best_path
 
 
 # ----------------------------------------------------------------------------- data
@@ -128,7 +132,7 @@ def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame]
 
 
 # What a training run leaves in its folder; a new run must not silently replace them.
-RUN_OUTPUTS: tuple[str, ...] = ("best.pt", "last.pt", "metrics.csv", "previews", "tensorboard")
+RUN_OUTPUTS: tuple[str, ...] = ("best.pt", "last.pt", "metrics.csv", "previews", "tensorboard", "swa.pt")
 
 
 def claim_run_folder(out_dir: Path, *, resume: bool, force: bool) -> None:
@@ -217,6 +221,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     ctx = StepContext(net, optimizer, SegLoss(config.dice_weight), dist.device, scaler,
                       amp=cuda and config.amp, channels_last=config.channels_last)
 
+    averaged = AveragedModel(model) if config.swa_start_epoch is not None else None
     info = model_info(backbone_weights=str(config.backbone_weights), input_size=(config.image_size, config.image_size),
                       family=config.family, train_data=_describe_data(config), threshold=config.threshold)
     config_dict = to_dict(config)
@@ -234,6 +239,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
         set_rng_state(state["rng"])
         start_epoch, skip_steps = int(state["epoch"]), int(state["step"])
         best_iou, history = float(state["best_iou"]), list(state["history"])
+        if averaged is not None and state.get("swa") is not None:
+            averaged.load_state_dict(state["swa"])
         if dist.is_main:
             print(f"resuming {last_path}: epoch {start_epoch + 1}, step {skip_steps}")
 
@@ -254,9 +261,12 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
                                       "scheduler": scheduler.state_dict() if scheduler is not None else None,
                                       "scaler": scaler.state_dict() if scaler is not None else {},
                                       "rng": rng_state(), "best_iou": best_iou, "history": history,
+                                      "swa": None if averaged is None else
+                                      {k: v.detach().cpu().clone() for k, v in averaged.state_dict().items()},
                                   })
 
     interrupted = False
+    swa_path: Path | None = None
     last_metrics: dict[str, float] = history[-1] if history else {}
     saved_at = time.monotonic()
 
@@ -301,6 +311,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
             last_metrics = row
             improved = val["iou"] > best_iou
             best_iou = max(best_iou, val["iou"])
+            if averaged is not None and epoch + 1 >= config.swa_start_epoch:
+                averaged.update_parameters(model)
             progress.update(epoch=epoch + 1, step=0)
             if dist.is_main:
                 metrics = {k: v for k, v in row.items() if k != "epoch"}
@@ -315,6 +327,10 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
                       f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
                       f"({row['seconds']:.0f} s){'  *best*' if improved else ''}", flush=True)
             barrier()
+        if averaged is not None and int(averaged.n_averaged) > 0:
+            sampler.set_epoch(config.epochs)
+            swa_path = _finish_weight_average(config, ctx, averaged, train_loader, val_loader, out_dir, dist,
+                                              info, config_dict)
     except DatasetError as exc:  # from a loader worker: its message is the worker's whole traceback
         raise DatasetError(worker_error_line(exc)) from None
     except KeyboardInterrupt:
@@ -326,7 +342,38 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     finally:
         if logger is not None:
             logger.close()
-    return FitResult(best_path, last_path, history, model, interrupted, dist.rank, dist.world_size)
+    return FitResult(best_path, last_path, history, model, interrupted, dist.rank, dist.world_size,
+                     None if interrupted else swa_path)
+
+
+def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: AveragedModel, train_loader,
+                           val_loader, out_dir: Path, dist: DistInfo, info: dict[str, Any],
+                           config_dict: dict[str, Any]) -> Path:
+    """BatchNorm statistics for the averaged weights, its validation, and swa.pt.
+
+    The running statistics of the last epoch belong to the last weights, not to their average:
+    `update_bn` recomputes them with one pass over the training frames (as the SWA paper does).
+    """
+    from tqdm import tqdm
+
+    show = config.progress and dist.is_main
+    update_bn(tqdm(train_loader, desc="swa: BatchNorm statistics", disable=not show, leave=False),
+              averaged.module, device=dist.device)
+    bar = tqdm(total=len(val_loader), desc="swa: validate", disable=not show, leave=False)
+    val, _ = evaluate(dataclasses.replace(ctx, model=averaged.module), val_loader,
+                      threshold=config.threshold, progress=bar)
+    bar.close()
+    path = out_dir / "swa.pt"
+    if dist.is_main:
+        metrics = {"val_loss": val["loss"], "val_iou": val["iou"], "val_pixel_acc": val["pixel_acc"],
+                   "swa_epochs": float(averaged.n_averaged)}
+        write_training_checkpoint(path, model=averaged.module, info=info, epoch=config.epochs, metrics=metrics,
+                                  config=config_dict)
+        print(f"swa: average of epochs {config.swa_start_epoch}-{config.epochs} "
+              f"({int(averaged.n_averaged)} epochs): val loss {val['loss']:.4f}  IoU {val['iou']:.4f}  "
+              f"acc {val['pixel_acc']:.4f}  -> {path}", flush=True)
+    barrier()
+    return path
 
 
 def _describe_data(config: TrainConfig) -> str:

@@ -66,16 +66,18 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
                          f"{counts['val']} validation frames from held-out worlds {', '.join(domains['val'])}")
         lines += ["", "RGB | vegetation mask overlay | depth, one row per training world:", "",
                   "![contact sheet](render/contact_sheet.png)", ""]
-    lines += ["## 2. Training", "", "| family | epochs | image size | backbone | best val IoU | pixel acc | time s |",
-              "|---|---|---|---|---|---|---|"]
+    lines += ["## 2. Training", "", "| family | epochs | image size | backbone | best val IoU | pixel acc | "
+              "exported | its val IoU | time s |", "|---|---|---|---|---|---|---|---|---|"]
     for family in families:
         record = cache.record(f"train/{family}")
         if record and record.outputs:
             o = record.outputs
             lines.append(f"| {family} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
-                         f"{_num(o['best_val_iou'])} | {_num(o['best_val_pixel_acc'])} | {record.seconds:.0f} |")
+                         f"{_num(o['best_val_iou'])} | {_num(o['best_val_pixel_acc'])} | {o.get('kept', 'best')} | "
+                         f"{_num(kept_val_iou(o))} | {record.seconds:.0f} |")
     lines += ["", "Validation IoU is the crop-class IoU summed over the whole held-out set (the paper reports "
-              "IoU on AgriSeg test domains; these are rendered frames).", ""]
+              "IoU on AgriSeg test domains; these are rendered frames). The exported model is the best epoch "
+              "(`best`), or with `swa_start_epoch` the average of the last epochs' weights (`swa`).", ""]
     if curves.is_file():
         lines += ["![training curves](report/training_curves.png)", ""]
     lines += ["## 3. Export (ONNX, verified against PyTorch)", "",
@@ -142,7 +144,7 @@ def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str])
     for family, record in records.items():
         o = record.outputs
         train = cache.record(f"train/{family}")
-        val_iou = train.outputs.get("best_val_iou") if train and train.outputs else None
+        val_iou = kept_val_iou(train.outputs) if train and train.outputs else None
         lines.append(f"| {family} | {_num(val_iou)} | {fmt(o['mean_iou'])} | {fmt(o['pooled_iou'])} | "
                      f"{fmt(o['precision'])} | {fmt(o['recall'])} | {fmt(o['pixel_accuracy'])} |")
     lines.append("")
@@ -232,3 +234,8 @@ def to_html(markdown_text: str, base: Path, *, title: str) -> str:
              "th{background:#f0f0f0}img{max-width:100%}code{background:#f4f4f4}")
     return (f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{title}</title><style>{style}</style>"
             f"</head><body>\n{body}\n</body></html>\n")
+
+
+def kept_val_iou(train_outputs: dict) -> float | None:
+    """Validation IoU of the exported checkpoint (stage records from before swa.pt lack the key)."""
+    return train_outputs.get("kept_val_iou", train_outputs.get("best_val_iou"))

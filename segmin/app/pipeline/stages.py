@@ -144,11 +144,16 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
 
     log(f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
         f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}")
-    best = train_model(train_config, folder, resume=resume, force=not resume)
+    from segmin.models.checkpoint import read_checkpoint
+
+    kept = train_model(train_config, folder, resume=resume, force=not resume)
     history = read_metrics_csv(folder / "metrics.csv")
     best_row = max(history, key=lambda r: r.get("val_iou", -1.0)) if history else {}
-    return {"checkpoint": str(best), "epochs": len(history), "best_val_iou": best_row.get("val_iou"),
+    # The exported model: best.pt, or swa.pt (weight average) whose validation is not an epoch row.
+    kept_metrics = read_checkpoint(kept)["metrics"]
+    return {"checkpoint": str(kept), "epochs": len(history), "best_val_iou": best_row.get("val_iou"),
             "best_val_pixel_acc": best_row.get("val_pixel_acc", best_row.get("val_acc")),
+            "kept": kept.stem, "kept_val_iou": kept_metrics.get("val_iou"),
             "backbone_weights": train_config.backbone_weights, "image_size": train_config.image_size}
 
 
