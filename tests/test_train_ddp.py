@@ -27,10 +27,11 @@ def _worker(rank: int, world_size: int, port: int, data_root: str, tmp: str) -> 
 
     from segmin.train.run import fit
 
-    config = tiny_config(Path(data_root), epochs=2, batch_size=2)
+    config = tiny_config(Path(data_root), epochs=2, batch_size=2, swa_start_epoch=1)
     result = fit(config, Path(tmp) / f"run_rank{rank}")
     state = {k: v.detach().clone() for k, v in result.model.state_dict().items()}
-    torch.save({"model": state, "history": result.history, "world_size": result.world_size},
+    average = {k: v.detach().clone() for k, v in result.swa_model.state_dict().items()}
+    torch.save({"model": state, "swa": average, "history": result.history, "world_size": result.world_size},
                Path(tmp) / f"result_rank{rank}.pt")
 
 
@@ -51,6 +52,11 @@ def test_two_process_gloo_run_gives_identical_weights(tmp_path):
     # validation metrics are reduced over both ranks, so both report the same numbers
     assert [round(r["val_iou"], 9) for r in r0["history"]] == [round(r["val_iou"], 9) for r in r1["history"]]
     assert [round(r["train_loss"], 9) for r in r0["history"]] == [round(r["train_loss"], 9) for r in r1["history"]]
+    # the weight average's BatchNorm statistics come from both shards: the ranks hold (and rank 0
+    # saved) one model
+    assert not [k for k in r0["swa"] if not torch.allclose(r0["swa"][k].float(), r1["swa"][k].float())]
+    saved = torch.load(tmp_path / "run_rank0" / "swa.pt", weights_only=True)["model"]
+    assert all(torch.equal(saved[k], r0["swa"][k]) for k in saved)
     # only rank 0 writes
     assert (tmp_path / "run_rank0" / "best.pt").is_file()
     assert not (tmp_path / "run_rank1").exists()

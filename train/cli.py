@@ -57,7 +57,8 @@ def _train(args: argparse.Namespace) -> int:
         return 130
     if result.rank == 0:
         best = result.history and max(r["val_iou"] for r in result.history)
-        print(f"done: best val IoU {best:.4f}; best checkpoint {result.best_path}")
+        kept = f"; the weight average {result.swa_path}" if result.swa_path else ""
+        print(f"done: best val IoU {best:.4f}; best checkpoint {result.best_path}{kept}")
     return 0
 
 

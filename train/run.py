@@ -13,6 +13,7 @@ the step boundary of a Ctrl-C, or a mid-epoch checkpoint every `checkpoint_every
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 import os
@@ -38,7 +39,7 @@ from segmin.common.outputs import check_output_dir
 from segmin.common.config import to_dict
 from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
 from segmin.train.config import TrainConfig
-from segmin.train.distributed import DistInfo, EpochSampler, ShardSampler, barrier, cleanup, init_distributed
+from segmin.train.distributed import DistInfo, EpochSampler, ShardSampler, all_reduce_sum, barrier, cleanup, init_distributed
 from segmin.train.logs import RunLogger
 from segmin.train.loop import SegLoss, StepContext, evaluate, train_one_epoch
 
@@ -55,6 +56,7 @@ class FitResult:
     rank: int = 0
     world_size: int = 1
     swa_path: Path | None = None  # written when weight averaging is on and every epoch is done
+    swa_model: torch.nn.Module | None = None  # the averaged weights with their BatchNorm statistics
 
 
 def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force: bool = False) -> Path:
@@ -261,6 +263,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
                                       "scheduler": scheduler.state_dict() if scheduler is not None else None,
                                       "scaler": scaler.state_dict() if scaler is not None else {},
                                       "rng": rng_state(), "best_iou": best_iou, "history": history,
+                                      # not cpu_state_dict: it unwraps `.module` and would drop n_averaged
                                       "swa": None if averaged is None else
                                       {k: v.detach().cpu().clone() for k, v in averaged.state_dict().items()},
                                   })
@@ -342,8 +345,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     finally:
         if logger is not None:
             logger.close()
-    return FitResult(best_path, last_path, history, model, interrupted, dist.rank, dist.world_size,
-                     None if interrupted else swa_path)
+    return FitResult(best_path, last_path, history, model, interrupted, dist.rank, dist.world_size, swa_path,
+                     averaged.module if swa_path is not None else None)
 
 
 def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: AveragedModel, train_loader,
@@ -357,8 +360,15 @@ def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: Aver
     from tqdm import tqdm
 
     show = config.progress and dist.is_main
-    update_bn(tqdm(train_loader, desc="swa: BatchNorm statistics", disable=not show, leave=False),
-              averaged.module, device=dist.device)
+    steps = len(train_loader) if config.max_steps_per_epoch is None else min(len(train_loader), config.max_steps_per_epoch)
+    update_bn(tqdm(itertools.islice(train_loader, steps), total=steps, desc="swa: BatchNorm statistics",
+                   disable=not show, leave=False), averaged.module, device=dist.device)
+    # Each rank saw its own shard: average the statistics so that every rank validates, and rank
+    # 0 saves, the same model (update_bn's variance is itself a mean of per-batch variances).
+    for module in averaged.module.modules():
+        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm) and module.running_mean is not None:
+            for buffer in (module.running_mean, module.running_var):
+                all_reduce_sum(buffer).div_(dist.world_size)
     bar = tqdm(total=len(val_loader), desc="swa: validate", disable=not show, leave=False)
     val, _ = evaluate(dataclasses.replace(ctx, model=averaged.module), val_loader,
                       threshold=config.threshold, progress=bar)
