@@ -18,8 +18,9 @@ the robot frame. From there:
    rows stand along gravity, not along the robot's up axis, and on rough ground a roll of
    2 degrees moves a crown 1.5 m above the camera by 5 cm. Only pixels of the fused mask with valid
    depth, `x_min <= x <= x_max`, `h_min <= h <= h_max` (ground false positives and the crowns
-   above the robot are dropped) and within `max_lateral` of the split line (and within the
-   running corridor width w of it, once known: the next rows stand at 1.5 w) are kept; every
+   above the robot are dropped) and within `max_lateral` of the split line and within the
+   running corridor width w of it (the next rows stand at 1.5 w; before w is known, within 1.5 x
+   the free width between the nearest walls, each side's 10th percentile distance) are kept; every
    `stride`-th pixel in both directions, thinned evenly to at most `max_points`, is enough for
    a line fit and keeps the step cheap.
 2. **Two rows.** The points left of the split line are the left row, the others the right row.
@@ -47,20 +48,25 @@ the robot frame. From there:
    Between commands the robot moves about 0.1 m, so the new centreline is averaged with the
    previous one (weight `centre_memory` on the new), which halves the frame-to-frame noise that
    gaps and single trunks put into the fit.
-4b. **Under a roof: the opening, or the trunks.** The roof points' lateral offsets from the split
-   line, binned in 0.25 m within `roof_opening_reach`, show whether the roof has an opening along
-   the corridor (the widest run of bins with fewer than 2 points). An opening of at least
+4b. **Under a roof: the opening, or the trunks.** The roof points' lateral positions y (along the
+   robot, not the split line: no split needs searching under a pergola), binned in 0.25 m within
+   `roof_opening_reach`, show whether the roof has an opening along the corridor (the widest run
+   of bins with fewer than 2 points). An opening of at least
    `roof_opening` (a pergola's free band: 0.75-1.25 m on the test field) is what SegMinD's
    column follows, so SegMinD steers (the fallback). A closed canopy (merged crowns: 0-0.25 m)
    has no such column, and the rows are found on their trunks and posts instead: the pixels that
    are not vegetation in the fused mask (nor green in the image, when the runtime gives one:
    excess green 2G - R - B <= `trunk_max_excess_green`, so leaves the mask missed do not count),
-   every `trunk_stride`-th, back-projected as in 1 and kept when `x_min <= x <= trunk_x_max` and
+   every `trunk_stride`-th, back-projected as in 1 (x, y levelled; h in the robot's own frame,
+   i.e. above the ground it stands on: on a cross slope the level plane through the robot cuts the
+   uphill row's ground) and kept when `x_min <= x <= trunk_x_max` and
    `trunk_h_min <= h <= trunk_h_max` (above the ground's roughness, below the crowns) and within
-   `trunk_max_lateral` of the split line. A trunk or two a side give no reliable heading, so the
+   `trunk_max_lateral` of the split line (and within the running trunk-to-trunk width of it, once
+   known). A trunk or two a side give no reliable heading, so the
    centreline is taken along the robot: y = (median y_L + median y_R) / 2, each side needing
    `trunk_min_points`; the goal is then the middle between the trunks ahead, which also turns a
-   heading error out. With one side seen, that side moved by half a running trunk-to-trunk width.
+   heading error out. With one side seen (or both, crossed), the side with more points moved by
+   half the running trunk-to-trunk width.
    With neither (or `trunks: false`), SegMinD steers.
 5. **Pure pursuit.** The goal point is the centreline at x = `lookahead`: (L, y_L) with
    y_L = c(L). The arc through it has curvature kappa = 2 y_L / (L^2 + y_L^2); the bearing
@@ -92,6 +98,7 @@ from segmin.nav_eval.navigator import (
     _check_threshold,
     _validated_frame,
     control_law,
+    validated_rgb,
     histogram_minimum,
     smoothed_histogram,
     target_column,
@@ -418,18 +425,6 @@ def polyval(x: np.ndarray | float, c: tuple[float, ...] | np.ndarray) -> np.ndar
     return result
 
 
-def _validated_rgb(rgb: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray | None:
-    """The image as an H x W x 3 array of the depth frame's size, or None; ValueError otherwise."""
-    if rgb is None:
-        return None
-    image = np.asarray(rgb)
-    if image.shape != (*shape, 3):
-        raise ValueError(f"rgb must be {shape[1]}x{shape[0]}x3 like the depth frame, got shape {image.shape}")
-    if image.dtype != np.uint8:  # the green test's threshold is on the 0-255 scale
-        raise ValueError(f"rgb must be uint8 (0-255), got {image.dtype}")
-    return image
-
-
 class CorridorNavigator:
     """The stateful SegCorridor navigator (module docstring); the runtime's navigator interface."""
 
@@ -463,7 +458,7 @@ class CorridorNavigator:
         self._fusion.push_mask(mask_b)
         fused = self._fusion.fused_mask()
         assert fused is not None
-        return self._command(fused, depth_m, validated_attitude(attitude), _validated_rgb(rgb, depth_m.shape))
+        return self._command(fused, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
         """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`)."""
@@ -479,7 +474,7 @@ class CorridorNavigator:
         (roll, pitch) in radians (None: level ground assumed) and the newest image (None: the
         trunk test trusts the mask alone)."""
         mask_b, depth_m = _validated_frame(fused, depth)
-        return self._command(mask_b, depth_m, validated_attitude(attitude), _validated_rgb(rgb, depth_m.shape))
+        return self._command(mask_b, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
         """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
@@ -531,10 +526,12 @@ class CorridorNavigator:
                 return None, "fallback"
             return self._trunk_centreline(fused, depth_m, attitude, rgb, self._split_line(fused, depth_m))
         offset = y - polyval(x, self._split_line(fused, depth_m))
-        # Once the corridor width w is known, points further than w from the centreline belong to
-        # the next rows (at 1.5 w): in tight rows and through gaps they would pull the fit.
-        reach = config.max_lateral if self._width is None else min(config.max_lateral, self._width)
-        near = (np.abs(offset) <= reach) & (h <= config.h_max)
+        # Points further than the corridor width w from the centreline belong to the next rows (at
+        # 1.5 w): in tight rows and through gaps they would pull the fit. Before w is known, the
+        # nearest walls give it (`_first_reach`).
+        low = h <= config.h_max
+        reach = self._first_reach(offset[low]) if self._width is None else min(config.max_lateral, self._width)
+        near = (np.abs(offset) <= reach) & low
         rows = {"left": near & (offset > 0), "right": near & (offset <= 0)}
         points = {name: (x[chosen], y[chosen]) for name, chosen in rows.items()}
         seen = [name for name in rows if self._enough(points[name][0])]
@@ -559,6 +556,21 @@ class CorridorNavigator:
         k = int(np.argmax(fit.kept))  # the row with more support (the only one, if one)
         shift = -self._width / 2.0 if seen[k] == "left" else self._width / 2.0
         return (fit.offsets[k] + shift, *fit.shape), "one_side"
+
+    def _first_reach(self, offset: np.ndarray) -> float:
+        """How far from the split line the rows' points may lie before the corridor width is known:
+        1.5 x the free width between the nearest walls (the 10th percentile of each side's distance).
+
+        The next row on a side stands a whole row spacing (free width + canopy) beyond the bordering
+        one, so with the robot in the corridor its near face is at least 1.5 free widths away, while
+        the bordering row's far side is nearer as long as its canopy is thinner than the free width.
+        Without this, rows seen through gaps (30 % missing vines) set the first width at 2.6 m
+        instead of 1.3, and the fits drifted across the corridor (docs/nav_eval.md)."""
+        limit = self.config.max_lateral
+        left, right = offset[(offset > 0) & (offset <= limit)], -offset[(offset <= 0) & (offset >= -limit)]
+        if min(left.shape[0], right.shape[0]) < self.config.min_points:
+            return limit
+        return min(limit, 1.5 * float(np.quantile(left, 0.1) + np.quantile(right, 0.1)))
 
     def _roof_opening(self, lateral: np.ndarray) -> float:
         """Width (m) of the widest band along the robot, within `roof_opening_reach` of it (`lateral`:

@@ -371,6 +371,19 @@ def _validated_mask(mask: np.ndarray) -> np.ndarray:
     return _bool_mask(mask)
 
 
+def validated_rgb(rgb: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray | None:
+    """The image as an H x W x 3 uint8 array of the depth frame's size, or None; ValueError otherwise
+    (SegCorridor's trunk test reads its colour; the runtime checks it when the frame arrives)."""
+    if rgb is None:
+        return None
+    image = np.asarray(rgb)
+    if image.shape != (*shape, 3):
+        raise ValueError(f"rgb must be {shape[1]}x{shape[0]}x3 like the depth frame, got shape {image.shape}")
+    if image.dtype != np.uint8:  # the green test's threshold is on the 0-255 scale
+        raise ValueError(f"rgb must be uint8 (0-255), got {image.dtype}")
+    return image
+
+
 def validated_attitude(attitude: object) -> tuple[float, float] | None:
     """None, or the IMU's (roll, pitch) as two finite floats within +-90 degrees (else ValueError)."""
     if attitude is None:

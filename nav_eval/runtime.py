@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 from segmin.nav_eval.methods import DEPTH_METHODS
-from segmin.nav_eval.navigator import Command, Navigator, to_metres, validated_attitude
+from segmin.nav_eval.navigator import Command, Navigator, to_metres, validated_attitude, validated_rgb
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).
 TIME_EPS = 1e-6
@@ -132,6 +132,11 @@ class RowFollower:
             if rgb is not None and np.shape(rgb)[:2] != depth.shape[:2]:
                 raise ValueError(f"frame at t={t:.6f} s: depth is {depth.shape[1]}x{depth.shape[0]}, "
                                  f"rgb is {np.shape(rgb)[1]}x{np.shape(rgb)[0]}")
+            if getattr(self.navigator, "reads_rgb", False):  # refused now, not frames later at its command
+                try:
+                    validated_rgb(rgb, depth.shape[:2])
+                except ValueError as exc:
+                    raise ValueError(f"frame at t={t:.6f} s: {exc}") from None
         elif self.navigator.config.method in DEPTH_METHODS:
             raise ValueError(f"{self.navigator.config.method} needs depth: give depth frames, or use segmin "
                              f"(which then runs on the mask alone)")

@@ -156,6 +156,27 @@ def test_one_row_seen_keeps_the_width_learnt_from_both():
     assert command.centre[0] == pytest.approx(0.0, abs=0.05)
 
 
+def test_rows_seen_through_gaps_do_not_set_the_first_width():
+    """30 % missing vines (sweep, 2026-12-04): beyond 2.2 m both bordering rows have a gap and the
+    next rows, 3.1 m out, show through it. The first fit must find the bordering rows (1.8 m apart),
+    not lines between them and the next rows (before the fix: no fit at all here; in the field a
+    first width of 2.6 m, and the fits drifted across the corridor)."""
+    near_mask, near_depth = render_scene(vine_scene(), size=SIZE)
+    far_mask, far_depth = render_scene(vine_scene(half_gap=3.1, holes=0.0), size=SIZE)
+    through_gap = near_mask & (near_depth > 2.2)
+    assert np.count_nonzero(far_mask & through_gap) > 200  # the next rows are in view
+    mask, depth = np.where(through_gap, far_mask, near_mask), np.where(through_gap, far_depth, near_depth)
+    command = navigator().step(mask, depth)
+    assert command.mode == "both"
+    assert command.centre == pytest.approx((0.0, 0.0, 0.0), abs=0.01)
+    one_row = navigator()
+    one_row.step(mask, depth)
+    mask[:, : SIZE // 2] = False  # then the left row is lost: the learnt width (1.8 m) places the centre
+    for _ in range(3):
+        command = one_row.step(mask, depth)
+    assert command.mode == "one_side" and command.centre[0] == pytest.approx(0.0, abs=0.03)
+
+
 def test_fallback_without_rows_is_segmind_and_is_counted():
     nav = navigator()
     mask = np.zeros((SIZE, SIZE), dtype=bool)
@@ -394,6 +415,9 @@ def test_an_image_of_the_wrong_size_is_refused():
         orchard_navigator().step(mask, depth, rgb=np.zeros((SIZE, SIZE), np.uint8))
     with pytest.raises(ValueError, match="rgb must be uint8"):  # a 0-1 float image would pass every pixel as not green
         orchard_navigator().step(mask, depth, rgb=np.zeros((SIZE, SIZE, 3), np.float32))
+    # the runtime refuses it with the frame that brings it, not frames later at the next command
+    with pytest.raises(ValueError, match=r"frame at t=0.000000 s: rgb must be uint8"):
+        RowFollower(None, orchard_navigator()).step(np.zeros((SIZE, SIZE, 3), np.float32), depth, 0.0, mask=mask)
 
 
 def test_the_row_fit_after_the_trunks_keeps_every_coefficient():
