@@ -174,8 +174,11 @@ class CameraGeometry:
         x = self.mount_forward + depth_m * a
         y = depth_m * b
         h = self.mount_height + depth_m * c
-        if attitude is None:
-            return x, y, h
+        return (x, y, h) if attitude is None else self.level(x, y, h, attitude)
+
+    @staticmethod
+    def level(x: np.ndarray, y: np.ndarray, h: np.ndarray, attitude: tuple[float, float]) -> tuple[np.ndarray, ...]:
+        """Robot-frame points rotated into the level frame (h along gravity) by the IMU's (roll, pitch)."""
         roll, pitch = attitude  # body-to-level rotation R_y(pitch) R_x(roll)
         sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
         return (cp * x + sp * sr * y + sp * cr * h,
@@ -607,12 +610,13 @@ class CorridorNavigator:
         z = depth_m.ravel()[pixel_index[chosen]]
         valid = np.flatnonzero(z > 0)
         ray_columns = np.take(rays, chosen[valid], axis=1)
-        x, y, _ = self.camera.points_on_rays(ray_columns, z[valid], attitude)
         # The height band is measured from the ground the robot stands on (its own frame, not
         # levelled): across a slope the level plane through the robot cuts the uphill row's ground
         # and passes under the downhill row's crowns. The positions are levelled (trunks stand
         # along gravity).
-        h = self.camera.points_on_rays(ray_columns, z[valid])[2] if attitude is not None else _
+        x, y, h = self.camera.points_on_rays(ray_columns, z[valid])
+        if attitude is not None:
+            x, y, _ = self.camera.level(x, y, h, attitude)
         ok = (x >= config.x_min) & (x <= config.trunk_x_max) & (h >= config.trunk_h_min) & (h <= config.trunk_h_max)
         x, y = x[ok], y[ok]
         offset = y - polyval(x, split)

@@ -332,8 +332,8 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
             barrier()
         if averaged is not None and int(averaged.n_averaged) > 0:
             sampler.set_epoch(config.epochs)
-            swa_path = _finish_weight_average(config, ctx, averaged, train_loader, val_loader, out_dir, dist,
-                                              info, config_dict)
+            swa_path = _finish_weight_average(config, ctx, averaged, train_loader, steps_per_epoch, val_loader,
+                                              out_dir, dist, info, config_dict)
     except DatasetError as exc:  # from a loader worker: its message is the worker's whole traceback
         raise DatasetError(worker_error_line(exc)) from None
     except KeyboardInterrupt:
@@ -350,17 +350,17 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
 
 
 def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: AveragedModel, train_loader,
-                           val_loader, out_dir: Path, dist: DistInfo, info: dict[str, Any],
+                           steps: int, val_loader, out_dir: Path, dist: DistInfo, info: dict[str, Any],
                            config_dict: dict[str, Any]) -> Path:
     """BatchNorm statistics for the averaged weights, its validation, and swa.pt.
 
     The running statistics of the last epoch belong to the last weights, not to their average:
-    `update_bn` recomputes them with one pass over the training frames (as the SWA paper does).
+    `update_bn` recomputes them with one pass over the training frames (as the SWA paper does),
+    `steps` batches: an epoch's.
     """
     from tqdm import tqdm
 
     show = config.progress and dist.is_main
-    steps = len(train_loader) if config.max_steps_per_epoch is None else min(len(train_loader), config.max_steps_per_epoch)
     update_bn(tqdm(itertools.islice(train_loader, steps), total=steps, desc="swa: BatchNorm statistics",
                    disable=not show, leave=False), averaged.module, device=dist.device)
     # Each rank saw its own shard: average the statistics so that every rank validates, and rank

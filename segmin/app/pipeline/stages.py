@@ -140,12 +140,11 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
     The stage folder belongs to the pipeline: a stage that is not resumed is rerun because its
     inputs changed (or --from), so earlier outputs there are replaced (force).
     """
+    from segmin.models.checkpoint import read_checkpoint
     from segmin.train.run import train_model
 
     log(f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
         f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}")
-    from segmin.models.checkpoint import read_checkpoint
-
     kept = train_model(train_config, folder, resume=resume, force=not resume)
     history = read_metrics_csv(folder / "metrics.csv")
     best_row = max(history, key=lambda r: r.get("val_iou", -1.0)) if history else {}
