@@ -3,12 +3,15 @@
 - `one_thread`: one torch thread for a test (the 2 shared cores are oversubscribed otherwise,
   and no result may depend on the thread count); modules opt in with `pytestmark`.
 - `bullet_client`: a fresh pybullet DIRECT client, disconnected afterwards.
+- `sigint_delivered`: Python's Ctrl-C handler for a test that raises SIGINT, also when the suite
+  was started in the background (`make test &`), where the shell leaves SIGINT ignored.
 - `checkpoint`, `frames_dir`, `exported`: one tiny trained checkpoint, its toy frames and one
   full export per session, shared by the export and segmenter tests (each takes seconds on 2 cores).
 """
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Iterator
 
@@ -25,6 +28,13 @@ def one_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture()
+def sigint_delivered() -> Iterator[None]:
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
 
 
 @pytest.fixture()

@@ -235,7 +235,7 @@ def test_a_failing_family_keeps_the_family_that_trained(run_dir: Path, tmp_path:
     assert not runner.cache.record("train/bad").finished
 
 
-def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(tmp_path: Path) -> None:
+def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(tmp_path: Path, sigint_delivered: None) -> None:
     """The trainings run in process groups of their own: a Ctrl-C to the pipeline reaches them
     through it, once; each finishes its step, saves last.pt and stops, and the stages stay
     unfinished (a rerun resumes them). No training process outlives the pipeline."""

@@ -387,7 +387,7 @@ def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp
     assert (out / "last.pt").read_bytes() != before[0]
 
 
-def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(dataset_root, tmp_path, monkeypatch):
+def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(dataset_root, tmp_path, monkeypatch, sigint_delivered):
     """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
     used to save "k steps done" with the weights of k+1, so --resume ran a step twice."""
     import signal
