@@ -21,7 +21,7 @@ tops = sorted({n.split("/")[0] for n in names})
 print("wheel:", sys.argv[1].rsplit("/", 1)[-1], f"{sum(i.file_size for i in zipfile.ZipFile(sys.argv[1]).infolist()) / 1e6:.2f} MB unpacked, top level:", tops)
 assert len(tops) == 2 and tops[0] == "segmin" and tops[1].startswith("segmin-") and tops[1].endswith(".dist-info"), tops
 for needed in ("segmin/configs/worlds/straight_vineyard.yaml", "segmin/configs/pipeline/quick.yaml",
-               "segmin/data/synth/render.py", "segmin/nav_eval/navigator.py", "segmin/app/cli.py"):
+               "segmin/data/synth/render.py", "segmin/nav_eval/runtime/navigator.py", "segmin/app/cli.py"):
     assert needed in names, needed
 PY
 ls -l "$wheel" | awk '{printf "wheel file: %.1f kB\n", $5 / 1024}'
@@ -58,8 +58,7 @@ assert not bad, bad
 heavy = [m for m in ("torch", "pybullet", "matplotlib", "torchvision") if md.packages_distributions().get(m)]
 assert not heavy, f"the bare install pulled in {heavy}"
 import numpy as np
-from segmin.nav_eval.navigator import Navigator, NavigatorConfig
-from segmin.nav_eval.segmenter import OnnxSegmenter
+from segmin.nav_eval.runtime import Navigator, NavigatorConfig, OnnxSegmenter
 mask = OnnxSegmenter("tiny.onnx", threads=1).segment(np.zeros((48, 64, 3), np.uint8))
 command = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(mask, np.full(mask.shape, 3.0, np.float32))
 loaded = [m for m in ("torch", "pybullet", "matplotlib") if m in sys.modules]
@@ -74,7 +73,7 @@ site=$("$lean/python" -c "import sysconfig; print(sysconfig.get_paths()['purelib
 echo "lean install: $(du -sm "$site" | cut -f1) MB in site-packages (segmin itself $(du -sk "$site/segmin" | cut -f1) kB)"
 "$lean/python" - <<'PY'
 import statistics, subprocess, sys, time
-code = "import segmin.nav_eval.navigator, segmin.nav_eval.segmenter, onnxruntime"
+code = "import segmin.nav_eval.runtime.navigator, segmin.nav_eval.runtime.segmenter, onnxruntime"
 walls = []
 for _ in range(5):
     start = time.perf_counter()

@@ -28,9 +28,26 @@ if TYPE_CHECKING:  # at run time it comes from __getattr__, so torch loads only 
     from segmin.data.dataset import AgriSegDataset
 
 __all__ = [
-    "CROP_DOMAINS", "DEPTH_EXTS", "FAMILIES", "IMAGE_EXTS", "AgriSegDataset", "DatasetError", "Frame",
-    "ScanResult", "available_domains", "find_frames", "frame_id_of", "load_frame", "load_split",
-    "make_splits", "read_depth", "read_image", "read_mask", "resolve_domains", "save_split", "scan",
+    "CROP_DOMAINS",
+    "DEPTH_EXTS",
+    "FAMILIES",
+    "IMAGE_EXTS",
+    "AgriSegDataset",
+    "DatasetError",
+    "Frame",
+    "ScanResult",
+    "available_domains",
+    "find_frames",
+    "frame_id_of",
+    "load_frame",
+    "load_split",
+    "make_splits",
+    "read_depth",
+    "read_image",
+    "read_mask",
+    "resolve_domains",
+    "save_split",
+    "scan",
 ]
 
 

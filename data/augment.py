@@ -12,8 +12,8 @@ gives the same augmentation, which is what makes `--resume` exact with any numbe
 from __future__ import annotations
 
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -37,27 +37,38 @@ class AugmentConfig:
     # Photometric camera/light effects (off in the paper's recipe; on in the synth configs, where
     # rendered frames lack the real camera's gamma, colour cast, blur, noise, JPEG and shadows).
     gamma_p: float = 0.0
-    gamma: tuple[float, float] = (70.0, 150.0)      # albumentations gamma limits, percent
+    gamma: tuple[float, float] = (70.0, 150.0)  # albumentations gamma limits, percent
     hsv_p: float = 0.0
-    hue_shift: float = 8.0                          # degrees-ish (OpenCV hue units)
+    hue_shift: float = 8.0  # degrees-ish (OpenCV hue units)
     sat_shift: float = 30.0
     val_shift: float = 20.0
-    blur_p: float = 0.0                             # Gaussian, motion or defocus blur
+    blur_p: float = 0.0  # Gaussian, motion or defocus blur
     blur_limit: int = 5
-    noise_p: float = 0.0                            # Gaussian or ISO sensor noise
-    noise_std: tuple[float, float] = (0.02, 0.08)   # fraction of the full range
+    noise_p: float = 0.0  # Gaussian or ISO sensor noise
+    noise_std: tuple[float, float] = (0.02, 0.08)  # fraction of the full range
     jpeg_p: float = 0.0
     jpeg_quality: tuple[int, int] = (30, 95)
-    shadow_p: float = 0.0                           # random dark polygons (cast shadows)
-    fog_p: float = 0.0                              # slow (~0.2 s a frame at 224 px)
+    shadow_p: float = 0.0  # random dark polygons (cast shadows)
+    fog_p: float = 0.0  # slow (~0.2 s a frame at 224 px)
     flare_p: float = 0.0
 
     def __post_init__(self) -> None:
         lo, hi = self.crop_scale
         if not 0 < lo <= hi <= 1:
             raise ValueError(f"crop_scale={self.crop_scale}: need 0 < low <= high <= 1")
-        for name in ("hflip_p", "gray_p", "jitter_p", "gamma_p", "hsv_p", "blur_p", "noise_p", "jpeg_p",
-                     "shadow_p", "fog_p", "flare_p"):
+        for name in (
+            "hflip_p",
+            "gray_p",
+            "jitter_p",
+            "gamma_p",
+            "hsv_p",
+            "blur_p",
+            "noise_p",
+            "jpeg_p",
+            "shadow_p",
+            "fog_p",
+            "flare_p",
+        ):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be a probability in [0, 1]")
         for name in ("brightness", "contrast", "saturation"):
@@ -104,7 +115,9 @@ class SegTransform:
 
 
 def _size(image_size: int | Sequence[int]) -> tuple[int, int]:
-    return (int(image_size), int(image_size)) if isinstance(image_size, int) else (int(image_size[0]), int(image_size[1]))
+    return (
+        (int(image_size), int(image_size)) if isinstance(image_size, int) else (int(image_size[0]), int(image_size[1]))
+    )
 
 
 def eval_transform(image_size: int | Sequence[int]) -> SegTransform:
@@ -113,10 +126,12 @@ def eval_transform(image_size: int | Sequence[int]) -> SegTransform:
     import cv2
 
     h, w = _size(image_size)
-    return SegTransform([
-        A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST_EXACT),
-        A.Normalize(mean=IMAGENET_MEAN, std=IMAGENET_STD),
-    ])
+    return SegTransform(
+        [
+            A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST_EXACT),
+            A.Normalize(mean=IMAGENET_MEAN, std=IMAGENET_STD),
+        ]
+    )
 
 
 def train_transform(image_size: int | Sequence[int], config: AugmentConfig | None = None) -> SegTransform:
@@ -130,16 +145,29 @@ def train_transform(image_size: int | Sequence[int], config: AugmentConfig | Non
     h, w = _size(image_size)
     steps: list[object] = [
         A.Resize(h, w, interpolation=cv2.INTER_AREA, mask_interpolation=cv2.INTER_NEAREST_EXACT),
-        A.RandomResizedCrop(size=(h, w), scale=tuple(config.crop_scale), ratio=tuple(config.crop_ratio),
-                            interpolation=cv2.INTER_LINEAR, mask_interpolation=cv2.INTER_NEAREST_EXACT, p=1.0),
+        A.RandomResizedCrop(
+            size=(h, w),
+            scale=tuple(config.crop_scale),
+            ratio=tuple(config.crop_ratio),
+            interpolation=cv2.INTER_LINEAR,
+            mask_interpolation=cv2.INTER_NEAREST_EXACT,
+            p=1.0,
+        ),
     ]
     if config.hflip_p > 0:
         steps.append(A.HorizontalFlip(p=config.hflip_p))
     if config.gray_p > 0:
         steps.append(A.ToGray(num_output_channels=3, p=config.gray_p))
     if config.jitter_p > 0 and (config.brightness or config.contrast or config.saturation or config.hue):
-        steps.append(A.ColorJitter(brightness=config.brightness, contrast=config.contrast,
-                                   saturation=config.saturation, hue=config.hue, p=config.jitter_p))
+        steps.append(
+            A.ColorJitter(
+                brightness=config.brightness,
+                contrast=config.contrast,
+                saturation=config.saturation,
+                hue=config.hue,
+                p=config.jitter_p,
+            )
+        )
     steps += photometric_steps(config)
     steps.append(A.Normalize(mean=IMAGENET_MEAN, std=IMAGENET_STD))
     return SegTransform(steps)
@@ -153,8 +181,11 @@ def photometric_steps(config: AugmentConfig) -> list[object]:
     odd = c.blur_limit | 1
     steps: list[object] = []
     if c.shadow_p > 0:  # before the camera effects: a shadow is part of the scene
-        steps.append(A.RandomShadow(shadow_roi=(0, 0.3, 1, 1), num_shadows_limit=(1, 3),
-                                    shadow_intensity_range=(0.3, 0.7), p=c.shadow_p))
+        steps.append(
+            A.RandomShadow(
+                shadow_roi=(0, 0.3, 1, 1), num_shadows_limit=(1, 3), shadow_intensity_range=(0.3, 0.7), p=c.shadow_p
+            )
+        )
     if c.fog_p > 0:
         steps.append(A.RandomFog(fog_coef_range=(0.05, 0.3), alpha_coef=0.08, p=c.fog_p))
     if c.flare_p > 0:
@@ -162,15 +193,32 @@ def photometric_steps(config: AugmentConfig) -> list[object]:
     if c.gamma_p > 0:
         steps.append(A.RandomGamma(gamma_limit=tuple(c.gamma), p=c.gamma_p))
     if c.hsv_p > 0:
-        steps.append(A.HueSaturationValue(hue_shift_limit=c.hue_shift, sat_shift_limit=c.sat_shift,
-                                          val_shift_limit=c.val_shift, p=c.hsv_p))
+        steps.append(
+            A.HueSaturationValue(
+                hue_shift_limit=c.hue_shift, sat_shift_limit=c.sat_shift, val_shift_limit=c.val_shift, p=c.hsv_p
+            )
+        )
     if c.blur_p > 0:
-        steps.append(A.OneOf([A.GaussianBlur(blur_limit=(3, odd), sigma_limit=(0.3, 1.5)),
-                              A.MotionBlur(blur_limit=(3, odd)),
-                              A.Defocus(radius=(1, max(2, odd // 2)), alias_blur=(0.1, 0.3))], p=c.blur_p))
+        steps.append(
+            A.OneOf(
+                [
+                    A.GaussianBlur(blur_limit=(3, odd), sigma_limit=(0.3, 1.5)),
+                    A.MotionBlur(blur_limit=(3, odd)),
+                    A.Defocus(radius=(1, max(2, odd // 2)), alias_blur=(0.1, 0.3)),
+                ],
+                p=c.blur_p,
+            )
+        )
     if c.noise_p > 0:
-        steps.append(A.OneOf([A.GaussNoise(std_range=tuple(c.noise_std)),
-                              A.ISONoise(color_shift=(0.01, 0.05), intensity=(0.1, 0.5))], p=c.noise_p))
+        steps.append(
+            A.OneOf(
+                [
+                    A.GaussNoise(std_range=tuple(c.noise_std)),
+                    A.ISONoise(color_shift=(0.01, 0.05), intensity=(0.1, 0.5)),
+                ],
+                p=c.noise_p,
+            )
+        )
     if c.jpeg_p > 0:
         steps.append(A.ImageCompression(quality_range=tuple(c.jpeg_quality), p=c.jpeg_p))
     return steps

@@ -6,13 +6,18 @@ import argparse
 from collections import Counter
 
 
-def register(commands, bench) -> None:  # noqa: ARG001 - bench unused: data has no benchmark of its own
+def register(commands, bench) -> None:
     data = commands.add_parser("data", help="inspect datasets on disk (AgriSeg layouts, rendered frames)")
     sub = data.add_subparsers(dest="data_command", metavar="ACTION", required=True)
     inspect = sub.add_parser("inspect", help="frames per domain and subset, and every problem found")
     inspect.add_argument("root", help="dataset root folder")
-    inspect.add_argument("--quick", "--no-decode", dest="quick", action="store_true",
-                         help="only pair file names (skip decoding every image, mask and depth file)")
+    inspect.add_argument(
+        "--quick",
+        "--no-decode",
+        dest="quick",
+        action="store_true",
+        help="only pair file names (skip decoding every image, mask and depth file)",
+    )
     inspect.set_defaults(func=_inspect)
 
 
@@ -25,8 +30,10 @@ def _inspect(args: argparse.Namespace) -> int:
     counts = Counter((f.domain, f.subset) for f in result.frames)
     with_depth = Counter((f.domain, f.subset) for f in result.frames if f.depth_path is not None)
     layouts = Counter(result.layouts.values())
-    print(f"{args.root}: {len(result.frames)} paired frames; layouts: "
-          + (", ".join(f"{k} x{v}" for k, v in sorted(layouts.items())) or "none"))
+    print(
+        f"{args.root}: {len(result.frames)} paired frames; layouts: "
+        + (", ".join(f"{k} x{v}" for k, v in sorted(layouts.items())) or "none")
+    )
     print(f"{'domain':<28} {'subset':<32} {'frames':>7} {'depth':>6}")
     for domain in sorted({d for d, _ in counts}):
         subsets = sorted(s for d, s in counts if d == domain)

@@ -5,8 +5,9 @@ Scanning, reading and splitting live in torch-free modules so the robot runtime 
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 from torch.utils.data import Dataset
@@ -59,7 +60,9 @@ class AgriSegDataset(Dataset):
             self.splits = make_splits(all_frames, val_fraction, seed)
         self.frames: list[Frame] = list(all_frames) if split == "all" else self.splits[split]
         if not self.frames:
-            raise DatasetError(f"{root}: split {split!r} is empty (val_fraction={val_fraction}, {len(all_frames)} frames)")
+            raise DatasetError(
+                f"{root}: split {split!r} is empty (val_fraction={val_fraction}, {len(all_frames)} frames)"
+            )
         self.split = split
         self.seed = seed
         self.image_size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)

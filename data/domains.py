@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import fnmatch
 import logging
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from segmin.data.frames import DatasetError, Frame
 from segmin.data.layouts import scan
@@ -70,8 +70,9 @@ def _match(pattern: str, available: Sequence[str]) -> list[str]:
     return sorted(d for d in available if d.startswith(pattern + "_") or d.startswith(pattern + "-"))
 
 
-def find_frames(root: str | Path, domains: Sequence[str] | str | None = None, *,
-                skip_unpaired: bool = False) -> list[Frame]:
+def find_frames(
+    root: str | Path, domains: Sequence[str] | str | None = None, *, skip_unpaired: bool = False
+) -> list[Frame]:
     """All paired frames under `root` of the chosen domains (all when None).
 
     Raises DatasetError naming the files when anything is unpaired (unless `skip_unpaired`, which

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Sequence
 
 from segmin.common.atomic import write_json
 from segmin.data.agriseg_loader import DatasetError, Frame, load_frame, read_depth
@@ -29,8 +29,10 @@ def check_frame(frame: Frame, *, depth: bool = True) -> None:
     if depth and frame.depth_path is not None:
         d = read_depth(frame.depth_path)
         if d.shape[:2] != image.shape[:2]:
-            raise DatasetError(f"{frame.depth_path}: depth size {d.shape[1]}x{d.shape[0]} does not match image "
-                               f"{frame.image_path} size {image.shape[1]}x{image.shape[0]}")
+            raise DatasetError(
+                f"{frame.depth_path}: depth size {d.shape[1]}x{d.shape[0]} does not match image "
+                f"{frame.image_path} size {image.shape[1]}x{image.shape[0]}"
+            )
 
 
 def _files(frame: Frame, depth: bool) -> list[Path]:
@@ -61,8 +63,9 @@ def _read_cache(path: Path | None) -> dict[str, list[list[int]]]:
     return files if isinstance(files, dict) else {}
 
 
-def verify_frames(frames: Sequence[Frame], cache: Path | None = None, *, depth: bool = False,
-                  threads: int = 1) -> list[str]:
+def verify_frames(
+    frames: Sequence[Frame], cache: Path | None = None, *, depth: bool = False, threads: int = 1
+) -> list[str]:
     """Problems (one line each, naming the file) of `frames`; [] when every frame is sound.
 
     Frames whose files have the size and mtime recorded in `cache` are not decoded again; the
@@ -104,8 +107,11 @@ def require_sound_frames(frames: Sequence[Frame], cache: Path | None = None, *, 
     problems = verify_frames(frames, cache, threads=threads)
     if problems:
         more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
-        raise DatasetError(f"{len(problems)} of {len(frames)} frame(s) failed to decode before training: "
-                           + "; ".join(problems[:3]) + more)
+        raise DatasetError(
+            f"{len(problems)} of {len(frames)} frame(s) failed to decode before training: "
+            + "; ".join(problems[:3])
+            + more
+        )
 
 
 def worker_error_line(exc: BaseException) -> str:
@@ -138,6 +144,8 @@ def promise_problems(root: str | Path, frames: Sequence[Frame]) -> list[str]:
             continue
         missing = sorted(promised - present.get(key, set()))
         if missing:
-            problems.append(f"{meta_path}: lists {len(promised)} frames, {len(missing)} of them are not on disk "
-                            f"(e.g. Image{missing[0]}): an interrupted render? rerun it to finish the dataset")
+            problems.append(
+                f"{meta_path}: lists {len(promised)} frames, {len(missing)} of them are not on disk "
+                f"(e.g. Image{missing[0]}): an interrupted render? rerun it to finish the dataset"
+            )
     return problems

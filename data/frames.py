@@ -55,8 +55,15 @@ def frame_id_of(name: str) -> int | None:
     return int(match.group(1)) if match else None
 
 
-def pair_frames(domain: str, subset: str, folder: Path, img: dict[int, Path], msk: dict[int, Path],
-                dep: dict[int, Path], result: ScanResult) -> None:
+def pair_frames(
+    domain: str,
+    subset: str,
+    folder: Path,
+    img: dict[int, Path],
+    msk: dict[int, Path],
+    dep: dict[int, Path],
+    result: ScanResult,
+) -> None:
     """Add a Frame to `result` for every id that has both an image and a mask; record the rest."""
     for n in sorted(set(img) | set(msk)):
         if n not in img:

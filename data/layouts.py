@@ -67,7 +67,7 @@ def _walk(root: Path, folder: Path, result: ScanResult, depth: int) -> None:
         return
     if _is_distributed_subset(folder):  # a subset folder given directly (or under another name)
         parent = folder.parent.name
-        crop = parent[len(_DISTRIBUTED_PREFIX):] if parent.startswith(_DISTRIBUTED_PREFIX) else folder.name
+        crop = parent[len(_DISTRIBUTED_PREFIX) :] if parent.startswith(_DISTRIBUTED_PREFIX) else folder.name
         _scan_distributed_subset(CROP_DOMAINS.get(crop.lower(), crop.lower()), folder, folder.name, result)
         return
     if depth >= 4:
@@ -176,7 +176,7 @@ def _flat_pairs(
 
 
 def _scan_distributed_crop(crop_dir: Path, result: ScanResult) -> None:
-    crop = crop_dir.name[len(_DISTRIBUTED_PREFIX):]
+    crop = crop_dir.name[len(_DISTRIBUTED_PREFIX) :]
     domain = CROP_DOMAINS.get(crop.lower(), crop.lower())
     subsets = _subdirs(crop_dir)
     if subsets and any(p.is_file() and p.name.lower().startswith("image") for p in subsets[0].iterdir()):
@@ -195,10 +195,16 @@ def _scan_distributed_subset(domain: str, subset_dir: Path, subset: str, result:
         n = _frame_number(frame_dir, result)
         if n is None:
             continue
-        for target, prefix, exts in ((img, "image", IMAGE_EXTS), (msk, "segmentation", IMAGE_EXTS),
-                                     (dep, "depth", DEPTH_EXTS)):
-            files = sorted(p for p in frame_dir.iterdir()
-                           if p.is_file() and p.name.lower().startswith(prefix) and p.suffix.lower() in exts)
+        for target, prefix, exts in (
+            (img, "image", IMAGE_EXTS),
+            (msk, "segmentation", IMAGE_EXTS),
+            (dep, "depth", DEPTH_EXTS),
+        ):
+            files = sorted(
+                p
+                for p in frame_dir.iterdir()
+                if p.is_file() and p.name.lower().startswith(prefix) and p.suffix.lower() in exts
+            )
             if len(files) > 1:
                 result.problems.append(f"{frame_dir}: {len(files)} {prefix} files, expected one")
             elif files:

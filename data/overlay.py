@@ -5,7 +5,7 @@ One function so the figures agree on how a mask is drawn; each keeps its own col
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -8,9 +8,9 @@ validation data (training configs, pipeline profiles) asks `check_not_real_data`
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from importlib.resources import files
 from pathlib import Path
-from typing import Iterable, Mapping
 
 from segmin.common.config import ConfigError
 
@@ -67,8 +67,12 @@ def points_to_real_data(value: object, extra: Iterable[str | Path] = (), *, is_p
     return any(_inside(path, folder) or _inside(folder, path) for folder in folders)
 
 
-def check_not_real_data(source: str, paths: Mapping[str, object], names: Mapping[str, object] | None = None,
-                        extra: Iterable[str | Path] = ()) -> None:
+def check_not_real_data(
+    source: str,
+    paths: Mapping[str, object],
+    names: Mapping[str, object] | None = None,
+    extra: Iterable[str | Path] = (),
+) -> None:
     """ConfigError naming the first field (path or name) that points at real test photos."""
     extra = list(extra)
     checks = [(k, v, True) for k, v in paths.items()] + [(k, v, False) for k, v in (names or {}).items()]

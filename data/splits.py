@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import json
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -44,11 +45,14 @@ def make_splits(frames: Sequence[Frame], val_fraction: float = 0.1, seed: int = 
 
 def save_split(path: str | Path, splits: dict[str, list[Frame]], **meta: Any) -> None:
     """Write split lists as JSON of [domain, subset, frame_id] keys (plus `meta`), atomically."""
-    write_json(path, {
-        "format": "segmin-split-v1",
-        **meta,
-        **{name: [list(f.key) for f in frames] for name, frames in splits.items()},
-    })
+    write_json(
+        path,
+        {
+            "format": "segmin-split-v1",
+            **meta,
+            **{name: [list(f.key) for f in frames] for name, frames in splits.items()},
+        },
+    )
 
 
 def load_split(path: str | Path, frames: Sequence[Frame]) -> dict[str, list[Frame]]:

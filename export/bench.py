@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -128,9 +128,11 @@ def run_benchmark(
         for name, path in files.items():
             session = make_session(path, threads=threads)
             feed = {session.get_inputs()[0].name: frame}
-            candidates[name] = (lambda s=session, f=feed: s.run(None, f))
+            candidates[name] = lambda s=session, f=feed: s.run(None, f)
         quiet = make_session(files["onnxruntime fp32"], threads=threads, spin=False)
-        candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(None, {quiet.get_inputs()[0].name: frame})
+        candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(
+            None, {quiet.get_inputs()[0].name: frame}
+        )
 
         if step_candidates is not None:
             # Timers of code downstream of export (the robot-side perception + control step)
@@ -163,7 +165,9 @@ def run_benchmark(
     print(f"onnxruntime {ort.__version__}, torch {torch.__version__}")
     load = load_before
     if load is not None:
-        print(f"load average (1 min) before timing: {load:.2f} on {_cpu_count()} cores; figures are noisy when it is high")
+        print(
+            f"load average (1 min) before timing: {load:.2f} on {_cpu_count()} cores; figures are noisy when it is high"
+        )
     print(f"{'model':<56}{'median ms':>10}{'p95 ms':>10}{'min ms':>9}{'x eager':>9}")
     for name, entry in results.items():
         print(

@@ -7,7 +7,7 @@ string; the helpers here format and parse the few structured ones.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 FORMAT = "segmin-onnx-v1"
 
@@ -44,7 +44,7 @@ def format_input_size(size: tuple[int, int] | list[int]) -> str:
 
 
 def parse_input_size(text: str) -> tuple[int, int]:
-    """"H,W" -> (H, W); ValueError naming the bad value."""
+    """ "H,W" -> (H, W); ValueError naming the bad value."""
     parts = str(text).replace("x", ",").split(",")
     try:
         height, width = (int(p) for p in parts)

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import hashlib
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import onnx
 import torch
@@ -187,7 +188,9 @@ def check_graph_io(model: onnx.ModelProto, input_size: tuple[int, int], source: 
     """The exported graph must take uint8 N x H x W x 3 and give N x 1 x H x W."""
     inputs = [i for i in model.graph.input if i.name not in {init.name for init in model.graph.initializer}]
     if len(inputs) != 1 or len(model.graph.output) != 1:
-        raise ValueError(f"{source}: expected one input and one output, got {len(inputs)} and {len(model.graph.output)}")
+        raise ValueError(
+            f"{source}: expected one input and one output, got {len(inputs)} and {len(model.graph.output)}"
+        )
     tensor = inputs[0].type.tensor_type
     if tensor.elem_type != onnx.TensorProto.UINT8:
         raise ValueError(f"{source}: input {inputs[0].name!r} is not uint8")

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.atomic import atomic_path, write_json
 from segmin.common.outputs import check_output_file
 from segmin.export import metadata as md
 from segmin.export import quantize as quant
@@ -40,7 +41,6 @@ from segmin.export.verify import (
     torch_reference,
     verify_against_torch,
 )
-from segmin.common.atomic import atomic_path, write_json
 
 log = logging.getLogger(__name__)
 
@@ -172,7 +172,7 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
         "checkpoint": str(options.checkpoint),
         "frames_from": str(source),
         "frames_domains": domains,
-        "frames_used": int(len(frames)),
+        "frames_used": len(frames),
         "input_size": list(input_size),
         "threshold": threshold,
         "metadata": meta,
@@ -231,9 +231,7 @@ def _export_fp16(out: Path, meta: dict[str, str], fp32_probs, frames, threshold:
     with atomic_path(path) as tmp:
         quant.convert_fp16(out, tmp)
         agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
-        check_bounds(
-            agreement, str(path), max_abs_diff=quant.FP16_MAX_ABS_DIFF, min_agreement=quant.FP16_MIN_AGREEMENT
-        )
+        check_bounds(agreement, str(path), max_abs_diff=quant.FP16_MAX_ABS_DIFF, min_agreement=quant.FP16_MIN_AGREEMENT)
         _stamp(tmp, {**meta, md.KEY_PRECISION: "fp16", "verification": "vs fp32: " + _summary(agreement)})
     return {"path": str(path), "vs_fp32": agreement.as_dict()}
 

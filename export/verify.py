@@ -9,9 +9,9 @@ when the largest absolute probability difference is <= 1e-4 and the thresholded 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -102,9 +102,7 @@ def load_frames(
 # ----------------------------------------------------------------------------- comparisons
 
 
-def compare(
-    probs: np.ndarray, reference: np.ndarray, threshold: float
-) -> Agreement:
+def compare(probs: np.ndarray, reference: np.ndarray, threshold: float) -> Agreement:
     """Agreement of `probs` with `reference` (same shape, N x 1 x H x W)."""
     if probs.shape != reference.shape:
         raise VerificationError(f"output shape {probs.shape} differs from the reference {reference.shape}")
@@ -190,9 +188,7 @@ def check_bounds(agreement: Agreement, source: str, *, max_abs_diff: float, min_
     if not agreement.mask_agreement >= min_agreement:
         problems.append(f"mask agreement {100 * agreement.mask_agreement:.3f} % < {100 * min_agreement:.2f} %")
     if problems:
-        raise VerificationError(
-            f"{source}: verification failed on {agreement.frames} frames: " + "; ".join(problems)
-        )
+        raise VerificationError(f"{source}: verification failed on {agreement.frames} frames: " + "; ".join(problems))
 
 
 def torch_reference(wrapper) -> Callable[[np.ndarray], np.ndarray]:

@@ -18,8 +18,8 @@ from typing import Any
 
 import torch
 
-from segmin.models.lraspp import ARCHITECTURE, SegmentationNet, build_model
 from segmin.common.atomic import atomic_path
+from segmin.models.lraspp import ARCHITECTURE, SegmentationNet, build_model
 
 FORMAT = "segmin-checkpoint-v1"
 
@@ -59,8 +59,11 @@ def check_model_info(info: Any, path: str | Path) -> None:
     if info.get("architecture") != ARCHITECTURE:
         raise ValueError(f"{path}: architecture {info.get('architecture')!r} is not {ARCHITECTURE!r}")
     size = info.get("input_size")
-    if not (isinstance(size, (list, tuple)) and len(size) == 2
-            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+    if not (
+        isinstance(size, (list, tuple))
+        and len(size) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
+    ):
         raise ValueError(f"{path}: model_info.input_size is {size!r}, expected [height, width] > 0")
     threshold = info.get("threshold", 0.5)
     if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 < threshold < 1.0:

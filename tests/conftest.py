@@ -12,11 +12,10 @@
 from __future__ import annotations
 
 import signal
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import pytest
-
 from export_helpers import make_checkpoint, write_frames
 
 
@@ -69,6 +68,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory, checkpoint: Path, frames_
     from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     out = tmp_path_factory.mktemp("tiny_export") / "model.onnx"
-    report = export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir,
-                                             fp16=True, int8=True))
+    report = export_checkpoint(
+        ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir, fp16=True, int8=True)
+    )
     return out, report

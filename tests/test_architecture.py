@@ -1,13 +1,17 @@
 """segmin's layers and their one-way data flow, checked on the source.
 
-common -> data -> models -> train -> export -> nav_eval -> app: a module may import its own layer
+common -> data -> models -> train -> export -> robot runtime -> replay / demo / photo scoring ->
+simulator -> closed-loop evaluation -> sweeps -> benches -> app: a module may import its own layer
 and the layers before it, never one after it, and no set of modules may import one another in a
-cycle. Imports inside functions count: a lazy import is still a dependency.
+cycle. Imports inside functions count: a lazy import is still a dependency. The robot runtime is
+what the bare install ships, so it may import only the bare install's dependencies.
 """
 
 from __future__ import annotations
 
 import ast
+import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 import pytest
@@ -29,7 +33,14 @@ LAYERS: tuple[str, ...] = (
     "segmin.models",
     "segmin.train",
     "segmin.export",
-    "segmin.nav_eval",
+    "segmin.nav_eval.runtime",
+    "segmin.nav_eval.replay",
+    "segmin.nav_eval.demo",
+    "segmin.nav_eval.seg_eval",
+    "segmin.nav_eval.sim",
+    "segmin.nav_eval.evaluation",
+    "segmin.nav_eval.sweeps",
+    "segmin.nav_eval.bench",
     "segmin.app",
 )
 OLD_TOP_LEVELS = {"data", "models", "train", "export", "nav_eval"}
@@ -52,9 +63,13 @@ def module_files(root: Path, package_dirs: dict[str, str]) -> dict[str, Path]:
 def imported_names(path: Path, module: str) -> set[str]:
     """Every dotted name a module imports, anywhere in it (relative imports resolved)."""
     tree = ast.parse(path.read_text(), filename=str(path))
-    is_package = path.name == "__init__.py"
+    return names_of(ast.walk(tree), module, is_package=path.name == "__init__.py")
+
+
+def names_of(nodes: Iterable[ast.AST], module: str, *, is_package: bool) -> set[str]:
+    """The dotted names that these import statements import (other nodes are passed over)."""
     names: set[str] = set()
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -118,7 +133,7 @@ def layer_of(module: str) -> int:
     for position, layer in enumerate(LAYERS):
         if module == layer or module.startswith(layer + "."):
             return position
-    if module in ("segmin", "segmin.configs"):
+    if module in ("segmin", "segmin.configs", "segmin.nav_eval"):
         return 0
     raise AssertionError(f"{module}: not in any layer; add it to LAYERS")
 
@@ -169,21 +184,125 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> dict[str, set[str]]:
 
 
 def test_the_checks_fail_on_a_cycle_through_a_function_import(tmp_path: Path) -> None:
-    graph = _tree(tmp_path, {
-        "nav_eval/__init__.py": "",
-        "nav_eval/evaluate.py": "from segmin.nav_eval.plots import figure\n",
-        "nav_eval/plots.py": "def figure():\n    from segmin.nav_eval import evaluate\n",
-        "nav_eval/sim.py": "from . import plots\n",
-    })
+    graph = _tree(
+        tmp_path,
+        {
+            "nav_eval/__init__.py": "",
+            "nav_eval/evaluate.py": "from segmin.nav_eval.plots import figure\n",
+            "nav_eval/plots.py": "def figure():\n    from segmin.nav_eval import evaluate\n",
+            "nav_eval/sim.py": "from . import plots\n",
+        },
+    )
     assert cycles(graph) == [["segmin.nav_eval.evaluate", "segmin.nav_eval.plots"]]
     assert graph["segmin.nav_eval.sim"] == {"segmin.nav_eval", "segmin.nav_eval.plots"}  # `from . import` resolved
 
 
 def test_the_checks_fail_on_an_import_against_the_flow(tmp_path: Path) -> None:
-    graph = _tree(tmp_path, {
-        "train/__init__.py": "",
-        "train/run.py": "def f():\n    import segmin.nav_eval.navigator\n",
+    graph = _tree(
+        tmp_path,
+        {
+            "train/__init__.py": "",
+            "train/run.py": "def f():\n    import segmin.nav_eval.runtime.navigator\n",
+            "nav_eval/__init__.py": "",
+            "nav_eval/runtime/__init__.py": "",
+            "nav_eval/runtime/navigator.py": "import segmin.train.run\n",
+        },
+    )
+    assert against_the_flow(graph) == {"segmin.train.run": ["segmin.nav_eval.runtime.navigator"]}
+
+
+# The bare install (`pip install segmin`, the robot) has these besides the standard library.
+BARE_DEPENDENCIES = {"numpy", "cv2", "onnxruntime", "yaml"}
+# Sub-packages a robot runs; their module-level imports, followed through segmin, stay bare.
+BARE_PACKAGES = ("segmin.nav_eval.runtime", "segmin.nav_eval.replay", "segmin.nav_eval.demo")
+# Figure modules inside them, loaded only when their extra is installed (replay skips its plot and
+# says so on the bare install).
+OPTIONAL_MODULES = {"segmin.nav_eval.replay.plot": {"matplotlib"}}
+
+
+def module_level_imports(path: Path, module: str) -> set[str]:
+    """Dotted names imported when the module is loaded: top-level statements (and try / if blocks
+    at the top level), not imports inside functions and not `if TYPE_CHECKING:` blocks."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    body: list[ast.stmt] = []
+    pending = list(tree.body)
+    while pending:
+        node = pending.pop()
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            continue
+        if isinstance(node, (ast.If, ast.Try)):
+            pending.extend(node.body + node.orelse + getattr(node, "finalbody", []))
+            for handler in getattr(node, "handlers", []):
+                pending.extend(handler.body)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            body.append(node)
+    return names_of(body, module, is_package=path.name == "__init__.py")
+
+
+def third_party_at_load(start: str, modules: dict[str, Path]) -> dict[str, set[str]]:
+    """Third-party top-level packages loaded by importing `start`, with the modules that import them."""
+    seen: set[str] = set()
+    found: dict[str, set[str]] = {}
+    pending = [start]
+    while pending:
+        module = pending.pop()
+        if module in seen:
+            continue
+        seen.add(module)
+        parts = module.split(".")
+        parents = [".".join(parts[:i]) for i in range(1, len(parts))]
+        pending.extend(parent for parent in parents if parent in modules)
+        for name in module_level_imports(modules[module], module):
+            if name in modules:
+                pending.append(name)
+            top = name.split(".")[0]
+            if top and top != "segmin" and top not in sys.stdlib_module_names and top != "__future__":
+                found.setdefault(top, set()).add(module)
+    return found
+
+
+def test_the_robot_side_loads_only_the_bare_install() -> None:
+    modules = module_files(ROOT, PACKAGE_DIRS)
+    offenders = {}
+    for module in sorted(modules):
+        if module.startswith(BARE_PACKAGES):
+            allowed = BARE_DEPENDENCIES | OPTIONAL_MODULES.get(module, set())
+            found = third_party_at_load(module, modules)
+            extra = {top: sorted(by) for top, by in found.items() if top not in allowed}
+            if extra:
+                offenders[module] = extra
+    assert offenders == {}
+
+
+def test_the_runtime_never_imports_beyond_the_bare_install_even_lazily() -> None:
+    modules = module_files(ROOT, PACKAGE_DIRS)
+    offenders = {}
+    for module, path in sorted(modules.items()):
+        if module.startswith("segmin.nav_eval.runtime"):
+            tops = {name.split(".")[0] for name in imported_names(path, module)}
+            extra = sorted(
+                t
+                for t in tops
+                if t not in BARE_DEPENDENCIES
+                and t != "segmin"
+                and t not in sys.stdlib_module_names
+                and t != "__future__"
+            )
+            if extra:
+                offenders[module] = extra
+    assert offenders == {}
+
+
+def test_the_bare_install_check_sees_a_heavy_import_through_a_helper(tmp_path: Path) -> None:
+    for name, text in {
         "nav_eval/__init__.py": "",
-        "nav_eval/navigator.py": "import segmin.train.run\n",
-    })
-    assert against_the_flow(graph) == {"segmin.train.run": ["segmin.nav_eval.navigator"]}
+        "nav_eval/runtime/__init__.py": "",
+        "nav_eval/runtime/navigator.py": "import numpy\nfrom segmin.nav_eval.runtime import helper\n",
+        "nav_eval/runtime/helper.py": "try:\n    import torch\nexcept ImportError:\n    pass\n",
+    }.items():
+        path = tmp_path / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    modules = module_files(tmp_path, {"segmin.nav_eval": "nav_eval"})
+    found = third_party_at_load("segmin.nav_eval.runtime.navigator", modules)
+    assert found == {"numpy": {"segmin.nav_eval.runtime.navigator"}, "torch": {"segmin.nav_eval.runtime.helper"}}

@@ -35,10 +35,17 @@ def test_effects_touch_the_image_only_and_repeat_per_seed():
     assert np.array_equal(img_a, img_b) and np.array_equal(mask_a, mask_b)
 
 
-@pytest.mark.parametrize("changes", [
-    {"blur_p": 1.5}, {"gamma": (0.0, 120.0)}, {"noise_std": (0.2, 0.1)}, {"jpeg_quality": (0, 90)},
-    {"blur_limit": 1}, {"hue_shift": -1.0},
-])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"blur_p": 1.5},
+        {"gamma": (0.0, 120.0)},
+        {"noise_std": (0.2, 0.1)},
+        {"jpeg_quality": (0, 90)},
+        {"blur_limit": 1},
+        {"hue_shift": -1.0},
+    ],
+)
 def test_invalid_settings_are_rejected(changes):
     with pytest.raises(ValueError):
         AugmentConfig(**changes)

@@ -63,8 +63,12 @@ def test_bench_navigator_prints_every_method(capsys: pytest.CaptureFixture[str])
 def test_configs_list_shows_every_shipped_kind(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["configs", "list"]) == 0
     out = capsys.readouterr().out
-    for kind, name in (("worlds", "straight_vineyard"), ("train", "vineyards"), ("nav", "default"),
-                       ("pipeline", "quick")):
+    for kind, name in (
+        ("worlds", "straight_vineyard"),
+        ("train", "vineyards"),
+        ("nav", "default"),
+        ("pipeline", "quick"),
+    ):
         assert re.search(rf"^{kind}:.*\n  .*\b{name}\b", out, re.M), out
 
 

@@ -71,10 +71,9 @@ def test_missing_file_is_named(tmp_path) -> None:
 def test_atomic_write_leaves_nothing_behind_on_error(tmp_path) -> None:
     target = tmp_path / "out.json"
     write_json(target, {"a": 1})
-    with pytest.raises(RuntimeError):
-        with atomic_path(target) as tmp:
-            tmp.write_text("half a fi")
-            raise RuntimeError("crash while writing")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half a fi")
+        raise RuntimeError("crash while writing")
     assert target.read_text().strip().startswith("{") and '"a": 1' in target.read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
 

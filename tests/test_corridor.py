@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from segmin.nav_eval.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_parallel_rows
-from segmin.nav_eval.demo_scenes import DemoScene, render_scene
-from segmin.nav_eval.eval_config import load_nav_config
-from segmin.nav_eval.factories import make_navigator
-from segmin.nav_eval.runtime import RowFollower
+from segmin.nav_eval.demo.scenes import DemoScene, render_scene
+from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_parallel_rows
+from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.sim.config import load_nav_config
+from segmin.nav_eval.sim.factories import make_navigator
 
 SIZE = 96
 
@@ -23,13 +23,23 @@ def scene_camera(size: int = SIZE) -> CameraGeometry:
     """The analytic demo scenes' camera: square pixels, centre (size - 1) / 2, 0.4 m, 15 deg up."""
     focal = (size / 2) / math.tan(math.radians(69.0) / 2)
     centre = (size - 1) / 2
-    return CameraGeometry(width=size, height=size, fx=focal, fy=focal, cx=centre, cy=centre,
-                          mount_height=0.4, tilt_deg=15.0)
+    return CameraGeometry(
+        width=size, height=size, fx=focal, fy=focal, cx=centre, cy=centre, mount_height=0.4, tilt_deg=15.0
+    )
 
 
 def vine_scene(offset: float = 0.0, yaw_deg: float = 0.0, holes: float = 0.25, half_gap: float = 0.9) -> DemoScene:
-    return DemoScene("vines", half_gap=half_gap, foliage_low=0.4, foliage_high=2.0, canopy_base=None,
-                     row_length=20.0, lateral_offset=offset, yaw=math.radians(yaw_deg), hole_fraction=holes)
+    return DemoScene(
+        "vines",
+        half_gap=half_gap,
+        foliage_low=0.4,
+        foliage_high=2.0,
+        canopy_base=None,
+        row_length=20.0,
+        lateral_offset=offset,
+        yaw=math.radians(yaw_deg),
+        hole_fraction=holes,
+    )
 
 
 def settle(navigator: CorridorNavigator, scene: DemoScene, steps: int = 3):
@@ -66,7 +76,7 @@ def test_levelling_with_the_imu_recovers_the_world_point_the_renderer_saw(a, b, 
     (roll, pitch) from the robot state (nav_eval.robot.imu_attitude) undo exactly that tilt."""
     from segmin.data.synth.camera import CameraModel
     from segmin.data.synth.render import camera_pose
-    from segmin.nav_eval.robot import Robot, imu_attitude
+    from segmin.nav_eval.sim.robot import Robot, imu_attitude
 
     ground = TiltedGround(a, b)
     cam = CameraModel()
@@ -137,11 +147,11 @@ def test_centreline_of_an_analytic_row_is_exact(offset, yaw_deg):
 def test_steers_back_towards_the_centre():
     left = settle(navigator(), vine_scene(0.3))
     right = settle(navigator(), vine_scene(-0.3))
-    assert left.omega < 0 < right.omega       # left of the centre: turn right (negative omega)
+    assert left.omega < 0 < right.omega  # left of the centre: turn right (negative omega)
     assert left.omega == pytest.approx(-right.omega, rel=0.05)
     centred = settle(navigator(), vine_scene(0.0))
     assert centred.omega == pytest.approx(0.0, abs=1e-6)
-    assert centred.v == pytest.approx(0.5 * (1 - 0.5 ** 3), rel=1e-6)  # three EMA steps from rest
+    assert centred.v == pytest.approx(0.5 * (1 - 0.5**3), rel=1e-6)  # three EMA steps from rest
 
 
 def test_one_row_seen_keeps_the_width_learnt_from_both():
@@ -149,7 +159,7 @@ def test_one_row_seen_keeps_the_width_learnt_from_both():
     settle(nav, vine_scene(0.0))
     mask, depth = render_scene(vine_scene(0.0), size=SIZE)
     right_half = mask.copy()
-    right_half[:, : SIZE // 2] = False                 # the left row is lost (e.g. a gap)
+    right_half[:, : SIZE // 2] = False  # the left row is lost (e.g. a gap)
     for _ in range(3):
         command = nav.step(right_half, depth)
     assert command.mode == "one_side"
@@ -195,7 +205,7 @@ def test_stop_is_invalid_and_restarts_from_rest():
     stop = nav.stop()
     assert not stop.valid and stop.v == 0.0 and stop.omega == 0.0
     after = settle(nav, vine_scene(0.2), steps=1)
-    fresh = settle(navigator(), vine_scene(0.2), steps=1)   # one EMA step from rest
+    fresh = settle(navigator(), vine_scene(0.2), steps=1)  # one EMA step from rest
     assert after.v == pytest.approx(fresh.v) and after.omega == pytest.approx(fresh.omega)
 
 
@@ -203,7 +213,7 @@ def test_robust_line_fit_ignores_outliers():
     rng = np.random.default_rng(0)
     x = rng.uniform(1, 5, 400)
     y = 0.8 + 0.05 * x + rng.normal(0, 0.01, x.shape)
-    y[:40] = rng.uniform(-0.5, 0.3, 40)        # 10 % clutter hanging into the row
+    y[:40] = rng.uniform(-0.5, 0.3, 40)  # 10 % clutter hanging into the row
     fit = fit_parallel_rows([(x, y)], trim=2.5, iterations=2)
     (a, b) = fit.row(0)
     assert a == pytest.approx(0.8, abs=0.02) and b == pytest.approx(0.05, abs=0.01)
@@ -234,11 +244,13 @@ def test_a_bend_must_be_seen_in_both_rows():
     kwargs = dict(trim=2.5, iterations=2, degree=2, significance=3.0)
     one = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 + noise(xr))], **kwargs)
     assert one.shape[1] == 0.0
-    both = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 + 0.02 * xr * xr + noise(xr))],
-                             **kwargs)
+    both = fit_parallel_rows(
+        [(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 + 0.02 * xr * xr + noise(xr))], **kwargs
+    )
     assert both.shape[1] == pytest.approx(0.02, abs=0.002) and both.offsets == pytest.approx((1.2, -1.2), abs=0.03)
-    opposite = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 - 0.02 * xr * xr + noise(xr))],
-                                 **kwargs)
+    opposite = fit_parallel_rows(
+        [(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 - 0.02 * xr * xr + noise(xr))], **kwargs
+    )
     assert opposite.shape[1] == 0.0
 
 
@@ -246,7 +258,7 @@ def test_the_quadratic_term_is_kept_only_when_significant():
     rng = np.random.default_rng(3)
     x = rng.uniform(0.5, 8, 600)
     straight = 1.0 + rng.normal(0, 0.05, x.shape)
-    bent = 1.0 + x * x / (2 * 35.0) + rng.normal(0, 0.05, x.shape)   # a 35 m bend
+    bent = 1.0 + x * x / (2 * 35.0) + rng.normal(0, 0.05, x.shape)  # a 35 m bend
     kwargs = dict(trim=2.5, iterations=2, degree=2)
     free = fit_parallel_rows([(x, straight)], **kwargs)
     gated = fit_parallel_rows([(x, straight)], significance=1e6, **kwargs)
@@ -306,14 +318,25 @@ def test_unknown_corridor_key_is_refused_at_load():
         load_nav_config(overrides=["corridor.look_ahead=3"])
 
 
-@pytest.mark.parametrize("changes,field", [
-    ({"x_min": 9.0}, "x_min"), ({"h_min": 5.0}, "h_min"), ({"lookahead": 0.0}, "lookahead"),
-    ({"stride": 0}, "stride"), ({"ema_lambda": 1.5}, "ema_lambda"), ({"min_points": 2.5}, "min_points"),
-    ({"trunk_h_min": 2.0}, "trunk_h_min"), ({"trunk_stride": 0}, "trunk_stride"), ({"roof_opening": -1.0}, "roof_opening"),
-    ({"trunks": "yes"}, "trunks"), ({"trunk_max_excess_green": float("nan")}, "trunk_max_excess_green"),
-    ({"roof_opening_reach": 0.1}, "roof_opening_reach"), ({"roof_opening": 6.0}, "roof_opening"),
-    ({"trunk_x_max": 0.4}, "trunk_x_max"),
-])
+@pytest.mark.parametrize(
+    "changes,field",
+    [
+        ({"x_min": 9.0}, "x_min"),
+        ({"h_min": 5.0}, "h_min"),
+        ({"lookahead": 0.0}, "lookahead"),
+        ({"stride": 0}, "stride"),
+        ({"ema_lambda": 1.5}, "ema_lambda"),
+        ({"min_points": 2.5}, "min_points"),
+        ({"trunk_h_min": 2.0}, "trunk_h_min"),
+        ({"trunk_stride": 0}, "trunk_stride"),
+        ({"roof_opening": -1.0}, "roof_opening"),
+        ({"trunks": "yes"}, "trunks"),
+        ({"trunk_max_excess_green": float("nan")}, "trunk_max_excess_green"),
+        ({"roof_opening_reach": 0.1}, "roof_opening_reach"),
+        ({"roof_opening": 6.0}, "roof_opening"),
+        ({"trunk_x_max": 0.4}, "trunk_x_max"),
+    ],
+)
 def test_bad_settings_name_the_field(changes, field):
     with pytest.raises(ValueError, match=field):
         CorridorConfig(depth_threshold=5.0, **changes)
@@ -338,7 +361,7 @@ def test_the_runtime_refuses_segcorridor_without_depth():
 
 
 def test_under_a_roof_with_an_opening_it_steers_exactly_as_segmind():
-    from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+    from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 
     # A pergola: the foliage starts above the robot and closes over the row but for a free band.
     roofed = dataclasses.replace(vine_scene(0.3, 5.0), foliage_low=1.4, canopy_base=2.2, canopy_opening=1.0)
@@ -353,9 +376,20 @@ def test_under_a_roof_with_an_opening_it_steers_exactly_as_segmind():
 
 def orchard_scene(offset: float = 0.0, yaw_deg: float = 0.0, opening: float = 0.0) -> DemoScene:
     """Merged crowns from 1.6 m over a 7 m corridor, trunks every 4 m in both row lines."""
-    return DemoScene("orchard", half_gap=3.5, foliage_low=1.6, foliage_high=4.0, canopy_base=2.5, row_length=30.0,
-                     lateral_offset=offset, yaw=math.radians(yaw_deg), hole_fraction=0.0, depth_threshold=10.0,
-                     trunk_spacing=4.0, canopy_opening=opening)
+    return DemoScene(
+        "orchard",
+        half_gap=3.5,
+        foliage_low=1.6,
+        foliage_high=4.0,
+        canopy_base=2.5,
+        row_length=30.0,
+        lateral_offset=offset,
+        yaw=math.radians(yaw_deg),
+        hole_fraction=0.0,
+        depth_threshold=10.0,
+        trunk_spacing=4.0,
+        canopy_opening=opening,
+    )
 
 
 def orchard_navigator(**changes) -> CorridorNavigator:
@@ -433,4 +467,3 @@ def test_the_row_fit_after_the_trunks_keeps_every_coefficient():
     mask, depth = render_scene(bend, size=SIZE)
     fresh, after = curved.step(mask, depth), nav.step(mask, depth)
     assert fresh.mode == after.mode == "both" and len(after.centre) == len(fresh.centre)
-

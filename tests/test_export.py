@@ -10,7 +10,9 @@ import numpy as np
 import onnx
 import pytest
 import torch
+from export_helpers import SIZE, field_image, write_frames
 
+from segmin.app.cli import main as segmin_main
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper, read_metadata
 from segmin.export.pipeline import ExportOptions, OutputExistsError, export_checkpoint, report_path, variant_path
@@ -23,9 +25,7 @@ from segmin.export.verify import (
     make_session,
     run_session,
 )
-from export_helpers import SIZE, field_image, write_frames
 from segmin.models.checkpoint import load_model
-from segmin.app.cli import main as segmin_main
 
 
 @pytest.fixture(scope="module")
@@ -129,9 +129,7 @@ def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> No
         export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir))
     assert out.read_bytes() == before
     # Through the CLI: exit code 2 and a one-line message, file untouched.
-    code = segmin_main(
-        ["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(frames_dir)]
-    )
+    code = segmin_main(["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(frames_dir)])
     assert code == 2 and out.read_bytes() == before
 
 
@@ -140,8 +138,20 @@ def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, 
     out.write_bytes(b"old")
     variant_path(out, "int8").write_bytes(b"old int8 built from the old file")
     code = segmin_main(
-        ["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(frames_dir),
-         "--exporter", "legacy", "--force", "--verify-frames", "3"]
+        [
+            "export",
+            "--checkpoint",
+            str(checkpoint),
+            "--out",
+            str(out),
+            "--calib-data",
+            str(frames_dir),
+            "--exporter",
+            "legacy",
+            "--force",
+            "--verify-frames",
+            "3",
+        ]
     )
     assert code == 0
     assert "verified on 3 frames" in capsys.readouterr().out
@@ -152,7 +162,7 @@ def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, 
 
 
 def test_failed_verification_leaves_no_file(workdir, checkpoint, frames_dir, monkeypatch) -> None:
-    import segmin.export.pipeline as pipeline
+    from segmin.export import pipeline
 
     def shifted_reference(wrapper):
         def probabilities(frames):
@@ -258,8 +268,23 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     """
     out, _ = exported
     code = segmin_main(
-        ["bench", "export", "--onnx", str(out), "--checkpoint", str(checkpoint), "--size", str(SIZE),
-         "--runs", "8", "--threads", "1", "--no-int8", "--json", str(tmp_path / "bench.json")]
+        [
+            "bench",
+            "export",
+            "--onnx",
+            str(out),
+            "--checkpoint",
+            str(checkpoint),
+            "--size",
+            str(SIZE),
+            "--runs",
+            "8",
+            "--threads",
+            "1",
+            "--no-int8",
+            "--json",
+            str(tmp_path / "bench.json"),
+        ]
     )
     assert code == 0
     printed = capsys.readouterr().out
@@ -306,13 +331,17 @@ def test_conv_flops_counts_grouped_and_strided_convolutions(tmp_path) -> None:
     assert summary["achieved_gflops"] == pytest.approx(100.0) and summary["fraction_of_peak"] == pytest.approx(0.5)
 
 
-@pytest.mark.parametrize("model_info, field", [
-    ([1, 2, 3], "model_info is a list"),
-    ({"architecture": "lraspp_mobilenet_v3_large", "input_size": "64"}, "input_size"),
-    ({"input_size": [64, 64], "threshold": "abc"}, "threshold"),
-])
-def test_a_malformed_model_info_is_refused_naming_the_file(workdir, checkpoint, frames_dir, capsys,
-                                                          model_info, field) -> None:
+@pytest.mark.parametrize(
+    "model_info, field",
+    [
+        ([1, 2, 3], "model_info is a list"),
+        ({"architecture": "lraspp_mobilenet_v3_large", "input_size": "64"}, "input_size"),
+        ({"input_size": [64, 64], "threshold": "abc"}, "threshold"),
+    ],
+)
+def test_a_malformed_model_info_is_refused_naming_the_file(
+    workdir, checkpoint, frames_dir, capsys, model_info, field
+) -> None:
     """Issue 13.10: `model_info` a list crashed export with a traceback."""
     import torch
 

@@ -7,16 +7,17 @@ import math
 import gymnasium
 import numpy as np
 import pytest
-import segmin.nav_eval.gym_env  # noqa: F401  (registers segmin/RowFollow-v0)
 from gymnasium.utils.env_checker import check_env
-from segmin.nav_eval.factories import make_follower
-from segmin.nav_eval.gym_env import RowFollowEnv
-from segmin.nav_eval.navigator import Navigator, NavigatorConfig
-from segmin.nav_eval.oracle import OracleSegmenter
-from segmin.nav_eval.robot import imu_attitude
-from segmin.nav_eval.rollout import run_episode
-from segmin.nav_eval.sim import RowEnv
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
+
+import segmin.nav_eval.sim.gym_env  # noqa: F401  (registers segmin/RowFollow-v0)
+from segmin.nav_eval.evaluation.rollout import run_episode
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.sim.factories import make_follower
+from segmin.nav_eval.sim.gym_env import RowFollowEnv
+from segmin.nav_eval.sim.oracle import OracleSegmenter
+from segmin.nav_eval.sim.robot import imu_attitude
+from segmin.nav_eval.sim.row_env import RowEnv
 
 TINY = ["perception.width=32", "perception.height=32", "run.length_m=1.0", "run.time_limit_s=4"]
 
@@ -41,11 +42,11 @@ def test_reward_is_progress_and_the_end_flags() -> None:
     while not (terminated or truncated):
         _, reward, terminated, truncated, info = env.step(np.array([0.5, 0.0]))
         total += reward
-    assert truncated and not terminated and info["reason"] == "timeout"     # timeout = truncation
-    assert total == pytest.approx(info["s"] - 0.5) and total > 0.2          # started 0.5 m in
+    assert truncated and not terminated and info["reason"] == "timeout"  # timeout = truncation
+    assert total == pytest.approx(info["s"] - 0.5) and total > 0.2  # started 0.5 m in
     env = _fake_env(time_limit_s=10.0)
     env.reset(seed=0, options={"pose": (0.5, 0.0, 0.8)})
-    while True:                                                             # into the vine row
+    while True:  # into the vine row
         _, _, terminated, truncated, info = env.step(np.array([0.5, 0.0]))
         if terminated or truncated:
             break
@@ -107,7 +108,7 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
         assert np.abs(obs["attitude"]).max() > 1e-3
     finally:
         env.close()
-    assert env.unwrapped._context is None                                    # pybullet released
+    assert env.unwrapped._context is None  # pybullet released
 
 
 class _AttitudeSpy(Navigator):
@@ -124,7 +125,7 @@ class _AttitudeSpy(Navigator):
 
 @pytest.mark.parametrize("imu", [True, False])
 def test_the_rollout_gives_the_imu_to_the_navigator_unless_switched_off(imu: bool) -> None:
-    from segmin.nav_eval.runtime import RowFollower
+    from segmin.nav_eval.runtime.follower import RowFollower
 
     env = _fake_env(length_m=0.5)
     env.config.perception.imu = imu
@@ -132,6 +133,6 @@ def test_the_rollout_gives_the_imu_to_the_navigator_unless_switched_off(imu: boo
     run_episode(env, RowFollower(OracleSegmenter(), spy), seed=0)
     assert spy.seen
     if imu:
-        assert all(a == pytest.approx((0.0, 0.0)) for a in spy.seen)   # flat stand-in ground
+        assert all(a == pytest.approx((0.0, 0.0)) for a in spy.seen)  # flat stand-in ground
     else:
         assert all(a is None for a in spy.seen)

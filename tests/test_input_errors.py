@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 from segmin.common.config import ConfigError
 
 
-@pytest.mark.parametrize("override, field", [
-    ("rows.curve_radius=.nan", "rows.curve_radius"),
-    ("rows.length=.inf", "rows.length"),
-    ("rows.spacing=-.inf", "rows.spacing"),
-])
+@pytest.mark.parametrize(
+    "override, field",
+    [
+        ("rows.curve_radius=.nan", "rows.curve_radius"),
+        ("rows.length=.inf", "rows.length"),
+        ("rows.spacing=-.inf", "rows.spacing"),
+    ],
+)
 def test_numeric_config_fields_reject_nan_and_inf_by_name(override, field):
     from segmin.data.synth.spec import load_world_spec
 
@@ -22,7 +24,7 @@ def test_numeric_config_fields_reject_nan_and_inf_by_name(override, field):
 
 
 def test_nan_is_refused_in_every_config_family():
-    from segmin.nav_eval.eval_config import load_nav_config
+    from segmin.nav_eval.sim.config import load_nav_config
     from segmin.train.config import load_train_config
 
     with pytest.raises(ConfigError, match="lr"):
@@ -62,15 +64,20 @@ def test_dataset_image_size_must_be_positive(tmp_path):
 def test_a_metadata_threshold_that_is_not_a_number_is_named():
     from segmin.export import metadata as md
 
-    meta = {md.KEY_FORMAT: md.FORMAT, md.KEY_INPUT_LAYOUT: "NHWC", md.KEY_CHANNEL_ORDER: "RGB",
-            md.KEY_INPUT_SIZE: "64,64", md.KEY_THRESHOLD: "abc"}
+    meta = {
+        md.KEY_FORMAT: md.FORMAT,
+        md.KEY_INPUT_LAYOUT: "NHWC",
+        md.KEY_CHANNEL_ORDER: "RGB",
+        md.KEY_INPUT_SIZE: "64,64",
+        md.KEY_THRESHOLD: "abc",
+    }
     meta = {k: meta.get(k, "x") for k in md.REQUIRED_KEYS} | meta
     with pytest.raises(ValueError, match="model.onnx: metadata .*'abc' is not a number"):
         md.check_metadata(meta, "model.onnx")
 
 
 def test_a_numpy_depth_threshold_is_a_number():
-    from segmin.nav_eval.navigator import Navigator, NavigatorConfig, target_column
+    from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig, target_column
 
     mask = np.zeros((8, 16), bool)
     depth = np.ones((8, 16), np.float32)
@@ -83,5 +90,7 @@ def test_a_numpy_depth_threshold_is_a_number():
 def test_preview_zero_frames_is_refused(tmp_path):
     from segmin.app.cli import main
 
-    assert main(["synth", "preview", "--world", "straight_vineyard", "--frames", "0",
-                 "--out", str(tmp_path / "p.png")]) == 2
+    assert (
+        main(["synth", "preview", "--world", "straight_vineyard", "--frames", "0", "--out", str(tmp_path / "p.png")])
+        == 2
+    )

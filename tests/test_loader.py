@@ -234,7 +234,12 @@ def test_inspect_cli_lists_counts_and_problems(tmp_path, capsys):
     bad.write_bytes(bad.read_bytes()[:50])
     assert main(["data", "inspect", str(tmp_path)]) == 1
     out = capsys.readouterr().out
-    assert "3 problem(s)" in out and "masks/Image2: no" in out and "Image0002.png" in out and "Image0001.png: truncated" in out
+    assert (
+        "3 problem(s)" in out
+        and "masks/Image2: no" in out
+        and "Image0002.png" in out
+        and "Image0001.png: truncated" in out
+    )
 
 
 # ----------------------------------------------------------------------------- splits and families
@@ -264,8 +269,9 @@ def test_split_file_round_trip_and_dataset_use(tmp_path):
     _many(data, "vineyard", 12)
     ds = AgriSegDataset(data, split="val", val_fraction=0.25, seed=7, image_size=32)
     ds.save_split(tmp_path / "split.json")
-    again = AgriSegDataset(data, split="val", val_fraction=0.5, seed=99, image_size=32,
-                           split_file=tmp_path / "split.json")
+    again = AgriSegDataset(
+        data, split="val", val_fraction=0.5, seed=99, image_size=32, split_file=tmp_path / "split.json"
+    )
     assert [f.key for f in again.frames] == [f.key for f in ds.frames] and len(ds) == 3
     frames = find_frames(data)
     save_split(tmp_path / "bad.json", {"train": [], "val": frames[:1]})
@@ -275,15 +281,35 @@ def test_split_file_round_trip_and_dataset_use(tmp_path):
 
 
 def test_families_globs_and_prefixes():
-    available = ["pear", "tree_1", "tree_2", "vineyard", "vineyard_pergola", "lettuce",
-                 "synth_vineyard_a", "synth_vineyard_b", "synth_pear_a", "synth_tree_a", "synth_pergola_a"]
+    available = [
+        "pear",
+        "tree_1",
+        "tree_2",
+        "vineyard",
+        "vineyard_pergola",
+        "lettuce",
+        "synth_vineyard_a",
+        "synth_vineyard_b",
+        "synth_pear_a",
+        "synth_tree_a",
+        "synth_pergola_a",
+    ]
     assert resolve_domains(["trees"], available) == ["tree_1", "tree_2", "pear"]
     assert resolve_domains("vineyards", available) == ["vineyard", "vineyard_pergola"]
-    assert resolve_domains(["synth_vineyards"], available) == ["synth_vineyard_a", "synth_vineyard_b", "synth_pergola_a"]
+    assert resolve_domains(["synth_vineyards"], available) == [
+        "synth_vineyard_a",
+        "synth_vineyard_b",
+        "synth_pergola_a",
+    ]
     assert resolve_domains(["synth_trees"], available) == ["synth_tree_a", "synth_pear_a"]
     assert resolve_domains(["synth_vineyard"], available) == ["synth_vineyard_a", "synth_vineyard_b"]  # prefix
     assert resolve_domains(["synth_*_a", "lettuce"], available) == [
-        "synth_pear_a", "synth_pergola_a", "synth_tree_a", "synth_vineyard_a", "lettuce"]
+        "synth_pear_a",
+        "synth_pergola_a",
+        "synth_tree_a",
+        "synth_vineyard_a",
+        "lettuce",
+    ]
     assert resolve_domains(None, ["b", "a"]) == ["a", "b"]
     with pytest.raises(DatasetError, match="synth_trees"):
         resolve_domains(["synth_trees"], ["vineyard"])
@@ -373,9 +399,11 @@ def test_scanning_and_readers_import_without_torch():
     import subprocess
     import sys
 
-    code = ("import sys; sys.modules['torch'] = None\n"
-            "from segmin.data.agriseg_loader import find_frames, read_image, read_mask, scan, make_splits\n"
-            "import segmin.data.layouts, segmin.data.readers, segmin.data.splits, segmin.data.domains\n")
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "from segmin.data.agriseg_loader import find_frames, read_image, read_mask, scan, make_splits\n"
+        "import segmin.data.layouts, segmin.data.readers, segmin.data.splits, segmin.data.domains\n"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

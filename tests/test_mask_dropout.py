@@ -7,14 +7,14 @@ import types
 import numpy as np
 import pytest
 
-from segmin.nav_eval.eval_config import Perception
-from segmin.nav_eval.mask_dropout import MaskDropout, corrupt, with_dropout
-from segmin.nav_eval.oracle import OracleSegmenter
+from segmin.nav_eval.sim.config import Perception
+from segmin.nav_eval.sim.mask_dropout import MaskDropout, corrupt, with_dropout
+from segmin.nav_eval.sim.oracle import OracleSegmenter
 
 
 def _frame(width: int = 224) -> types.SimpleNamespace:
     mask = np.zeros((64, width), dtype=bool)
-    mask[10:60, 20:60] = True      # a 40 px wide hedge
+    mask[10:60, 20:60] = True  # a 40 px wide hedge
     return types.SimpleNamespace(rgb=None, depth=None, mask=mask)
 
 
@@ -43,10 +43,10 @@ def test_the_corruption_is_seeded() -> None:
 
 def test_erode_shrinks_the_vegetation_and_drop_empties_the_mask() -> None:
     mask = _frame().mask
-    eroded = corrupt(mask, "erode")                 # 1/16 of 224 px: a 15 px kernel, 7 px off each side
+    eroded = corrupt(mask, "erode")  # 1/16 of 224 px: a 15 px kernel, 7 px off each side
     cols = np.flatnonzero(eroded.any(axis=0))
     assert cols[0] == 27 and cols[-1] == 52
-    assert not (eroded & ~mask).any()               # only removes
+    assert not (eroded & ~mask).any()  # only removes
     assert not corrupt(mask, "drop").any()
     assert corrupt(mask, "drop").shape == mask.shape
 

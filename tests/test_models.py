@@ -101,8 +101,7 @@ def test_bad_state_dict_paths(tmp_path):
 def _payload(model: torch.nn.Module) -> dict:
     return {
         "model": model.state_dict(),
-        "model_info": model_info(backbone_weights="none", input_size=(64, 64), family="vineyards",
-                                 train_data="test"),
+        "model_info": model_info(backbone_weights="none", input_size=(64, 64), family="vineyards", train_data="test"),
         "epoch": 3,
         "metrics": {"val_iou": 0.5},
     }

@@ -47,10 +47,13 @@ def test_earlier_results_are_not_overwritten_without_force(tmp_path, capsys):
     assert (out / "results.csv").read_text() == "earlier\n"
 
 
-@pytest.mark.parametrize("setting, message", [
-    ("navigator.v_max=-1", "v_max"),
-    ("navigator.smooth_window=4", "smooth_window"),
-])
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        ("navigator.v_max=-1", "v_max"),
+        ("navigator.smooth_window=4", "smooth_window"),
+    ],
+)
 def test_bad_navigator_settings_fail_before_any_run(tmp_path, capsys, setting, message):
     out = tmp_path / "out"
     assert main(["nav-eval", "--model", "oracle", "--out", str(out), "--set", setting, *FAST]) == 2
@@ -59,8 +62,8 @@ def test_bad_navigator_settings_fail_before_any_run(tmp_path, capsys, setting, m
 
 
 def test_a_non_finite_depth_threshold_is_refused_by_name():
-    from segmin.nav_eval.eval_config import NavEvalConfig
-    from segmin.nav_eval.evaluate import preflight
+    from segmin.nav_eval.evaluation.evaluate import preflight
+    from segmin.nav_eval.sim.config import NavEvalConfig
 
     config = NavEvalConfig()
     config.depth_thresholds["straight_vineyard"] = float("nan")  # past the loader's checks
@@ -69,14 +72,22 @@ def test_a_non_finite_depth_threshold_is_refused_by_name():
 
 
 def _errored(field: str = "straight_vineyard"):
-    from segmin.nav_eval.evaluate import RunResult
+    from segmin.nav_eval.evaluation.evaluate import RunResult
 
-    return RunResult(field=field, method="segmin", run=0, seed=0, model="oracle", success=False,
-                     reason="error", error="RuntimeError: boom\ntraceback ...")
+    return RunResult(
+        field=field,
+        method="segmin",
+        run=0,
+        seed=0,
+        model="oracle",
+        success=False,
+        reason="error",
+        error="RuntimeError: boom\ntraceback ...",
+    )
 
 
 def test_nav_eval_exits_non_zero_when_a_run_raised(tmp_path, capsys, monkeypatch):
-    import segmin.nav_eval.evaluate as evaluate
+    from segmin.nav_eval.evaluation import evaluate
 
     monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: _errored())
     assert main(["nav-eval", "--model", "oracle", "--out", str(tmp_path / "out"), *FAST]) == 1
@@ -86,16 +97,20 @@ def test_nav_eval_exits_non_zero_when_a_run_raised(tmp_path, capsys, monkeypatch
 
 
 def test_the_pipeline_never_caches_a_nav_stage_with_errored_runs(tmp_path, monkeypatch):
-    import segmin.nav_eval.evaluate as evaluate
     from segmin.app.pipeline import stages
     from segmin.app.pipeline.cache import StageCache
     from segmin.app.pipeline.config import load_pipeline_config
     from segmin.app.pipeline.runner import PipelineRunner
+    from segmin.nav_eval.evaluation import evaluate
 
     monkeypatch.setattr(evaluate, "run_evaluation", lambda *a, **k: [_errored()])
     config = load_pipeline_config("micro")
     runner = PipelineRunner(config, tmp_path, log=lambda message: None)
     with pytest.raises(evaluate.RunErrors, match="1 of 1 run"):
-        runner._stage("nav-eval", "nav-eval/oracle", "h",
-                      lambda folder, fresh: stages.nav_stage(config, "oracle", ["straight_vineyard"], folder, print))
+        runner._stage(
+            "nav-eval",
+            "nav-eval/oracle",
+            "h",
+            lambda folder, fresh: stages.nav_stage(config, "oracle", ["straight_vineyard"], folder, print),
+        )
     assert not StageCache(tmp_path).record("nav-eval/oracle").finished

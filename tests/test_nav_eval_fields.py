@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from segmin.data.synth.spec import TEST_FIELDS
-from segmin.nav_eval.eval_config import load_nav_config
-from segmin.nav_eval.evaluate import Job, Worker, run_evaluation, run_seed
-from segmin.nav_eval.factories import FieldContext
-from segmin.nav_eval.oracle import OracleSegmenter
-from segmin.nav_eval.navigator import Command, Navigator, NavigatorConfig
-from segmin.nav_eval.rollout import make_env, run_episode
-from segmin.nav_eval.runtime import RowFollower
+from segmin.nav_eval.evaluation.evaluate import Job, Worker, run_evaluation, run_seed
+from segmin.nav_eval.evaluation.rollout import make_env, run_episode
+from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig
+from segmin.nav_eval.sim.config import load_nav_config
+from segmin.nav_eval.sim.factories import FieldContext
+from segmin.nav_eval.sim.oracle import OracleSegmenter
 
 TINY = ["perception.width=64", "perception.height=64", "run.length_m=2.0", "run.time_limit_s=12"]
 
@@ -53,7 +53,7 @@ def test_run_aimed_into_a_plant_row_is_a_collision(worker) -> None:
     ctx: FieldContext = worker.field("straight_vineyard")
     config = dataclasses.replace(worker.config, run=dataclasses.replace(worker.config.run, length_m=20.0))
     env = make_env(ctx, config)
-    env.row.half_width = math.inf            # the hedge line would end it as "left_row" first
+    env.row.half_width = math.inf  # the hedge line would end it as "left_row" first
     x0, y0 = env.row.centreline[4]
     # Aim at the nearest trunk at least 1.5 m ahead along the row.
     plants = env.row.plants
@@ -70,7 +70,7 @@ def test_run_aimed_into_a_plant_row_is_a_collision(worker) -> None:
 def test_same_seed_same_trajectory_in_a_real_field(worker) -> None:
     config = dataclasses.replace(worker.config, run=dataclasses.replace(worker.config.run, length_m=1.0))
     w = Worker("oracle", config)
-    w._fields = worker._fields           # share the built worlds (same config apart from the run length)
+    w._fields = worker._fields  # share the built worlds (same config apart from the run length)
     a = w.run(Job("curved_vineyard", "segmin", 0, 5))
     b = w.run(Job("curved_vineyard", "segmin", 0, 5))
     assert a.reason == b.reason != "error"
@@ -79,8 +79,9 @@ def test_same_seed_same_trajectory_in_a_real_field(worker) -> None:
 
 def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None:
     config = load_nav_config(overrides=TINY + ["run.length_m=1.0"])
-    results = run_evaluation("oracle", "straight_vineyard", "segmin", 1, tmp_path, 1, config, progress=False,
-                             video=True)
+    results = run_evaluation(
+        "oracle", "straight_vineyard", "segmin", 1, tmp_path, 1, config, progress=False, video=True
+    )
     assert len(results) == 1 and results[0].reason != "error"
     data = json.loads((tmp_path / "results.json").read_text())
     assert data["rows"][0]["seed"] == results[0].seed and data["rows"][0]["config"]["run"]["length_m"] == 1.0
@@ -90,12 +91,13 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
     assert (tmp_path / "straight_vineyard_histograms.png").stat().st_size > 1000
     videos = list((tmp_path / "videos").iterdir())
     assert len(videos) == 1 and videos[0].suffix in (".mp4", ".gif") and videos[0].stat().st_size > 1000
-    assert not list(tmp_path.rglob("*.tmp"))          # atomic writes leave no temporaries
+    assert not list(tmp_path.rglob("*.tmp"))  # atomic writes leave no temporaries
     # An invalid navigator value is refused before the first run (it used to make every run raise).
     bad = load_nav_config(overrides=TINY + ["navigator.smooth_window=4"])
     with pytest.raises(ValueError, match="smooth_window"):
-        run_evaluation("oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad,
-                       progress=False, plots=False)
+        run_evaluation(
+            "oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad, progress=False, plots=False
+        )
     assert not (tmp_path / "bad" / "results.json").exists()
 
 

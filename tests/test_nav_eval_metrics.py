@@ -7,16 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from segmin.nav_eval.metrics import (
-    Trajectory,
-    compute_metrics,
-    heading_average,
-    lateral_mae_mse,
-    mean_std,
-    project_onto_polyline,
-)
-from segmin.nav_eval.robot import Robot, RobotConfig, collides, footprint_distances
-from segmin.nav_eval.sim import point_on_polyline
+from segmin.nav_eval.evaluation.metrics import compute_metrics, heading_average, lateral_mae_mse, mean_std
+from segmin.nav_eval.sim.robot import Robot, RobotConfig, collides, footprint_distances
+from segmin.nav_eval.sim.track import Trajectory, point_on_polyline, project_onto_polyline
 
 
 def _straight(n: int = 81) -> np.ndarray:
@@ -25,7 +18,7 @@ def _straight(n: int = 81) -> np.ndarray:
 
 
 def _arc(radius: float = 8.0, n: int = 400) -> np.ndarray:
-    a = np.linspace(0.0, 20.0 / radius, n)          # 20 m of arc turning left around (0, R)
+    a = np.linspace(0.0, 20.0 / radius, n)  # 20 m of arc turning left around (0, R)
     return np.stack([radius * np.sin(a), radius - radius * np.cos(a)], axis=1)
 
 
@@ -39,13 +32,13 @@ def test_straight_offset_gives_mae_01_mse_001() -> None:
 def test_curved_offset_gives_mae_01_mse_001() -> None:
     radius = 8.0
     a = np.linspace(0.05, 20.0 / radius - 0.05, 500)
-    r = radius - 0.1                                 # 0.1 m to the inside (left) of the arc
+    r = radius - 0.1  # 0.1 m to the inside (left) of the arc
     x, y = r * np.sin(a), radius - r * np.cos(a)
     mae, mse = lateral_mae_mse(x, y, _arc(radius))
     assert mae == pytest.approx(0.1, abs=2e-4)
     assert mse == pytest.approx(0.01, abs=5e-5)
     _, lat, tangent = project_onto_polyline(np.stack([x, y], 1), _arc(radius))
-    assert np.all(lat > 0)                           # inside of a left turn is to the left
+    assert np.all(lat > 0)  # inside of a left turn is to the left
     assert np.allclose(tangent, a, atol=0.01)
     # Heading along the arc tangent: zero heading error.
     assert heading_average(x, y, a, _arc(radius)) == pytest.approx(0.0, abs=0.01)
@@ -53,7 +46,7 @@ def test_curved_offset_gives_mae_01_mse_001() -> None:
 
 def test_projection_arc_length_and_sign() -> None:
     s, lat, tangent = project_onto_polyline(np.array([[3.0, -0.2], [-1.0, 0.5], [25.0, 0.0]]), _straight())
-    assert s == pytest.approx([3.0, -1.0, 25.0])     # extended past both ends
+    assert s == pytest.approx([3.0, -1.0, 25.0])  # extended past both ends
     assert lat == pytest.approx([-0.2, 0.5, 0.0])
     assert tangent == pytest.approx([0.0, 0.0, 0.0])
     x, y, th = point_on_polyline(_arc(), 8.0 * 0.5)
@@ -62,9 +55,15 @@ def test_projection_arc_length_and_sign() -> None:
 
 def test_compute_metrics_row() -> None:
     t = np.arange(0, 10, 0.1)
-    traj = Trajectory(t=t, x=0.5 * t, y=np.full_like(t, -0.1), yaw=np.full_like(t, 0.05),
-                      v=np.full_like(t, 0.5), omega=np.where(np.arange(t.size) % 2, 0.1, -0.1),
-                      plant_distance=np.linspace(1.0, 0.3, t.size))
+    traj = Trajectory(
+        t=t,
+        x=0.5 * t,
+        y=np.full_like(t, -0.1),
+        yaw=np.full_like(t, 0.05),
+        v=np.full_like(t, 0.5),
+        omega=np.where(np.arange(t.size) % 2, 0.1, -0.1),
+        plant_distance=np.linspace(1.0, 0.3, t.size),
+    )
     row = compute_metrics(traj, _straight(), success=True, clearance_time=9.9, collisions=0)
     assert row["mae"] == pytest.approx(0.1) and row["mse"] == pytest.approx(0.01)
     assert row["heading_avg"] == pytest.approx(0.05)
@@ -81,7 +80,7 @@ def test_footprint_distance_and_collision() -> None:
     d = footprint_distances(0.0, 0.0, 0.0, circles, 0.51, 0.43)
     assert d[0] == pytest.approx(1.0 - 0.255 - 0.1)
     assert d[1] == pytest.approx(0.5 - 0.215 - 0.05)
-    assert d[2] < 0                                  # centre inside the footprint
+    assert d[2] < 0  # centre inside the footprint
     assert collides(0.0, 0.0, 0.0, circles, 0.51, 0.43)
     # Turned 90 degrees, the long side faces +y: the second circle gets closer.
     d90 = footprint_distances(0.0, 0.0, math.pi / 2, circles[1:2], 0.51, 0.43)
@@ -95,7 +94,7 @@ def test_robot_respects_acceleration_and_lag() -> None:
     robot.command(0.5, 0.0)
     dt = 1 / 60
     vs = [robot.step(dt).v for _ in range(120)]
-    assert np.all(np.diff(vs) <= 1.0 * dt + 1e-12)   # never faster than the acceleration limit
+    assert np.all(np.diff(vs) <= 1.0 * dt + 1e-12)  # never faster than the acceleration limit
     assert vs[0] < 0.5 and vs[-1] == pytest.approx(0.5, abs=1e-3)
     assert robot.state.x == pytest.approx(sum(vs) * dt, rel=0.02)
     robot.command(0.0, 1.0)
@@ -110,5 +109,5 @@ def test_robot_follows_terrain_slope() -> None:
     robot = Robot(RobotConfig(), terrain_height=lambda x, y: slope * x, terrain_normal=lambda x, y: normal)
     s = robot.reset(1.0, 0.0, 0.0)
     assert s.z == pytest.approx(0.1) and s.pitch == pytest.approx(math.atan(slope)) and s.roll == pytest.approx(0.0)
-    s = robot.reset(1.0, 0.0, math.pi / 2)           # facing +y: the slope rises to the right
+    s = robot.reset(1.0, 0.0, math.pi / 2)  # facing +y: the slope rises to the right
     assert s.pitch == pytest.approx(0.0, abs=1e-9) and s.roll == pytest.approx(-math.atan(slope))

@@ -13,14 +13,14 @@ import math
 import numpy as np
 import pytest
 
-from segmin.nav_eval.eval_config import NavEvalConfig, Perception, Rates, RunSettings
-from segmin.nav_eval.factories import make_follower
-from segmin.nav_eval.gym_env import RowFollowEnv
-from segmin.nav_eval.navigator import Command, Navigator, NavigatorConfig
-from segmin.nav_eval.oracle import OracleSegmenter
-from segmin.nav_eval.rollout import run_episode
-from segmin.nav_eval.runtime import RowFollower
-from segmin.nav_eval.sim import RowEnv
+from segmin.nav_eval.evaluation.rollout import run_episode
+from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig
+from segmin.nav_eval.sim.config import NavEvalConfig, Perception, Rates, RunSettings
+from segmin.nav_eval.sim.factories import make_follower
+from segmin.nav_eval.sim.gym_env import RowFollowEnv
+from segmin.nav_eval.sim.oracle import OracleSegmenter
+from segmin.nav_eval.sim.row_env import RowEnv
 
 
 @dataclasses.dataclass
@@ -129,9 +129,9 @@ def test_frames_render_on_demand_at_the_current_pose() -> None:
     env.reset(seed=0)
     assert renderer.calls == 0
     first = env.frame()
-    assert env.frame() is first and renderer.calls == 1   # cached until the robot moves
+    assert env.frame() is first and renderer.calls == 1  # cached until the robot moves
     ended, info = env.step((0.4, 0.0))
-    assert not ended and env.tick == 2 and info["t"] == pytest.approx(2 / 60)   # one camera period
+    assert not ended and env.tick == 2 and info["t"] == pytest.approx(2 / 60)  # one camera period
     assert env.frame() is not first and renderer.calls == 2
 
 

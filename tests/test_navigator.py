@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from segmin.nav_eval.methods import PAPER_METHODS as METHODS
-from segmin.nav_eval.navigator import (
+from segmin.nav_eval.runtime.methods import PAPER_METHODS as METHODS
+from segmin.nav_eval.runtime.navigator import (
     Navigator,
     NavigatorConfig,
     control_law,
@@ -26,7 +26,7 @@ def two_rows(width: int = W, height: int = H, row_width: int = 16) -> np.ndarray
     """Vegetation on the left and right thirds, free corridor in the middle."""
     mask = np.zeros((height, width), dtype=bool)
     mask[:, :row_width] = True
-    mask[:, width - row_width:] = True
+    mask[:, width - row_width :] = True
     return mask
 
 
@@ -50,8 +50,9 @@ def test_shifting_the_scene_shifts_the_target(method: str, shift: int) -> None:
     mask[: H // 3, 20:44] |= rng.random((H // 3, 24)) < 0.3  # ragged canopy edge
     depth = (1.0 + 3.0 * rng.random((H, W))).astype(np.float32)
     base = target_column(mask, depth, method=method, depth_threshold=5.0)
-    shifted = target_column(np.roll(mask, shift, axis=1), np.roll(depth, shift, axis=1),
-                            method=method, depth_threshold=5.0)
+    shifted = target_column(
+        np.roll(mask, shift, axis=1), np.roll(depth, shift, axis=1), method=method, depth_threshold=5.0
+    )
     assert shifted == pytest.approx(base + shift)
 
 
@@ -109,7 +110,9 @@ def test_invalid_depth_never_counts_as_near() -> None:
     depth[:, 30:35] = np.inf
     depth[:, 35:40] = -1.0
     for method in ("segmin", "segmind"):
-        assert target_column(mask, depth, method=method, depth_threshold=5.0, smooth_window=1) == pytest.approx((W - 1) / 2)
+        assert target_column(mask, depth, method=method, depth_threshold=5.0, smooth_window=1) == pytest.approx(
+            (W - 1) / 2
+        )
 
 
 def test_uint16_millimetres_equal_float_metres() -> None:
@@ -180,7 +183,7 @@ def test_ema_matches_hand_computed_values() -> None:
         expected_v = 0.5 * expected_v + 0.5 * u_v
         expected_omega = 0.5 * expected_omega + 0.5 * u_omega
         assert command.v == pytest.approx(expected_v) and command.omega == pytest.approx(expected_omega)
-    assert command.v == pytest.approx(u_v * (1 - 0.5 ** 4))
+    assert command.v == pytest.approx(u_v * (1 - 0.5**4))
     navigator.reset()
     assert navigator.step(mask, depth_frame()).v == pytest.approx(0.5 * u_v)
 
@@ -236,6 +239,7 @@ def test_target_column_checks_its_arguments() -> None:
 
 # --- properties ------------------------------------------------------------------------------
 
+
 def frames_of_width(w: int) -> st.SearchStrategy:
     return st.tuples(
         arrays(bool, (6, w)),
@@ -267,7 +271,9 @@ def test_mirroring_the_frame_mirrors_the_target(frame, method, window) -> None:
     if method == "segzeros":
         # two equally wide corridors at the same distance from the centre: SegZeros takes the left one
         centre = (w - 1) / 2
-        assert mirrored == pytest.approx(w - 1 - target) or abs(mirrored - centre) == pytest.approx(abs(target - centre))
+        assert mirrored == pytest.approx(w - 1 - target) or abs(mirrored - centre) == pytest.approx(
+            abs(target - centre)
+        )
     else:
         assert mirrored == pytest.approx(w - 1 - target, abs=1e-6)
 
@@ -304,13 +310,16 @@ def test_ema_converges_to_the_constant_command(frame, method, lam) -> None:
     assert command.omega == pytest.approx(omega_target, abs=1e-6)
 
 
-@pytest.mark.parametrize("mask, message", [
-    (np.full((H, W), 0.3, np.float32), "dtype is float32.*threshold it first"),
-    (np.full((H, W), 0.3, np.float64), "probability map"),
-    (np.arange(H * W, dtype=np.int32).reshape(H, W) % 7, "range over 0..6"),
-    (np.where(np.eye(H, W, dtype=bool), 255, 128).astype(np.uint8), "0/255"),
-    (np.full((H, W), -1, np.int16), "range over -1..-1"),
-])
+@pytest.mark.parametrize(
+    "mask, message",
+    [
+        (np.full((H, W), 0.3, np.float32), "dtype is float32.*threshold it first"),
+        (np.full((H, W), 0.3, np.float64), "probability map"),
+        (np.arange(H * W, dtype=np.int32).reshape(H, W) % 7, "range over 0..6"),
+        (np.where(np.eye(H, W, dtype=bool), 255, 128).astype(np.uint8), "0/255"),
+        (np.full((H, W), -1, np.int16), "range over -1..-1"),
+    ],
+)
 def test_a_mask_that_is_not_binary_is_refused_with_the_hint(mask, message) -> None:
     """Issue 13.4: a probability map was taken as a mask (every pixel > 0 counted as vegetation)."""
     with pytest.raises(ValueError, match=message):

@@ -38,14 +38,18 @@ def test_the_helpers_name_the_path_and_the_file(somefile, tmp_path):
     assert not (tmp_path / "new").exists()  # checks create nothing
 
 
-@pytest.mark.parametrize("argv", [
-    ["synth", "preview", "--world", "straight_vineyard", "--out", "{f}/p.png"],
-    ["synth", "render", "--world", "straight_vineyard", "--frames", "1", "--out", "{f}/ds"],
-    ["export", "--checkpoint", "{f}/../missing.pt", "--out", "{f}/m.onnx"],
-    ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--out", "{f}/eval"],
-    ["train", "--config", "quick", "--out", "{f}/run", "data.root=/nonexistent"],
-    ["pipeline", "--config", "micro", "--out", "{f}/run"],
-], ids=["preview", "render", "export", "nav-eval", "train", "pipeline"])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["synth", "preview", "--world", "straight_vineyard", "--out", "{f}/p.png"],
+        ["synth", "render", "--world", "straight_vineyard", "--frames", "1", "--out", "{f}/ds"],
+        ["export", "--checkpoint", "{f}/../missing.pt", "--out", "{f}/m.onnx"],
+        ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--out", "{f}/eval"],
+        ["train", "--config", "quick", "--out", "{f}/run", "data.root=/nonexistent"],
+        ["pipeline", "--config", "micro", "--out", "{f}/run"],
+    ],
+    ids=["preview", "render", "export", "nav-eval", "train", "pipeline"],
+)
 def test_every_command_refuses_an_output_below_a_file_before_working(somefile, argv):
     argv = [a.replace("{f}", str(somefile)) for a in argv]
     with pytest.raises(NotADirectoryError, match=str(somefile)):

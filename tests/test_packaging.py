@@ -15,12 +15,23 @@ from importlib.metadata import requires
 from pathlib import Path
 
 import numpy as np
-
+import pytest
 from export_helpers import SIZE
+
 from segmin.common.extras import EXTRA_OF_MODULE
 
-BLOCKED = ("torch", "torchvision", "pybullet", "matplotlib", "albumentations", "onnx", "onnxscript",
-           "tensorboard", "tqdm", "markdown")
+BLOCKED = (
+    "torch",
+    "torchvision",
+    "pybullet",
+    "matplotlib",
+    "albumentations",
+    "onnx",
+    "onnxscript",
+    "tensorboard",
+    "tqdm",
+    "markdown",
+)
 # Installs a finder that makes the blocked modules unimportable, then runs the given code.
 BLOCKER = """
 import importlib.abc, sys
@@ -39,20 +50,22 @@ def run_lean(code: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180, cwd=cwd)
 
 
-def test_the_robot_runtime_runs_without_torch_pybullet_or_matplotlib(exported: tuple[Path, dict], tmp_path: Path) -> None:
+def test_the_robot_runtime_runs_without_torch_pybullet_or_matplotlib(
+    exported: tuple[Path, dict], tmp_path: Path
+) -> None:
     model = exported[0]
     rgb = np.random.default_rng(0).integers(0, 256, (SIZE + 16, SIZE, 3), dtype=np.uint8)
     np.save(tmp_path / "rgb.npy", rgb)
     code = f"""
 import json, numpy as np
-from segmin.nav_eval.navigator import Navigator, NavigatorConfig
-from segmin.nav_eval.segmenter import OnnxSegmenter
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 segmenter = OnnxSegmenter({str(model)!r}, threads=1)
 mask = segmenter.segment(np.load("rgb.npy"))
 command = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(
     mask, np.full(mask.shape, 3.0, np.float32))
-from segmin.nav_eval.runtime import RowFollower
-from segmin.nav_eval.replay import replay, iter_sequence
+from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.replay.run import replay, iter_sequence
 follower = RowFollower(segmenter, Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
 out = [follower.step(np.load("rgb.npy"), np.full(mask.shape, 3.0, np.float32), i / 30) for i in range(7)]
 assert sum(o.fresh for o in out) == 2 and np.isfinite(out[-1].command.v)
@@ -108,7 +121,9 @@ def test_every_shipped_data_folder_is_packaged() -> None:
     setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
     for base, package in (("configs", "segmin.configs"), ("data/real", "segmin.data.real")):
         for folder in sorted((root / base).rglob("*")):
-            if not folder.is_dir() or not any(f.is_file() and f.suffix in (".yaml", ".png", ".md") for f in folder.iterdir()):
+            if not folder.is_dir() or not any(
+                f.is_file() and f.suffix in (".yaml", ".png", ".md") for f in folder.iterdir()
+            ):
                 continue
             name = ".".join([package, *folder.relative_to(root / base).parts])
             assert name in setup["packages"], f"{folder} is not in [tool.setuptools] packages"
@@ -116,3 +131,26 @@ def test_every_shipped_data_folder_is_packaged() -> None:
             for f in folder.iterdir():
                 if f.is_file() and f.suffix in (".yaml", ".png", ".md"):
                     assert any(f.match(p) for p in patterns), f"{f} matches no package-data pattern of {name}"
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ("segmin.nav_eval.navigator", "segmin.nav_eval.runtime.navigator"),
+        ("segmin.nav_eval.segmenter", "segmin.nav_eval.runtime.segmenter"),
+        ("segmin.nav_eval.corridor", "segmin.nav_eval.runtime.corridor"),
+    ],
+)
+def test_a_moved_module_still_imports_for_one_release_with_a_warning(old: str, new: str) -> None:
+    code = (
+        "import importlib, warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        f"    old = importlib.import_module({old!r})\n"
+        f"new = importlib.import_module({new!r})\n"
+        "names = [n for n in dir(new) if not n.startswith('_')]\n"
+        "assert names and all(getattr(old, n) is getattr(new, n) for n in names), names\n"
+        "print([str(w.message) for w in caught if w.category is DeprecationWarning])\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert f"{old} moved to {new}" in result.stdout

@@ -8,14 +8,25 @@ from pathlib import Path
 import pytest
 
 from segmin.app.cli import main
-from segmin.common.config import ConfigError
 from segmin.app.pipeline.cache import StageCache
 from segmin.app.pipeline.config import load_pipeline_config
 from segmin.app.pipeline.runner import PipelineRunner
+from segmin.common.config import ConfigError
 
 FIELDS = ("straight_vineyard", "curved_vineyard", "pergola_vineyard", "pear_field", "high_trees")
-STAGE_KEYS = ("render", "train/trees", "train/vineyards", "export/trees", "export/vineyards",
-              "real-eval/trees", "real-eval/vineyards", "nav-eval/trees", "nav-eval/vineyards", "nav-eval/oracle", "report")
+STAGE_KEYS = (
+    "render",
+    "train/trees",
+    "train/vineyards",
+    "export/trees",
+    "export/vineyards",
+    "real-eval/trees",
+    "real-eval/vineyards",
+    "nav-eval/trees",
+    "nav-eval/vineyards",
+    "nav-eval/oracle",
+    "report",
+)
 
 
 def micro_config():
@@ -38,26 +49,46 @@ def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureF
     report = (run_dir / "report.md").read_text()
     for field in FIELDS:
         assert f"| {field} | segmind |" in report
-        for folder in ("nav-eval/oracle", "nav-eval/trees" if field in ("pear_field", "high_trees") else "nav-eval/vineyards"):
+        for folder in (
+            "nav-eval/oracle",
+            "nav-eval/trees" if field in ("pear_field", "high_trees") else "nav-eval/vineyards",
+        ):
             assert (run_dir / folder / f"{field}_trajectories.png").stat().st_size > 1000
             assert (run_dir / folder / f"{field}_histograms.png").stat().st_size > 1000
-    for artefact in ("render/contact_sheet.png", "report/training_curves.png", "export/trees/trees.onnx",
-                     "export/vineyards/vineyards.onnx", "train/trees/best.pt", "train/vineyards/metrics.csv",
-                     *[f"real-eval/{family}/{name}" for family in ("trees", "vineyards")
-                       for name in ("results.csv", "results.json", "contact_sheet.png")]):
+    for artefact in (
+        "render/contact_sheet.png",
+        "report/training_curves.png",
+        "export/trees/trees.onnx",
+        "export/vineyards/vineyards.onnx",
+        "train/trees/best.pt",
+        "train/vineyards/metrics.csv",
+        *[
+            f"real-eval/{family}/{name}"
+            for family in ("trees", "vineyards")
+            for name in ("results.csv", "results.json", "contact_sheet.png")
+        ],
+    ):
         assert (run_dir / artefact).stat().st_size > 0, artefact
-    for section in ("## 1. Data", "## 2. Training", "## 3. Export", "## 4. Real photos", "## 5. Closed loop",
-                    "oracle segmenter", "Comparison with the paper", "## 6. Figures"):
+    for section in (
+        "## 1. Data",
+        "## 2. Training",
+        "## 3. Export",
+        "## 4. Real photos",
+        "## 5. Closed loop",
+        "oracle segmenter",
+        "Comparison with the paper",
+        "## 6. Figures",
+    ):
         assert section in report
     # The real-photo figures beside the synthetic ones, per family, and the cross-crop caveat.
-    real = report[report.index("## 4. Real photos"):report.index("## 5. Closed loop")]
+    real = report[report.index("## 4. Real photos") : report.index("## 5. Closed loop")]
     assert "| family | synthetic val IoU | real mean IoU |" in real and "cross-crop" in real and "CC BY 4.0" in real
     for family in ("trees", "vineyards"):
         assert f"| {family} | " in real and f"real-eval/{family}/contact_sheet.png" in real
         results = json.loads((run_dir / "real-eval" / family / "results.json").read_text())
         assert len(results["rows"]) == 8 and results["kind"] == "onnx"
     # micro's vineyards family averages its weights (swa.pt) and exports that; the trees family best.pt
-    training = report[report.index("## 2. Training"):report.index("## 3. Export")]
+    training = report[report.index("## 2. Training") : report.index("## 3. Export")]
     assert "| exported | its val IoU |" in training
     for family, kept in (("trees", "best"), ("vineyards", "swa")):
         outputs = StageCache(run_dir).record(f"train/{family}").outputs
@@ -136,7 +167,9 @@ def test_profiles_are_validated() -> None:
         load_pipeline_config("micro", ["real_eval.dat=x"])
 
 
-@pytest.mark.parametrize("profile", sorted(p.stem for p in (Path(__file__).parents[1] / "configs" / "pipeline").glob("*.yaml")))
+@pytest.mark.parametrize(
+    "profile", sorted(p.stem for p in (Path(__file__).parents[1] / "configs" / "pipeline").glob("*.yaml"))
+)
 def test_every_shipped_profile_builds_its_training_configs(profile: str, tmp_path: Path) -> None:
     """A family's train_overrides are applied only when its training starts: a typo there would
     surface hours into a run, so each shipped profile's training configs are built here."""
@@ -160,23 +193,29 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
     assert not (tmp_path / "run" / "render").exists()  # refused before any stage ran
 
 
-@pytest.mark.parametrize("override, message", [
-    ("export.exporter=foo", "export.exporter"),
-    ("nav.methods=[segmax]", "nav.methods"),
-    ("nav.oracle_methods=[segmax]", "nav.oracle_methods: unknown"),
-    ("nav.oracle_methods=[]", "nav.oracle_methods: name at least one method"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("export.exporter=foo", "export.exporter"),
+        ("nav.methods=[segmax]", "nav.methods"),
+        ("nav.oracle_methods=[segmax]", "nav.oracle_methods: unknown"),
+        ("nav.oracle_methods=[]", "nav.oracle_methods: name at least one method"),
+    ],
+)
 def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:
     """Issue 13.12: these failed only when their stage ran, after render and training."""
     with pytest.raises(ConfigError, match=message):
         load_pipeline_config("micro", [override])
 
 
-@pytest.mark.parametrize("override, message", [
-    ("nav.overrides=[run.lenght_m=3]", "lenght_m"),
-    ("families.trees.train_overrides=[epochz=1]", "families.trees: .*epochz"),
-    ("families.trees.fields=[no_such_field]", "no_such_field"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("nav.overrides=[run.lenght_m=3]", "lenght_m"),
+        ("families.trees.train_overrides=[epochz=1]", "families.trees: .*epochz"),
+        ("families.trees.fields=[no_such_field]", "no_such_field"),
+    ],
+)
 def test_nested_configs_are_checked_before_the_first_stage(tmp_path, override, message) -> None:
     runner = PipelineRunner(load_pipeline_config("micro", [override]), tmp_path, log=lambda m: None)
     with pytest.raises(ValueError, match=message):
@@ -203,7 +242,9 @@ def test_a_family_can_render_its_own_number_of_frames_per_world(tmp_path: Path) 
     assert [frames("train", d) for d in trees["train"]] == [3]
     assert [frames("train", d) for d in vineyards["train"]] == [config.render.frames_per_world]
     assert [frames("val", d) for d in trees["val"]] == [config.render.val_frames_per_world]
-    assert hash_inputs("render", *stages.render_inputs(config)) != hash_inputs("render", *stages.render_inputs(micro_config()))
+    assert hash_inputs("render", *stages.render_inputs(config)) != hash_inputs(
+        "render", *stages.render_inputs(micro_config())
+    )
 
 
 def test_families_train_side_by_side_with_a_thread_each(run_dir: Path) -> None:
@@ -235,7 +276,9 @@ def test_a_failing_family_keeps_the_family_that_trained(run_dir: Path, tmp_path:
     assert not runner.cache.record("train/bad").finished
 
 
-def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(tmp_path: Path, sigint_delivered: None) -> None:
+def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(
+    tmp_path: Path, sigint_delivered: None
+) -> None:
     """The trainings run in process groups of their own: a Ctrl-C to the pipeline reaches them
     through it, once; each finishes its step, saves last.pt and stops, and the stages stay
     unfinished (a rerun resumes them). No training process outlives the pipeline."""
@@ -253,9 +296,22 @@ def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(tmp_pa
     profile["render"]["frames_per_world"] = 24
     (tmp_path / "long.yaml").write_text(yaml.safe_dump(profile))
     out = tmp_path / "run"
-    process = subprocess.Popen([sys.executable, "-m", "segmin.app.cli", "pipeline", "--config", str(tmp_path / "long.yaml"),
-                                "--out", str(out), "export.exporter=legacy"],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "segmin.app.cli",
+            "pipeline",
+            "--config",
+            str(tmp_path / "long.yaml"),
+            "--out",
+            str(out),
+            "export.exporter=legacy",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
     metrics = [out / "train" / family / "metrics.csv" for family in ("trees", "vineyards")]
     deadline = time.monotonic() + 240
     while not all(len(read_rows(m)) >= 1 for m in metrics):

@@ -15,7 +15,7 @@ def _write_png(path: Path, truncate: bool = False) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     ok, data = cv2.imencode(".png", np.full((8, 8, 3), 90, np.uint8))
     assert ok
-    path.write_bytes(data.tobytes()[: 40] if truncate else data.tobytes())
+    path.write_bytes(data.tobytes()[:40] if truncate else data.tobytes())
     return path
 
 

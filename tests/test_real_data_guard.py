@@ -25,8 +25,10 @@ REAL = shipped_real_data()
 def train_sources(config) -> tuple[dict[str, object], dict[str, object]]:
     """(paths, names) a training config reads frames from."""
     data = config.data
-    return ({"data.root": data.root, "data.val_root": data.val_root, "data.split_file": data.split_file},
-            {"data.domains": data.domains, "data.val_domains": data.val_domains})
+    return (
+        {"data.root": data.root, "data.val_root": data.val_root, "data.split_file": data.split_file},
+        {"data.domains": data.domains, "data.val_domains": data.val_domains},
+    )
 
 
 @pytest.mark.parametrize("name", shipped_names("train"))
@@ -45,7 +47,10 @@ def test_no_shipped_pipeline_profile_trains_on_real_photos(profile: str, tmp_pat
     real = config.real_eval.resolved_data()
     assert real.resolve() == REAL.resolve() or config.real_eval.data is not None
     for family, plan in config.families.items():
-        domains = {"train": [f"synth_{w}" for w in plan.train_worlds], "val": [f"synth_val_{w}" for w in plan.val_worlds]}
+        domains = {
+            "train": [f"synth_{w}" for w in plan.train_worlds],
+            "val": [f"synth_val_{w}" for w in plan.val_worlds],
+        }
         train_config = train_config_for(config, family, plan, tmp_path / "render", domains, "none")
         paths, names = train_sources(train_config)
         check_not_real_data(f"{profile}/{family}", paths=paths, names=names, extra=[real])
@@ -56,12 +61,15 @@ def test_no_shipped_pipeline_profile_trains_on_real_photos(profile: str, tmp_pat
 # ----------------------------------------------------------------------------- the guard can fail
 
 
-@pytest.mark.parametrize("override", [
-    "data.root=data/real/vineyard_rows",
-    f"data.val_root={REAL}",
-    f"data.root={real_data_root().parent}",  # a parent folder: the loader would scan the photos
-    "data.domains=[vineyard_rows]",
-])
+@pytest.mark.parametrize(
+    "override",
+    [
+        "data.root=data/real/vineyard_rows",
+        f"data.val_root={REAL}",
+        f"data.root={real_data_root().parent}",  # a parent folder: the loader would scan the photos
+        "data.domains=[vineyard_rows]",
+    ],
+)
 def test_a_training_config_on_real_photos_is_refused(override: str) -> None:
     with pytest.raises(ConfigError, match="real test photos"):
         load_train_config("quick", [override])
@@ -69,17 +77,21 @@ def test_a_training_config_on_real_photos_is_refused(override: str) -> None:
 
 def test_the_checker_names_the_field() -> None:
     with pytest.raises(ConfigError, match=r"bad\.yaml: data\.val_root=.*real test photos"):
-        check_not_real_data("bad.yaml", paths={"data.root": "data/synth_frames/train",
-                                               "data.val_root": "../x/data/real/vineyard_rows"})
+        check_not_real_data(
+            "bad.yaml", paths={"data.root": "data/synth_frames/train", "data.val_root": "../x/data/real/vineyard_rows"}
+        )
     check_not_real_data("fine.yaml", paths={"data.root": "data/synth_frames/train"}, names={"d": ["vineyards"]})
     assert not points_to_real_data("data", is_path=False)  # a domain called "data" is not a folder
 
 
-@pytest.mark.parametrize("overrides", [
-    ["families.vineyards.train_overrides=[data.root=data/real/vineyard_rows]"],
-    ["families.trees.train_worlds=[vineyard_rows]"],
-    ["families.trees.val_worlds=[data/real/vineyard_rows/world.yaml]"],
-])
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["families.vineyards.train_overrides=[data.root=data/real/vineyard_rows]"],
+        ["families.trees.train_worlds=[vineyard_rows]"],
+        ["families.trees.val_worlds=[data/real/vineyard_rows/world.yaml]"],
+    ],
+)
 def test_a_pipeline_profile_on_real_photos_is_refused(overrides: list[str]) -> None:
     with pytest.raises(ConfigError, match="real test photos"):
         load_pipeline_config("micro", overrides)
@@ -88,8 +100,9 @@ def test_a_pipeline_profile_on_real_photos_is_refused(overrides: list[str]) -> N
 def test_a_custom_real_set_is_guarded_too(tmp_path: Path) -> None:
     photos = tmp_path / "my_real"
     with pytest.raises(ConfigError, match=r"data\.val_root=.*real test photos"):
-        load_pipeline_config("micro", [f"real_eval.data={photos}",
-                                       f"families.trees.train_overrides=[data.val_root={photos}]"])
+        load_pipeline_config(
+            "micro", [f"real_eval.data={photos}", f"families.trees.train_overrides=[data.val_root={photos}]"]
+        )
     # The guard also runs on the assembled config (a render folder inside the real set).
     config: PipelineConfig = load_pipeline_config("micro", [f"real_eval.data={photos}"])
     plan = config.families["trees"]

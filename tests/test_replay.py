@@ -11,16 +11,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from segmin.nav_eval.navigator import Navigator, NavigatorConfig
-from segmin.nav_eval.replay import read_commands_csv, replay
-from segmin.nav_eval.runtime import RowFollower
-from segmin.nav_eval.segmenter import OnnxSegmenter
-from segmin.nav_eval.sim import RowEnv
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 
 from segmin.app.cli import main
+from segmin.nav_eval.replay.run import read_commands_csv, replay
+from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+from segmin.nav_eval.sim.row_env import RowEnv
 
-FRAMES = 24   # 0.8 s at 30 Hz: 4 commands at 5 Hz
+FRAMES = 24  # 0.8 s at 30 Hz: 4 commands at 5 Hz
 
 
 @pytest.fixture(scope="module")
@@ -50,15 +50,33 @@ def model(exported: tuple[Path, dict]) -> Path:
 
 def test_replay_writes_all_outputs_and_the_commands_of_the_runtime(sequence, model, tmp_path) -> None:
     rgb_dir, depth_dir, frames = sequence
-    code = main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--depth", str(depth_dir), "--fps", "30",
-                 "--method", "segmind", "--depth-threshold", "5", "--out", str(tmp_path / "out")])
+    code = main(
+        [
+            "replay",
+            "--model",
+            str(model),
+            "--rgb",
+            str(rgb_dir),
+            "--depth",
+            str(depth_dir),
+            "--fps",
+            "30",
+            "--method",
+            "segmind",
+            "--depth-threshold",
+            "5",
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
     assert code == 0
     out = tmp_path / "out"
     assert (out / "commands.csv").is_file() and (out / "commands.png").is_file()
     assert (out / "overlay.mp4").is_file() or (out / "overlay.gif").is_file()
     rows = read_commands_csv(out / "commands.csv")
-    follower = RowFollower(OnnxSegmenter(model, threads=2),
-                           Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
+    follower = RowFollower(
+        OnnxSegmenter(model, threads=2), Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
+    )
     expected = []
     for i, (rgb, depth) in enumerate(frames):
         o = follower.step(rgb, depth, i / 30)
@@ -66,17 +84,71 @@ def test_replay_writes_all_outputs_and_the_commands_of_the_runtime(sequence, mod
             expected.append((i / 30, o.command.v, o.command.omega, o.command.target_column, o.command.valid))
     assert len(rows) == 4 and rows == expected
     # Without --force a second replay into the same folder is refused.
-    assert main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin",
-                 "--depth-threshold", "5", "--out", str(out)]) == 2
+    assert (
+        main(
+            [
+                "replay",
+                "--model",
+                str(model),
+                "--rgb",
+                str(rgb_dir),
+                "--fps",
+                "30",
+                "--method",
+                "segmin",
+                "--depth-threshold",
+                "5",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
 
 
 def test_without_depth_segmin_runs_on_the_mask_and_segmind_is_refused(sequence, model, tmp_path, capsys) -> None:
     rgb_dir, _, _ = sequence
-    assert main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin",
-                 "--depth-threshold", "5", "--out", str(tmp_path / "a")]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                "--model",
+                str(model),
+                "--rgb",
+                str(rgb_dir),
+                "--fps",
+                "30",
+                "--method",
+                "segmin",
+                "--depth-threshold",
+                "5",
+                "--out",
+                str(tmp_path / "a"),
+            ]
+        )
+        == 0
+    )
     assert "ran on the mask alone" in capsys.readouterr().out
-    assert main(["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmind",
-                 "--depth-threshold", "5", "--out", str(tmp_path / "b")]) == 2
+    assert (
+        main(
+            [
+                "replay",
+                "--model",
+                str(model),
+                "--rgb",
+                str(rgb_dir),
+                "--fps",
+                "30",
+                "--method",
+                "segmind",
+                "--depth-threshold",
+                "5",
+                "--out",
+                str(tmp_path / "b"),
+            ]
+        )
+        == 2
+    )
     assert "segmind needs --depth" in capsys.readouterr().err
 
 
@@ -93,8 +165,15 @@ def _copy(sequence, tmp_path: Path) -> tuple[Path, Path]:
 
 
 def _run(model, rgb, depth=None, **kw):
-    return replay(model, rgb, kw.pop("out"), method=kw.pop("method", "segmind" if depth else "segmin"),
-                  depth_threshold=5.0, depth=depth, **kw)
+    return replay(
+        model,
+        rgb,
+        kw.pop("out"),
+        method=kw.pop("method", "segmind" if depth else "segmin"),
+        depth_threshold=5.0,
+        depth=depth,
+        **kw,
+    )
 
 
 def test_bad_inputs_are_one_line_errors_naming_the_frame(sequence, model, tmp_path) -> None:
@@ -102,7 +181,9 @@ def test_bad_inputs_are_one_line_errors_naming_the_frame(sequence, model, tmp_pa
     out = tmp_path / "out"
     stamps = tmp_path / "t.txt"
     stamps.write_text("\n".join(str(i / 30) for i in range(FRAMES)).replace("0.1\n", "0.01\n", 1))
-    stamps.write_text("\n".join(str(t) for t in [i / 30 for i in range(5)] + [0.1] + [i / 30 for i in range(6, FRAMES)]))
+    stamps.write_text(
+        "\n".join(str(t) for t in [i / 30 for i in range(5)] + [0.1] + [i / 30 for i in range(6, FRAMES)])
+    )
     with pytest.raises(ValueError, match=r"frame 0005.png: .*not after the previous frame"):
         _run(model, rgb, depth, timestamps=stamps, out=out)
     stamps.write_text("0.0\n0.1\n")
@@ -111,7 +192,8 @@ def test_bad_inputs_are_one_line_errors_naming_the_frame(sequence, model, tmp_pa
     with pytest.raises(ValueError, match="needs --fps or --timestamps"):
         _run(model, rgb, depth, out=out)
     with pytest.raises(ValueError, match="multiple of command_hz"):
-        from segmin.nav_eval.runtime import RuntimeConfig
+        from segmin.nav_eval.runtime.follower import RuntimeConfig
+
         _run(model, rgb, depth, fps=30, out=out, runtime=RuntimeConfig(segment_hz=20, command_hz=3))
     with pytest.raises(ValueError, match="oracle"):
         replay("oracle", rgb, out, method="segmin", depth_threshold=5.0, fps=30)
@@ -132,7 +214,7 @@ def test_bad_inputs_are_one_line_errors_naming_the_frame(sequence, model, tmp_pa
     video.write_bytes(b"no video here")
     with pytest.raises(ValueError, match="OpenCV cannot open"):
         _run(model, video, None, out=out)
-    assert not out.exists()                                  # nothing written by a refused replay
+    assert not out.exists()  # nothing written by a refused replay
 
 
 def test_non_finite_npy_depth_is_no_reading_and_counted(sequence, model, tmp_path) -> None:

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from segmin.nav_eval.navigator import Navigator, NavigatorConfig
-from segmin.nav_eval.runtime import RowFollower, RuntimeConfig
+
+from segmin.nav_eval.runtime.follower import RowFollower, RuntimeConfig
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 
 H, W = 8, 64
 
@@ -50,8 +51,8 @@ def _drive(follower: RowFollower, frames: int, hz: float = 30.0, start: int = 0)
 def test_30_hz_frames_give_20_hz_masks_and_5_hz_commands_fusing_the_last_3() -> None:
     # With a window of 4 every 20 Hz deadline feeds a command, so all of them are segmented.
     follower, segmenter = _follower(fuse=4)
-    outputs = _drive(follower, 61)                        # 2 s of frames at 30 Hz
-    assert len(segmenter.calls) == 41                     # deadlines 0, 0.05, ..., 2.0 s
+    outputs = _drive(follower, 61)  # 2 s of frames at 30 Hz
+    assert len(segmenter.calls) == 41  # deadlines 0, 0.05, ..., 2.0 s
     fresh = [o for o in outputs if o.fresh]
     assert [round(o.command_t, 6) for o in fresh] == [round(k / 5, 6) for k in range(11)]
     # Deadline s_k is served by the latest frame at or before it: frame floor(30 s_k).
@@ -78,7 +79,10 @@ def test_the_runtime_matches_navigator_step_on_the_same_masks() -> None:
     for out in (o for o in outputs if o.fresh):
         expected = reference.step(out.fused, DEPTH)
         assert (out.command.v, out.command.omega, out.command.target_column) == (
-            expected.v, expected.omega, expected.target_column)
+            expected.v,
+            expected.omega,
+            expected.target_column,
+        )
 
 
 def test_a_gap_in_frames_stops_the_robot_and_restarts_the_runtime() -> None:
@@ -86,7 +90,7 @@ def test_a_gap_in_frames_stops_the_robot_and_restarts_the_runtime() -> None:
     outputs = _drive(follower, 30)
     last_t = outputs[-1].t
     assert follower.command_at(last_t + 0.1).v == outputs[-1].command.v > 0
-    stop = follower.command_at(last_t + 0.6)              # frame_timeout_s = 0.5 by default
+    stop = follower.command_at(last_t + 0.6)  # frame_timeout_s = 0.5 by default
     assert (stop.v, stop.omega, stop.valid) == (0.0, 0.0, False)
     after = follower.step(_rgb(40), DEPTH, last_t + 1.0)
     assert after.stopped == "frame_timeout" and after.fresh
@@ -101,7 +105,7 @@ def test_stale_masks_are_not_fused() -> None:
     follower.step(_rgb(0), DEPTH, 0.0)
     out = follower.step(_rgb(1), DEPTH, 0.5)
     assert out.stopped == "stale_masks" and not out.command.valid and out.command_t == pytest.approx(0.4)
-    again = follower.step(_rgb(2), DEPTH, 0.6)            # fresh masks again (0.5 s and 0.6 s)
+    again = follower.step(_rgb(2), DEPTH, 0.6)  # fresh masks again (0.5 s and 0.6 s)
     assert again.fresh and again.command.valid
 
 

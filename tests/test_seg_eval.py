@@ -9,24 +9,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from export_helpers import field_image
+
 from segmin.app.cli import main
 from segmin.data.agriseg_loader import find_frames
-from segmin.export.seg_eval import (
+from segmin.data.real_sets import shipped_real_data
+from segmin.nav_eval.seg_eval.score import (
     PixelCounts,
     Predictor,
     confusion,
     evaluate,
     write_results,
 )
-from segmin.data.real_sets import shipped_real_data
 
 CROP = (0, 255, 0)
 
 
-def write_set(folder: Path, count: int = 3, size: tuple[int, int] = (48, 64), empty_last: bool = False,
-              toy: bool = False) -> Path:
+def write_set(
+    folder: Path, count: int = 3, size: tuple[int, int] = (48, 64), empty_last: bool = False, toy: bool = False
+) -> Path:
     """A flat images/ + masks/ set; crop pixels are pure green so a fake model can read them off."""
     rng = np.random.default_rng(3)
     (folder / "images").mkdir(parents=True, exist_ok=True)
@@ -149,11 +150,28 @@ def test_eval_seg_on_a_tiny_export_and_its_checkpoint(tmp_path: Path, exported, 
 
     assert main(["eval-seg", "--model", str(onnx_path), "--data", str(data), "--out", str(tmp_path / "onnx")]) == 2
     assert "use --force" in one_error_line(capsys)
-    assert main(["eval-seg", "--model", str(onnx_path), "--data", str(data), "--out", str(tmp_path / "onnx"),
-                 "--force", "--threshold", "0.3"]) == 0
+    assert (
+        main(
+            [
+                "eval-seg",
+                "--model",
+                str(onnx_path),
+                "--data",
+                str(data),
+                "--out",
+                str(tmp_path / "onnx"),
+                "--force",
+                "--threshold",
+                "0.3",
+            ]
+        )
+        == 0
+    )
     assert json.loads((tmp_path / "onnx" / "results.json").read_text())["threshold"] == 0.3
-    assert main(["eval-seg", "--model", str(onnx_path), "--data", str(data), "--out", str(tmp_path / "x"),
-                 "--size", "96"]) == 2
+    assert (
+        main(["eval-seg", "--model", str(onnx_path), "--data", str(data), "--out", str(tmp_path / "x"), "--size", "96"])
+        == 2
+    )
     assert "fixed 64x64 input" in one_error_line(capsys)
 
 
@@ -187,13 +205,17 @@ def test_bad_models_fail_with_one_line(tmp_path: Path, capsys) -> None:
     text.write_text("hello")
     fake_checkpoint = tmp_path / "fake.pt"
     fake_checkpoint.write_bytes(b"not a checkpoint")
-    for model, message in ((tmp_path / "missing.onnx", "model file not found"),
-                           (garbage, "not a loadable ONNX model"),
-                           (text, "unknown model type '.txt'"),
-                           (fake_checkpoint, "not a readable segmin checkpoint")):
+    for model, message in (
+        (tmp_path / "missing.onnx", "model file not found"),
+        (garbage, "not a loadable ONNX model"),
+        (text, "unknown model type '.txt'"),
+        (fake_checkpoint, "not a readable segmin checkpoint"),
+    ):
         assert main(["eval-seg", "--model", str(model), "--data", str(data), "--out", str(tmp_path / "out")]) == 2
         err = one_error_line(capsys)
         assert message in err and str(model) in err
-    assert main(["eval-seg", "--model", str(garbage), "--data", str(tmp_path / "nowhere"),
-                 "--out", str(tmp_path / "out")]) == 2
+    assert (
+        main(["eval-seg", "--model", str(garbage), "--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "out")])
+        == 2
+    )
     assert "evaluation data folder not found" in one_error_line(capsys)

@@ -8,12 +8,12 @@ import numpy as np
 import onnx
 import pytest
 import torch
+from export_helpers import SIZE, field_image
 
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper
-from export_helpers import SIZE, field_image
 from segmin.models.checkpoint import load_model
-from segmin.nav_eval.segmenter import OnnxSegmenter, Segmenter
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter, Segmenter
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +130,7 @@ def test_fp16_and_int8_files_load_in_the_segmenter(model_path) -> None:
 
 
 def test_full_perception_control_step(model_path) -> None:
-    from segmin.nav_eval.navigator import Navigator, NavigatorConfig
+    from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 
     segmenter = OnnxSegmenter(model_path)
     navigator = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
@@ -145,7 +145,7 @@ def test_background_segmentation_gives_the_masks_of_segment(model_path) -> None:
     """The closed loop segments on a helper thread (prepare here, onnxruntime there): same masks."""
     from types import SimpleNamespace
 
-    from segmin.nav_eval.sim import BackgroundSegmenter
+    from segmin.nav_eval.sim.row_env import BackgroundSegmenter
 
     segmenter = OnnxSegmenter(model_path, threads=1)
     frames = [_frame(SIZE + 8 * k, SIZE, seed=20 + k) for k in range(4)]

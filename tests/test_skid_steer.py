@@ -10,13 +10,21 @@ import numpy as np
 import pytest
 
 from segmin.common.config import ConfigError
-from segmin.nav_eval.eval_config import load_nav_config
-from segmin.nav_eval.robot import Robot, RobotConfig, SkidSteerConfig
-from segmin.nav_eval.skid_steer import SkidSteerRobot, make_robot
+from segmin.nav_eval.sim.config import load_nav_config
+from segmin.nav_eval.sim.robot import Robot, RobotConfig, SkidSteerConfig
+from segmin.nav_eval.sim.skid_steer import SkidSteerRobot, make_robot
 
 DT = 1.0 / 60.0
-NO_SLIP = SkidSteerConfig(icr_expansion_per_roughness=0.0, icr_x=0.0, longitudinal_slip=0.0, slip_per_roughness=0.0,
-                          slip_per_slope=0.0, cross_slope_drift=0.0, latency_ticks=0, noise_std=0.0)
+NO_SLIP = SkidSteerConfig(
+    icr_expansion_per_roughness=0.0,
+    icr_x=0.0,
+    longitudinal_slip=0.0,
+    slip_per_roughness=0.0,
+    slip_per_slope=0.0,
+    cross_slope_drift=0.0,
+    latency_ticks=0,
+    noise_std=0.0,
+)
 
 
 def _skid(roughness: float = 0.0, normal=(0.0, 0.0, 1.0), **changes) -> SkidSteerRobot:
@@ -25,8 +33,12 @@ def _skid(roughness: float = 0.0, normal=(0.0, 0.0, 1.0), **changes) -> SkidStee
     return SkidSteerRobot(config, None, lambda x, y: n, roughness=roughness)
 
 
-def _drive(robot: Robot, commands: list[tuple[float, float]], ticks_per_command: int = 2,
-           rng: np.random.Generator | None = None) -> np.ndarray:
+def _drive(
+    robot: Robot,
+    commands: list[tuple[float, float]],
+    ticks_per_command: int = 2,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """x, y, yaw, v, omega after every tick, holding each command for `ticks_per_command` ticks."""
     robot.reset(0.0, 0.0, 0.0, rng=rng)
     rows = []
@@ -56,8 +68,8 @@ def test_rough_ground_slips_and_under_turns_by_the_documented_factors() -> None:
     rho = 0.1
     robot = _skid(roughness=rho, longitudinal_slip=0.03, slip_per_roughness=1.0, icr_expansion_per_roughness=3.0)
     out = _drive(robot, [(0.5, 0.4)] * 300)
-    i = 0.03 + 1.0 * rho                  # longitudinal slip
-    alpha = 1.5 + 3.0 * rho               # ICR expansion on this ground (the drive assumes 1.5)
+    i = 0.03 + 1.0 * rho  # longitudinal slip
+    alpha = 1.5 + 3.0 * rho  # ICR expansion on this ground (the drive assumes 1.5)
     assert out[-1, 3] == pytest.approx(0.5 * (1 - i), rel=1e-6)
     assert out[-1, 4] == pytest.approx(0.4 * (1 - i) * 1.5 / alpha, rel=1e-6)
     unicycle = _drive(Robot(RobotConfig()), [(0.5, 0.4)] * 300)
@@ -65,7 +77,7 @@ def test_rough_ground_slips_and_under_turns_by_the_documented_factors() -> None:
 
 
 def test_uphill_slips_more_than_downhill() -> None:
-    uphill = (-0.1, 0.0, 1.0)   # ground rising along +x: nose up
+    uphill = (-0.1, 0.0, 1.0)  # ground rising along +x: nose up
     up = _drive(_skid(normal=uphill, slip_per_slope=0.5), [(0.5, 0.0)] * 200)
     down = _drive(_skid(normal=uphill, slip_per_slope=0.5), [(-0.5, 0.0)] * 200)
     pitch = math.atan(0.1)
@@ -76,14 +88,14 @@ def test_uphill_slips_more_than_downhill() -> None:
 def test_cross_slope_creeps_downhill_and_the_icr_offset_slides_a_turn_outward() -> None:
     left_up = (0.0, -0.1, 1.0)  # ground rising to the left of a robot heading +x: roll > 0
     out = _drive(_skid(normal=left_up, cross_slope_drift=0.5), [(0.5, 0.0)] * 300)
-    assert out[-1, 1] < -0.02                              # drifted to the right, downhill
-    assert abs(out[-1, 2]) < 1e-9                          # without turning
+    assert out[-1, 1] < -0.02  # drifted to the right, downhill
+    assert abs(out[-1, 2]) < 1e-9  # without turning
     flat = _drive(_skid(), [(0.5, 0.0)] * 300)
     assert abs(flat[-1, 1]) < 1e-12
     robot = _skid(icr_x=0.05)
     robot.reset(0.0, 0.0, 0.0)
     vx, vy, w = robot.body_velocity(0.5, 0.4)
-    assert w > 0 and vy == pytest.approx(-0.05 * w)        # turning left, the centre slides right
+    assert w > 0 and vy == pytest.approx(-0.05 * w)  # turning left, the centre slides right
 
 
 def test_latency_delays_the_response_by_exactly_n_ticks() -> None:
@@ -102,18 +114,29 @@ def test_actuator_noise_is_reproducible_from_the_seed() -> None:
     assert np.array_equal(run(3), run(3))
     assert not np.allclose(run(3), run(4))
     still = _drive(_skid(noise_std=0.05), [(0.0, 0.0)] * 60, rng=np.random.default_rng(0))
-    assert np.all(still == 0)                               # relative noise: at rest it stays at rest
+    assert np.all(still == 0)  # relative noise: at rest it stays at rest
 
 
 def test_the_model_is_chosen_and_checked_by_the_nav_config() -> None:
-    world = type("W", (), {"terrain_height": None, "terrain_normal": None,
-                           "spec": type("S", (), {"terrain": type("T", (), {"roughness": 0.07})()})()})()
-    assert type(make_robot(load_nav_config().robot, world)) is Robot            # the default: kinematic
+    world = type(
+        "W",
+        (),
+        {
+            "terrain_height": None,
+            "terrain_normal": None,
+            "spec": type("S", (), {"terrain": type("T", (), {"roughness": 0.07})()})(),
+        },
+    )()
+    assert type(make_robot(load_nav_config().robot, world)) is Robot  # the default: kinematic
     skid = make_robot(load_nav_config(overrides=["robot.model=skid_steer"]).robot, world)
     assert isinstance(skid, SkidSteerRobot) and skid.roughness == 0.07
-    for bad, word in [("robot.model=tank", "robot.model"), ("robot.skid.latency=3", "latency"),
-                      ("robot.skid.icr_expansion=0.8", "icr_expansion"), ("robot.skid.latency_ticks=-1", "latency_ticks"),
-                      ("robot.skid.longitudinal_slip=1.0", "longitudinal_slip")]:
+    for bad, word in [
+        ("robot.model=tank", "robot.model"),
+        ("robot.skid.latency=3", "latency"),
+        ("robot.skid.icr_expansion=0.8", "icr_expansion"),
+        ("robot.skid.latency_ticks=-1", "latency_ticks"),
+        ("robot.skid.longitudinal_slip=1.0", "longitudinal_slip"),
+    ]:
         with pytest.raises(ConfigError, match=word):
             load_nav_config(overrides=[bad])
 
@@ -121,21 +144,24 @@ def test_the_model_is_chosen_and_checked_by_the_nav_config() -> None:
 def test_the_closed_loop_drives_a_row_with_the_skid_steer_robot_reproducibly() -> None:
     from test_nav_eval_sim import FakeRenderer, FakeWorld
 
-    from segmin.nav_eval.eval_config import NavEvalConfig, Perception, RunSettings
-    from segmin.nav_eval.factories import make_follower
-    from segmin.nav_eval.gym_env import RowFollowEnv
-    from segmin.nav_eval.oracle import OracleSegmenter
-    from segmin.nav_eval.rollout import run_episode
+    from segmin.nav_eval.evaluation.rollout import run_episode
+    from segmin.nav_eval.sim.config import NavEvalConfig, Perception, RunSettings
+    from segmin.nav_eval.sim.factories import make_follower
+    from segmin.nav_eval.sim.gym_env import RowFollowEnv
+    from segmin.nav_eval.sim.oracle import OracleSegmenter
 
     def run(model: str, seed: int):
-        config = NavEvalConfig(robot=RobotConfig(model=model), perception=Perception(width=48, height=48),
-                               run=RunSettings(length_m=6.0, time_limit_s=30.0))
+        config = NavEvalConfig(
+            robot=RobotConfig(model=model),
+            perception=Perception(width=48, height=48),
+            run=RunSettings(length_m=6.0, time_limit_s=30.0),
+        )
         world = FakeWorld()
         env = RowFollowEnv(None, config=config, world=world, renderer=FakeRenderer(world))
         return run_episode(env, make_follower(OracleSegmenter(), "segmin", 5.0, config), seed)
 
     a, b, kinematic = run("skid_steer", 1), run("skid_steer", 1), run("kinematic", 1)
     assert a.reason == "success", a.reason
-    assert np.array_equal(a.trajectory.y, b.trajectory.y)                    # seeded noise
+    assert np.array_equal(a.trajectory.y, b.trajectory.y)  # seeded noise
     assert not np.allclose(a.trajectory.y[:200], kinematic.trajectory.y[:200])  # ... and a different robot
     assert np.mean(a.trajectory.v[60:]) < np.mean(kinematic.trajectory.v[60:])  # slip costs speed

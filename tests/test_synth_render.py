@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pybullet as p
 import pytest
+from synth_helpers import tiny
 
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.render import Renderer, camera_pose
 from segmin.data.synth.spec import spec_from_dict
 from segmin.data.synth.world import build_world
-from synth_helpers import tiny
 
 SMALL = CameraModel(width=48, height=48)
 
@@ -39,7 +39,7 @@ def test_mask_is_exactly_the_plant_bodies(scene):
         without = renderer.render(x, y, yaw)
     finally:
         renderer.hidden = set()
-    changed = (frame.depth != without.depth)
+    changed = frame.depth != without.depth
     assert not without.mask.any()
     assert np.array_equal(changed, frame.mask)
     rgb_changed = np.any(frame.rgb != without.rgb, axis=-1)
@@ -48,8 +48,7 @@ def test_mask_is_exactly_the_plant_bodies(scene):
 
 
 def test_depth_matches_an_analytic_ground_plane(bullet_client):
-    raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0], "grass_tufts": 0.0},
-               structures={"poles": False})
+    raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0], "grass_tufts": 0.0}, structures={"poles": False})
     world = build_world(spec_from_dict(raw), bullet_client)
     camera = CameraModel(width=64, height=48)
     renderer = Renderer(world, camera)
@@ -120,7 +119,7 @@ def test_depth_noise_model():
     cam = CameraModel(width=32, height=32, depth_noise_k=0.01, depth_invalid_fraction=0.1, max_range=8.0)
     depth = np.full((32, 32), 4.0, np.float32)
     depth[:, :8] = 10.0  # beyond max range
-    depth[:4] = 0.0      # no return
+    depth[:4] = 0.0  # no return
     noisy = cam.apply_depth_noise(depth, np.random.default_rng(0))
     assert np.all(noisy[:4] == 0) and np.all(noisy[:, :8] == 0)
     valid = noisy[4:, 8:]
@@ -133,13 +132,14 @@ def test_depth_noise_model():
 
 def test_preview_contact_sheet(tmp_path):
     import cv2
+    from synth_helpers import write_spec
 
     from segmin.app.cli import main as segmin_main
-    from synth_helpers import write_spec
 
     spec_path = write_spec(tmp_path / "tiny.yaml", tiny())
     out = tmp_path / "sheet.png"
-    assert segmin_main(["synth", "preview", "--world", spec_path, "--out", str(out), "--frames", "2",
-                        "--size", "40"]) == 0
+    assert (
+        segmin_main(["synth", "preview", "--world", spec_path, "--out", str(out), "--frames", "2", "--size", "40"]) == 0
+    )
     sheet = cv2.imread(str(out))
     assert sheet.shape == (2 * 40, 3 * 40, 3)  # rows of RGB | mask overlay | depth

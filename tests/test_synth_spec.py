@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from segmin.data.synth.spec import TEST_FIELDS, load_world_spec, spec_from_dict
-from segmin.common.config import ConfigError
 from synth_helpers import tiny, write_spec
+
+from segmin.common.config import ConfigError
+from segmin.data.synth.spec import TEST_FIELDS, load_world_spec, spec_from_dict
 
 WORLDS = Path(__file__).resolve().parents[1] / "configs" / "worlds"
 
@@ -34,8 +34,11 @@ def test_shipped_worlds_validate_and_cover_the_test_fields():
 
 def test_paper_geometry_of_the_test_fields():
     expect = {  # Table 1: row distance, plant distance, height
-        "straight_vineyard": (1.8, 1.3, 2.0), "curved_vineyard": (1.8, 1.3, 2.0),
-        "pergola_vineyard": (6.0, 1.5, 2.9), "pear_field": (2.0, 1.0, 2.9), "high_trees": (7.0, 5.0, 12.5),
+        "straight_vineyard": (1.8, 1.3, 2.0),
+        "curved_vineyard": (1.8, 1.3, 2.0),
+        "pergola_vineyard": (6.0, 1.5, 2.9),
+        "pear_field": (2.0, 1.0, 2.9),
+        "high_trees": (7.0, 5.0, 12.5),
     }
     for name, (rows, plants, height) in expect.items():
         spec = load_world_spec(name)
@@ -98,9 +101,9 @@ def test_a_sharp_corner_between_long_segments_is_refused():
 def test_a_gap_narrower_than_the_robot_is_refused():
     """Issue 13.6: rows.spacing=0.3 (less than the robot's width) was accepted."""
     from segmin.data.synth.spec import MIN_GAP_WIDTH
-    from segmin.nav_eval.robot import RobotConfig
+    from segmin.nav_eval.sim.robot import RobotConfig
 
-    assert MIN_GAP_WIDTH > RobotConfig().width  # the constant data keeps agrees with the robot
+    assert RobotConfig().width < MIN_GAP_WIDTH  # the constant data keeps agrees with the robot
     with pytest.raises(ConfigError, match="rows.spacing: 0.3 m leaves a free gap"):
         spec_from_dict(tiny(rows={"spacing": 0.3}))
     with pytest.raises(ConfigError, match="rows.spacing"):  # hedges 0.6 m wide leave 0.5 m

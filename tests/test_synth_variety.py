@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pybullet as p
 import pytest
+from synth_helpers import tiny
 
 from segmin.common.config import ConfigError
 from segmin.data.synth.camera import CameraModel
@@ -22,14 +23,19 @@ from segmin.data.synth.spec import GROUND_STYLE_NAMES, AppearanceSpec, spec_from
 from segmin.data.synth.textures import ground_texture
 from segmin.data.synth.world import build_world
 from segmin.data.synth.writer import RenderJob, render_dataset
-from synth_helpers import tiny
 
 VARIED = dict(
     sky={"overcast_probability": 0.3, "backlight_probability": 0.3, "haze": [0.0, 0.4]},
-    capture={"hfov_deg": [60.0, 120.0], "mount_height": [0.3, 1.2], "tilt_deg": [-5.0, 15.0],
-             "vignetting": [0.0, 0.3]},
-    backdrop={"trees": 6, "tree_distance": [0.5, 4.0], "tree_height": [3.0, 6.0], "forest_edges": 1,
-              "hedges": 1, "buildings": 1, "hills": 1.0},
+    capture={"hfov_deg": [60.0, 120.0], "mount_height": [0.3, 1.2], "tilt_deg": [-5.0, 15.0], "vignetting": [0.0, 0.3]},
+    backdrop={
+        "trees": 6,
+        "tree_distance": [0.5, 4.0],
+        "tree_height": [3.0, 6.0],
+        "forest_edges": 1,
+        "hedges": 1,
+        "buildings": 1,
+        "hills": 1.0,
+    },
     render={"shadow_probability": 0.5},
     plants={"spacing": 1.3, "gap_probability": 0.0, "hanging_shoots": [1, 2]},
     appearance={"ground_styles": ["mown", "soil"], "texture_variants": 2},
@@ -74,7 +80,7 @@ def test_new_elements_have_the_right_label(client):
     seen = _labels_by_kind(world, renderer, _poses(world))
     for kind in ("backdrop_tree", "backdrop", "wood", "ground", "plants", "structure"):
         assert kind in seen, f"no {kind} pixels in the frames: {sorted(seen)}"
-    assert seen["plants"] == {True}       # canopy label: leaves only
+    assert seen["plants"] == {True}  # canopy label: leaves only
     for kind in ("backdrop_tree", "backdrop", "wood", "ground", "grass", "structure"):
         assert seen.get(kind, {False}) == {False}, f"{kind} must be 0 in the mask"
 
@@ -102,7 +108,9 @@ def test_dataset_with_variety_is_identical_for_any_worker_count(tmp_path):
     render_dataset(RenderJob(spec=spec, out=tmp_path / "one", frames=8, camera=cam, workers=1, progress=False))
     render_dataset(RenderJob(spec=spec, out=tmp_path / "two", frames=8, camera=cam, workers=2, progress=False))
     for i in range(2):
-        render_dataset(RenderJob(spec=spec, out=tmp_path / "shards", frames=8, camera=cam, shard=(i, 2), progress=False))
+        render_dataset(
+            RenderJob(spec=spec, out=tmp_path / "shards", frames=8, camera=cam, shard=(i, 2), progress=False)
+        )
     one = tree(tmp_path / "one")
     assert one == tree(tmp_path / "two") == tree(tmp_path / "shards")
     meta = json.loads(next((tmp_path / "one").rglob("meta.json")).read_text())
@@ -113,16 +121,24 @@ def test_dataset_with_variety_is_identical_for_any_worker_count(tmp_path):
 
 
 def test_frames_without_capture_variety_keep_the_job_camera(tmp_path):
-    render_dataset(RenderJob(spec=spec_from_dict(tiny()), out=tmp_path, frames=2,
-                             camera=CameraModel(width=32, height=32, hfov_deg=80.0), progress=False))
+    render_dataset(
+        RenderJob(
+            spec=spec_from_dict(tiny()),
+            out=tmp_path,
+            frames=2,
+            camera=CameraModel(width=32, height=32, hfov_deg=80.0),
+            progress=False,
+        )
+    )
     meta = json.loads(next(tmp_path.rglob("meta.json")).read_text())
     assert meta["intrinsics"]["hfov_deg"] == 80.0
     assert all("intrinsics" not in f for f in meta["frames"].values())
 
 
 def test_shadows_and_overcast_follow_their_probabilities(client):
-    world = build_world(spec_from_dict(tiny(render={"shadow_probability": 0.5},
-                                            sky={"overcast_probability": 0.3})), client)
+    world = build_world(
+        spec_from_dict(tiny(render={"shadow_probability": 0.5}, sky={"overcast_probability": 0.3})), client
+    )
     renderer = Renderer(world, CameraModel(width=32, height=32))
     x, y, yaw = world.gap_pose(0, 1.0)
     stats = [renderer.render(x, y, yaw, rng=np.random.default_rng(k)).stats for k in range(40)]
@@ -143,27 +159,30 @@ def test_ground_styles_carry_grass_like_fine_detail(style):
     assert detail(0.6) > 1.5 * detail(0.0)
 
 
-@pytest.mark.parametrize("changes,field", [
-    ({"sky": {"overcast_probability": 1.5}}, "sky.overcast_probability"),
-    ({"sky": {"haze": [0.0, float("nan")]}}, "sky.haze"),
-    ({"sky": {"sun_elevation": [10.0, 95.0]}}, "sky.sun_elevation"),
-    ({"capture": {"hfov_deg": [60.0, 200.0]}}, "capture.hfov_deg"),
-    ({"capture": {"mount_height": [0.0, 1.0]}}, "capture.mount_height"),
-    ({"capture": {"tilt_deg": [20.0, 10.0]}}, "capture.tilt_deg"),
-    ({"capture": {"fov": [60.0, 90.0]}}, "fov"),
-    ({"backdrop": {"trees": -1}}, "backdrop.trees"),
-    ({"backdrop": {"tree_height": [5.0, float("inf")]}}, "backdrop.tree_height"),
-    ({"backdrop": {"hills": 2.0}}, "backdrop.hills"),
-    ({"backdrop": {"nets": 1}}, "nets"),
-    ({"render": {"shadow_probability": -0.1}}, "render.shadow_probability"),
-    ({"appearance": {"ground_styles": ["astroturf"]}}, "appearance.ground_styles"),
-    ({"appearance": {"ground_styles": []}}, "appearance.ground_styles"),
-    ({"appearance": {"ground_detail": 3.0}}, "appearance.ground_detail"),
-    ({"plants": {"label": "trunk"}}, "label"),
-    ({"plants": {"hanging_shoots": [2, 1]}}, "plants.hanging_shoots"),
-    ({"terrain": {"texture_scale": 0.0}}, "terrain.texture_scale"),
-    ({"rows": {"spacing": float("nan")}}, "rows.spacing"),
-])
+@pytest.mark.parametrize(
+    "changes,field",
+    [
+        ({"sky": {"overcast_probability": 1.5}}, "sky.overcast_probability"),
+        ({"sky": {"haze": [0.0, float("nan")]}}, "sky.haze"),
+        ({"sky": {"sun_elevation": [10.0, 95.0]}}, "sky.sun_elevation"),
+        ({"capture": {"hfov_deg": [60.0, 200.0]}}, "capture.hfov_deg"),
+        ({"capture": {"mount_height": [0.0, 1.0]}}, "capture.mount_height"),
+        ({"capture": {"tilt_deg": [20.0, 10.0]}}, "capture.tilt_deg"),
+        ({"capture": {"fov": [60.0, 90.0]}}, "fov"),
+        ({"backdrop": {"trees": -1}}, "backdrop.trees"),
+        ({"backdrop": {"tree_height": [5.0, float("inf")]}}, "backdrop.tree_height"),
+        ({"backdrop": {"hills": 2.0}}, "backdrop.hills"),
+        ({"backdrop": {"nets": 1}}, "nets"),
+        ({"render": {"shadow_probability": -0.1}}, "render.shadow_probability"),
+        ({"appearance": {"ground_styles": ["astroturf"]}}, "appearance.ground_styles"),
+        ({"appearance": {"ground_styles": []}}, "appearance.ground_styles"),
+        ({"appearance": {"ground_detail": 3.0}}, "appearance.ground_detail"),
+        ({"plants": {"label": "trunk"}}, "label"),
+        ({"plants": {"hanging_shoots": [2, 1]}}, "plants.hanging_shoots"),
+        ({"terrain": {"texture_scale": 0.0}}, "terrain.texture_scale"),
+        ({"rows": {"spacing": float("nan")}}, "rows.spacing"),
+    ],
+)
 def test_invalid_variety_fields_name_the_field(changes, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.").replace("[", r"\[")):
         spec_from_dict(tiny(**changes))

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pybullet as p
 import pytest
+from synth_helpers import tiny
 
 from segmin.data.synth.spec import spec_from_dict
 from segmin.data.synth.world import build_world
-from synth_helpers import tiny
 
 
 def _signed_lateral(centreline: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -30,8 +30,17 @@ ARC = [[12.0 * np.sin(t), 12.0 * (1 - np.cos(t))] for t in np.linspace(0, 0.8, 4
 
 @pytest.mark.parametrize("curve, polyline", [(0.0, []), (12.0, []), (0.0, ARC)])
 def test_centreline_lies_midway_between_the_rows(bullet_client, curve, polyline):
-    spec = spec_from_dict(tiny(rows={"count": 4, "curve_radius": curve, "curve_start": 1.0, "length": 8.0,
-                                     "polyline": [[float(a), float(b)] for a, b in polyline]}))
+    spec = spec_from_dict(
+        tiny(
+            rows={
+                "count": 4,
+                "curve_radius": curve,
+                "curve_start": 1.0,
+                "length": 8.0,
+                "polyline": [[float(a), float(b)] for a, b in polyline],
+            }
+        )
+    )
     world = build_world(spec, bullet_client)
     assert len(world.centrelines) == 3 and len(world.gap_half_widths) == 3
     half = spec.rows.spacing / 2
@@ -53,10 +62,18 @@ def test_centreline_lies_midway_between_the_rows(bullet_client, curve, polyline)
 
 
 def test_pergola_centreline_is_the_free_band(bullet_client):
-    raw = tiny(crop="pergola", rows={"spacing": 6.0, "count": 3},
-               plants={"spacing": 1.5, "height": [2.8, 3.0], "trunk_height": [2.3, 2.5], "canopy_bottom": [1.5, 1.8]},
-               structures={"pergola": True, "pergola_height": 2.5, "free_band_width": 1.4,
-                           "free_band_offset": 0.5, "wire_heights": []})
+    raw = tiny(
+        crop="pergola",
+        rows={"spacing": 6.0, "count": 3},
+        plants={"spacing": 1.5, "height": [2.8, 3.0], "trunk_height": [2.3, 2.5], "canopy_bottom": [1.5, 1.8]},
+        structures={
+            "pergola": True,
+            "pergola_height": 2.5,
+            "free_band_width": 1.4,
+            "free_band_offset": 0.5,
+            "wire_heights": [],
+        },
+    )
     spec = spec_from_dict(raw)
     world = build_world(spec, bullet_client)
     # Gap 0 lies between rows at y = -6 and 0; its band centre is 0.5 m left of the middle (-3).

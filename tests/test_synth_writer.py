@@ -14,12 +14,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from synth_helpers import tiny, write_spec
 
+from segmin.app.cli import main as segmin_main
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import spec_from_dict
 from segmin.data.synth.writer import RenderJob, render_dataset
-from segmin.app.cli import main as segmin_main
-from synth_helpers import tiny, write_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 CAM = CameraModel(width=32, height=32)
@@ -87,8 +87,24 @@ def test_resume_after_killing_a_run(tmp_path):
     spec_path = write_spec(tmp_path / "tiny.yaml", tiny())
     out = tmp_path / "killed"
     frames = 300
-    cmd = [sys.executable, "-m", "segmin.app.cli", "synth", "render", "--world", spec_path, "--frames", str(frames),
-           "--out", str(out), "--workers", "2", "--size", "32", "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "segmin.app.cli",
+        "synth",
+        "render",
+        "--world",
+        spec_path,
+        "--frames",
+        str(frames),
+        "--out",
+        str(out),
+        "--workers",
+        "2",
+        "--size",
+        "32",
+        "--no-progress",
+    ]
     proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     images = out / "synth_tiny_vineyard" / "synth_tiny_vineyard_1" / "images"
     deadline = time.time() + 90
@@ -109,8 +125,10 @@ def test_resume_after_killing_a_run(tmp_path):
         if kind_dir.is_dir():
             for folder in kind_dir.glob("Image*"):
                 assert [p.name.split(".")[0] for p in folder.iterdir()] in (
-                    [folder.name], [folder.name.replace("Image", "Segmentation")],
-                    [folder.name.replace("Image", "Depth")]), f"half-written {folder}"
+                    [folder.name],
+                    [folder.name.replace("Image", "Segmentation")],
+                    [folder.name.replace("Image", "Depth")],
+                ), f"half-written {folder}"
     assert segmin_main(cmd[3:]) == 0  # rerun: continues where the killed run stopped
     reference = tmp_path / "reference"
     render_dataset(RenderJob(spec=spec_from_dict(tiny()), out=reference, frames=frames, camera=CAM, progress=False))
@@ -127,8 +145,10 @@ def test_unwritable_output_fails_before_rendering(tmp_path, monkeypatch):
     monkeypatch.setattr(world_module, "build_world", lambda *a, **k: built.append(1))
     with pytest.raises(NotADirectoryError, match="is a file, not a folder"):
         render_dataset(_job(blocker / "out"))
-    assert segmin_main(["synth", "render", "--world", "straight_vineyard", "--frames", "1",
-                        "--out", str(blocker / "out")]) == 2
+    assert (
+        segmin_main(["synth", "render", "--world", "straight_vineyard", "--frames", "1", "--out", str(blocker / "out")])
+        == 2
+    )
     assert not built
 
 
@@ -150,8 +170,10 @@ def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_pa
     job = _job(tmp_path, frames=2)
     staging = tmp_path / "synth_tiny_vineyard" / "synth_tiny_vineyard_1" / "images" / ".Image0.abc.staging"
     staging.mkdir(parents=True)  # the first writer's frame in flight
-    code = ("import sys, time\nfrom segmin.common.lock import writer_lock\n"
-            "with writer_lock(sys.argv[1], 'test'):\n    print('held', flush=True)\n    time.sleep(60)\n")
+    code = (
+        "import sys, time\nfrom segmin.common.lock import writer_lock\n"
+        "with writer_lock(sys.argv[1], 'test'):\n    print('held', flush=True)\n    time.sleep(60)\n"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code, str(lock_path(job))], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
@@ -173,11 +195,13 @@ def test_a_killed_writers_lock_is_free_while_its_forked_workers_still_live(tmp_p
     from segmin.data.synth.writer import lock_path
 
     job = _job(tmp_path, frames=2)
-    code = ("import os, sys, time\nfrom segmin.common.lock import writer_lock\n"
-            "with writer_lock(sys.argv[1], 'test'):\n"
-            "    child = os.fork()\n"
-            "    if child == 0:\n        time.sleep(60)\n        os._exit(0)\n"
-            "    print(child, flush=True)\n    time.sleep(60)\n")
+    code = (
+        "import os, sys, time\nfrom segmin.common.lock import writer_lock\n"
+        "with writer_lock(sys.argv[1], 'test'):\n"
+        "    child = os.fork()\n"
+        "    if child == 0:\n        time.sleep(60)\n        os._exit(0)\n"
+        "    print(child, flush=True)\n    time.sleep(60)\n"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code, str(lock_path(job))], stdout=subprocess.PIPE, text=True)
     worker = int(holder.stdout.readline())
     try:

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from segmin.models.checkpoint import load_model
 from segmin.common.config import ConfigError
+from segmin.models.checkpoint import load_model
 from segmin.train.config import TrainConfig, load_train_config
 from segmin.train.loop import SegLoss, StepContext, train_step
 from segmin.train.metrics import SegMetrics
@@ -19,8 +19,9 @@ from segmin.train.metrics import SegMetrics
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "train"
 
 
-def write_blob_dataset(root: Path, domain: str = "synth_vineyard_a", frames: int = 10, size: int = 64,
-                       seed: int = 0) -> Path:
+def write_blob_dataset(
+    root: Path, domain: str = "synth_vineyard_a", frames: int = 10, size: int = 64, seed: int = 0
+) -> Path:
     """Formatted-layout frames: green blobs (crop) on brown soil under a blue sky."""
     rng = np.random.default_rng(seed)
     for n in range(1, frames + 1):
@@ -30,7 +31,7 @@ def write_blob_dataset(root: Path, domain: str = "synth_vineyard_a", frames: int
             cv2.circle(mask, centre, int(rng.integers(5, 14)), 255, -1)
         image = np.zeros((size, size, 3), np.uint8)  # BGR
         image[: size // 3] = (200, 150, 90)
-        image[size // 3:] = (40, 70, 110)
+        image[size // 3 :] = (40, 70, 110)
         image[mask > 0] = (40, 170, 50)
         image = np.clip(image.astype(int) + rng.integers(-15, 15, image.shape), 0, 255).astype(np.uint8)
         sub = root / domain / f"{domain}_1"
@@ -45,8 +46,16 @@ def tiny_config(root: Path, **overrides) -> TrainConfig:
     raw = {
         "family": "vineyards",
         "data": {"root": str(root), "domains": ["synth_vineyards"], "val_fraction": 0.3},
-        "backbone_weights": "none", "image_size": 64, "epochs": 2, "batch_size": 3, "lr": 1e-3,
-        "num_workers": 0, "threads": 1, "progress": False, "preview_images": 2, "device": "cpu",
+        "backbone_weights": "none",
+        "image_size": 64,
+        "epochs": 2,
+        "batch_size": 3,
+        "lr": 1e-3,
+        "num_workers": 0,
+        "threads": 1,
+        "progress": False,
+        "preview_images": 2,
+        "device": "cpu",
     }
     for key, value in overrides.items():
         raw[key] = value
@@ -153,8 +162,10 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(dataset_root, tmp
 
     config = tiny_config(dataset_root, epochs=3, schedule="step", step_size=1, gamma=0.5, bn_momentum=0.2)
     fit(config, tmp_path / "straight")
-    fit(tiny_config(dataset_root, epochs=1, schedule="step", step_size=1, gamma=0.5, bn_momentum=0.2),
-        tmp_path / "resumed")
+    fit(
+        tiny_config(dataset_root, epochs=1, schedule="step", step_size=1, gamma=0.5, bn_momentum=0.2),
+        tmp_path / "resumed",
+    )
     result = fit(config, tmp_path / "resumed", resume=True)
     assert {m.momentum for m in result.model.modules() if isinstance(m, torch.nn.BatchNorm2d)} == {0.2}
     assert [r["epoch"] for r in result.history] == [1, 2, 3]
@@ -340,8 +351,10 @@ def test_iou_bound_is_exact_on_cell_aligned_masks_and_lower_on_stripes():
 def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
     from segmin.app.cli import main
 
-    assert main(["bench", "iou-bound", "--root", str(dataset_root), "--sizes", "32", "--frames", "4",
-                 "--steps", "20"]) == 0
+    assert (
+        main(["bench", "iou-bound", "--root", str(dataset_root), "--sizes", "32", "--frames", "4", "--steps", "20"])
+        == 0
+    )
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.strip().startswith("32"))
     size, grid, frames, area, fitted = row.split()
@@ -349,11 +362,14 @@ def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
     assert 0.3 < float(area) <= 1.0 and 0.3 < float(fitted) <= 1.0  # blobs of 10-28 px: mostly representable
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--frames", "0"], "frames=0"),
-    (["--sizes", "4"], "size=4"),
-    (["--domains", "no_such_domain"], "no_such_domain"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--frames", "0"], "frames=0"),
+        (["--sizes", "4"], "size=4"),
+        (["--domains", "no_such_domain"], "no_such_domain"),
+    ],
+)
 def test_bench_iou_bound_rejects_bad_input_with_one_line(dataset_root, capsys, extra, message):
     from segmin.app.cli import main
 
@@ -387,7 +403,9 @@ def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp
     assert (out / "last.pt").read_bytes() != before[0]
 
 
-def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(dataset_root, tmp_path, monkeypatch, sigint_delivered):
+def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(
+    dataset_root, tmp_path, monkeypatch, sigint_delivered
+):
     """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
     used to save "k steps done" with the weights of k+1, so --resume ran a step twice."""
     import signal
@@ -444,12 +462,15 @@ def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp
         tiny_config(dataset_root, checkpoint_every_steps=0)
 
 
-@pytest.mark.parametrize("override, message", [
-    ("threads=-1", "threads=-1"),
-    ("device=gpu", "device='gpu'"),
-    ("swa_start_epoch=0", "swa_start_epoch=0"),
-    ("swa_start_epoch=9", r"swa_start_epoch=9: must be in \[1, epochs=8\]"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("threads=-1", "threads=-1"),
+        ("device=gpu", "device='gpu'"),
+        ("swa_start_epoch=0", "swa_start_epoch=0"),
+        ("swa_start_epoch=9", r"swa_start_epoch=9: must be in \[1, epochs=8\]"),
+    ],
+)
 def test_bad_runtime_settings_are_refused_by_the_config(override, message):
     """Issue 13.8: threads=-1 and device=gpu failed (or not) deep inside torch."""
     with pytest.raises(ConfigError, match=message):
@@ -462,8 +483,16 @@ def test_missing_imagenet_weights_are_reported_before_any_data_is_read(tmp_path,
     from segmin.app.cli import main
 
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch_home"))
-    code = main(["train", "--config", str(CONFIGS / "trees.yaml"), "--out", str(tmp_path / "run"),
-                 "data.root=/nonexistent/data"])  # reading data would fail with another message
+    code = main(
+        [
+            "train",
+            "--config",
+            str(CONFIGS / "trees.yaml"),
+            "--out",
+            str(tmp_path / "run"),
+            "data.root=/nonexistent/data",
+        ]
+    )  # reading data would fail with another message
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "mobilenet_v3_large-8738ca79.pth" in err and "$TORCH_HOME/hub/checkpoints/" in err

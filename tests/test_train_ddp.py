@@ -20,8 +20,9 @@ def _free_port() -> int:
 
 
 def _worker(rank: int, world_size: int, port: int, data_root: str, tmp: str) -> None:
-    os.environ.update(RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(world_size),
-                      MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    os.environ.update(
+        RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(world_size), MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port)
+    )
     torch.set_num_threads(1)
     from test_train import tiny_config
 
@@ -31,8 +32,10 @@ def _worker(rank: int, world_size: int, port: int, data_root: str, tmp: str) -> 
     result = fit(config, Path(tmp) / f"run_rank{rank}")
     state = {k: v.detach().clone() for k, v in result.model.state_dict().items()}
     average = {k: v.detach().clone() for k, v in result.swa_model.state_dict().items()}
-    torch.save({"model": state, "swa": average, "history": result.history, "world_size": result.world_size},
-               Path(tmp) / f"result_rank{rank}.pt")
+    torch.save(
+        {"model": state, "swa": average, "history": result.history, "world_size": result.world_size},
+        Path(tmp) / f"result_rank{rank}.pt",
+    )
 
 
 def test_two_process_gloo_run_gives_identical_weights(tmp_path):

@@ -28,7 +28,7 @@ def write_bench_dataset(root: Path, frames: int = 48, width: int = 320, height: 
     for n in range(1, frames + 1):
         image = np.empty((height, width, 3), np.uint8)
         image[: height // 3] = (200, 170, 120)  # sky, BGR
-        image[height // 3:] = (40, 70, 110)  # soil
+        image[height // 3 :] = (40, 70, 110)  # soil
         image = np.clip(image + rng.integers(-20, 20, image.shape), 0, 255).astype(np.uint8)
         mask = np.zeros((height, width), np.uint8)
         for _ in range(12):
@@ -49,13 +49,24 @@ def _timed(fn, steps: int) -> float:
     return time.perf_counter() - start
 
 
-def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_size: int = 8, threads: int = 2,
-                steps: int = 6, warmup: int = 2, workers: int = 1, repeats: int = 2, device: str = "cpu") -> dict[str, Any]:
+def bench_train(
+    root: str | Path | None = None,
+    *,
+    image_size: int = 224,
+    batch_size: int = 8,
+    threads: int = 2,
+    steps: int = 6,
+    warmup: int = 2,
+    workers: int = 1,
+    repeats: int = 2,
+    device: str = "cpu",
+) -> dict[str, Any]:
     """Images/s of the model step alone and of the full pipeline (best of `repeats`, alternating).
 
     The model step is timed in the channels-last layout training uses and, alternating with it, in the
     plain NCHW layout, so the layout's gain is a ratio measured under the same load.
     """
+    import cv2
     from torch.utils.data import DataLoader, RandomSampler
 
     from segmin.data.agriseg_loader import AgriSegDataset
@@ -64,8 +75,6 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
     from segmin.train.distributed import EpochSampler
     from segmin.train.loop import SegLoss, StepContext, train_step
     from segmin.train.run import _worker_init
-
-    import cv2
 
     torch.set_num_threads(threads)
     cv2.setNumThreads(1)  # OpenCV's own thread pool would fight torch's threads for the cores
@@ -77,19 +86,35 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
     try:
         dev = torch.device(device)
         dataset = AgriSegDataset(root, split="all", transform=train_transform(image_size), image_size=image_size)
-        sampler = EpochSampler(RandomSampler(dataset, replacement=True, num_samples=10**6,
-                                             generator=torch.Generator().manual_seed(0)))
+        sampler = EpochSampler(
+            RandomSampler(dataset, replacement=True, num_samples=10**6, generator=torch.Generator().manual_seed(0))
+        )
         extra: dict[str, Any] = {}
         if workers > 0:
             extra = {"prefetch_factor": 4, "persistent_workers": True, "worker_init_fn": _worker_init}
-        loader = DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=workers,
-                            pin_memory=dev.type == "cuda", drop_last=True, **extra)
+        loader = DataLoader(
+            dataset,
+            batch_size=batch_size,
+            sampler=sampler,
+            num_workers=workers,
+            pin_memory=dev.type == "cuda",
+            drop_last=True,
+            **extra,
+        )
+
         def step_context(channels_last: bool) -> StepContext:
             model = build_model("none").to(dev)
             if channels_last:
                 model.to(memory_format=torch.channels_last)
-            return StepContext(model, torch.optim.Adam(model.parameters(), lr=3e-4), SegLoss(), dev,
-                               torch.amp.GradScaler("cuda") if amp else None, amp=amp, channels_last=channels_last)
+            return StepContext(
+                model,
+                torch.optim.Adam(model.parameters(), lr=3e-4),
+                SegLoss(),
+                dev,
+                torch.amp.GradScaler("cuda") if amp else None,
+                amp=amp,
+                channels_last=channels_last,
+            )
 
         amp = dev.type == "cuda"
         ctx, ctx_nchw = step_context(True), step_context(False)  # what training uses, and the plain layout
@@ -131,12 +156,22 @@ def bench_train(root: str | Path | None = None, *, image_size: int = 224, batch_
         full_ips = steps * batch_size / min(t_full)
         data_ips = steps * batch_size / min(t_data)
         del batches
-        return {"image_size": image_size, "batch_size": batch_size, "threads": threads, "workers": workers,
-                "device": str(dev), "frames": len(dataset), "model_step_ips": model_ips,
-                "model_step_nchw_ips": nchw_ips,
-                "channels_last_speedup": model_ips / nchw_ips, "full_pipeline_ips": full_ips, "data_only_ips": data_ips, "ratio": full_ips / model_ips,
-                # what the ratio would be if loading ran serially in the training process (workers=0)
-                "serial_bound": 1.0 / (1.0 + model_ips / data_ips)}
+        return {
+            "image_size": image_size,
+            "batch_size": batch_size,
+            "threads": threads,
+            "workers": workers,
+            "device": str(dev),
+            "frames": len(dataset),
+            "model_step_ips": model_ips,
+            "model_step_nchw_ips": nchw_ips,
+            "channels_last_speedup": model_ips / nchw_ips,
+            "full_pipeline_ips": full_ips,
+            "data_only_ips": data_ips,
+            "ratio": full_ips / model_ips,
+            # what the ratio would be if loading ran serially in the training process (workers=0)
+            "serial_bound": 1.0 / (1.0 + model_ips / data_ips),
+        }
     finally:
         if tmp is not None:
             tmp.cleanup()

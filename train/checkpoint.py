@@ -30,8 +30,11 @@ def rng_state() -> dict[str, Any]:
             "has_gauss": int(np_state[3]),
             "gauss": float(np_state[4]),
         },
-        "python": {"version": int(py_state[0]), "state": torch.tensor(py_state[1], dtype=torch.int64),
-                   "gauss": py_state[2]},
+        "python": {
+            "version": int(py_state[0]),
+            "state": torch.tensor(py_state[1], dtype=torch.int64),
+            "gauss": py_state[2],
+        },
     }
 
 
@@ -81,5 +84,11 @@ def read_training_state(path: str | Path) -> dict[str, Any]:
     return payload
 
 
-__all__ = ["model_info", "rng_state", "set_rng_state", "cpu_state_dict", "write_training_checkpoint",
-           "read_training_state"]
+__all__ = [
+    "cpu_state_dict",
+    "model_info",
+    "read_training_state",
+    "rng_state",
+    "set_rng_state",
+    "write_training_checkpoint",
+]

@@ -13,8 +13,11 @@ def _add_train_arguments(parser: argparse.ArgumentParser) -> None:
     add_overrides(parser, alias=False, example="epochs=5 data.root=/data/agriseg batch_size=16")
     parser.add_argument("--out", default=None, help="run folder (default runs/train/<config name>)")
     parser.add_argument("--resume", action="store_true", help="continue exactly from <out>/last.pt")
-    parser.add_argument("--force", action="store_true",
-                        help="start over in an --out that already holds a run (its checkpoints and logs are removed)")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="start over in an --out that already holds a run (its checkpoints and logs are removed)",
+    )
 
 
 def register(commands, bench) -> None:
@@ -38,7 +41,9 @@ def register(commands, bench) -> None:
     )
     bound.add_argument("--root", required=True, help="dataset root (any layout data.agriseg_loader reads)")
     bound.add_argument("--domains", nargs="+", default=None, help="domains or families (default: all)")
-    bound.add_argument("--sizes", type=int, nargs="+", default=[128, 192, 224], help="input sides (default 128 192 224)")
+    bound.add_argument(
+        "--sizes", type=int, nargs="+", default=[128, 192, 224], help="input sides (default 128 192 224)"
+    )
     bound.add_argument("--frames", type=int, default=200, help="masks to use, evenly spaced (default 200)")
     bound.add_argument("--steps", type=int, default=150, help="Adam steps of the logit fit (default 150)")
     bound.set_defaults(func=_bench_iou_bound)
@@ -66,18 +71,32 @@ def _bench(args: argparse.Namespace) -> int:
     from segmin.common.machine import load_average
     from segmin.train.bench import bench_train
 
-    r = bench_train(args.root, image_size=args.size, batch_size=args.batch, threads=args.threads,
-                    steps=args.steps, workers=args.workers, repeats=args.repeats, device=args.device)
-    print(f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
-          f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames; "
-          f"{load_average()}")
+    r = bench_train(
+        args.root,
+        image_size=args.size,
+        batch_size=args.batch,
+        threads=args.threads,
+        steps=args.steps,
+        workers=args.workers,
+        repeats=args.repeats,
+        device=args.device,
+    )
+    print(
+        f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
+        f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames; "
+        f"{load_average()}"
+    )
     print(f"  model step alone : {r['model_step_ips']:7.2f} images/s (channels-last)")
-    print(f"  same, plain NCHW : {r['model_step_nchw_ips']:7.2f} images/s; channels-last gain "
-          f"{r['channels_last_speedup']:.2f}x")
+    print(
+        f"  same, plain NCHW : {r['model_step_nchw_ips']:7.2f} images/s; channels-last gain "
+        f"{r['channels_last_speedup']:.2f}x"
+    )
     print(f"  full pipeline    : {r['full_pipeline_ips']:7.2f} images/s")
     print(f"  ratio            : {r['ratio']:.3f}  (target >= 0.90)")
-    print(f"  data alone       : {r['data_only_ips']:7.2f} images/s (decode + augment, 1 process); "
-          f"serial-loading bound {r['serial_bound']:.3f}")
+    print(
+        f"  data alone       : {r['data_only_ips']:7.2f} images/s (decode + augment, 1 process); "
+        f"serial-loading bound {r['serial_bound']:.3f}"
+    )
     return 0
 
 
@@ -87,14 +106,18 @@ def _bench_iou_bound(args: argparse.Namespace) -> int:
     if args.steps < 0:
         raise ValueError(f"--steps {args.steps}: must be >= 0")
     masks = load_masks(args.root, args.domains, args.frames)
-    print(f"IoU ceilings of LR-ASPP (logits at 1/8 resolution, bilinear upsampling) on {args.root}"
-          f" {args.domains or '(all domains)'}")
+    print(
+        f"IoU ceilings of LR-ASPP (logits at 1/8 resolution, bilinear upsampling) on {args.root}"
+        f" {args.domains or '(all domains)'}"
+    )
     print(f"{'input':>7}{'logit grid':>12}{'frames':>8}{'area-average':>14}{'fitted logits':>15}")
     for size in args.sizes:
         b = iou_bound(resize_masks(masks, size), steps=args.steps)
         print(f"{b.size:>7}{f'{b.grid}x{b.grid}':>12}{b.frames:>8}{b.area_iou:>14.3f}{b.fitted_iou:>15.3f}")
-    print("fitted is a close estimate of the ceiling from below (BCE fit of the logit grid);"
-          " a target well above it is out of reach at that input size")
+    print(
+        "fitted is a close estimate of the ceiling from below (BCE fit of the logit grid);"
+        " a target well above it is out of reach at that input size"
+    )
     return 0
 
 

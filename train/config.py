@@ -12,11 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from segmin.common.config import load_config
 from segmin.data.augment import AugmentConfig
 from segmin.data.canopy_region import check_closing_radius
-from segmin.common.config import load_config
 from segmin.data.real_sets import check_not_real_data
-
 
 _DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 

@@ -38,8 +38,9 @@ class RunLogger:
                     self.writer.add_scalar(key.replace("_", "/", 1), row[key], row["epoch"])
             self.writer.flush()
 
-    def preview(self, epoch: int, samples: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
-                threshold: float) -> Path | None:
+    def preview(
+        self, epoch: int, samples: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], threshold: float
+    ) -> Path | None:
         """PNG grid, one row per sample: image | ground truth | probability | prediction overlay."""
         if not samples:
             return None

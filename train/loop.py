@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable, Iterable
 
 import torch
 import torch.nn.functional as F
@@ -104,8 +104,12 @@ def train_one_epoch(
                 break
             with guard.step():
                 per_sample = train_step(ctx, images, masks)
-                total += torch.stack([per_sample.double().sum(), torch.tensor(
-                    float(per_sample.numel()), dtype=torch.float64, device=ctx.device)])
+                total += torch.stack(
+                    [
+                        per_sample.double().sum(),
+                        torch.tensor(float(per_sample.numel()), dtype=torch.float64, device=ctx.device),
+                    ]
+                )
                 if on_step is not None:
                     on_step(step + 1)
             if progress is not None:

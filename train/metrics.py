@@ -29,12 +29,16 @@ class SegMetrics:
         inter = (pred & truth).sum()
         union = (pred | truth).sum()
         correct = (pred == truth).sum()
-        batch = torch.stack([
-            inter.double(), union.double(), correct.double(),
-            torch.tensor(float(truth.numel()), dtype=torch.float64, device=inter.device),
-            torch.as_tensor(loss_sum, dtype=torch.float64, device=inter.device).detach(),
-            torch.tensor(float(logits.shape[0]), dtype=torch.float64, device=inter.device),
-        ])
+        batch = torch.stack(
+            [
+                inter.double(),
+                union.double(),
+                correct.double(),
+                torch.tensor(float(truth.numel()), dtype=torch.float64, device=inter.device),
+                torch.as_tensor(loss_sum, dtype=torch.float64, device=inter.device).detach(),
+                torch.tensor(float(logits.shape[0]), dtype=torch.float64, device=inter.device),
+            ]
+        )
         self.sums += batch.to(self.sums.device)
 
     def all_reduce(self) -> None:

@@ -20,9 +20,9 @@ training longer; `segmin bench iou-bound` prints both figures for given sizes on
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

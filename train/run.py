@@ -29,17 +29,33 @@ import yaml
 from torch.optim.swa_utils import AveragedModel, update_bn
 from torch.utils.data import DataLoader, DistributedSampler
 
-from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits, save_split
+from segmin.common.atomic import write_text
+from segmin.common.config import to_dict
+from segmin.common.outputs import check_output_dir
+from segmin.data.agriseg_loader import (
+    AgriSegDataset,
+    DatasetError,
+    Frame,
+    find_frames,
+    load_split,
+    make_splits,
+    save_split,
+)
 from segmin.data.augment import eval_transform, train_transform
 from segmin.data.frame_check import require_sound_frames, worker_error_line
 from segmin.models import build_model
 from segmin.models.lraspp import check_backbone_weights
-from segmin.common.atomic import write_text
-from segmin.common.outputs import check_output_dir
-from segmin.common.config import to_dict
 from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
 from segmin.train.config import TrainConfig
-from segmin.train.distributed import DistInfo, EpochSampler, ShardSampler, all_reduce_sum, barrier, cleanup, init_distributed
+from segmin.train.distributed import (
+    DistInfo,
+    EpochSampler,
+    ShardSampler,
+    all_reduce_sum,
+    barrier,
+    cleanup,
+    init_distributed,
+)
 from segmin.train.logs import RunLogger
 from segmin.train.loop import SegLoss, StepContext, evaluate, train_one_epoch
 
@@ -88,7 +104,9 @@ def select_frames(config: TrainConfig) -> tuple[list[Frame], list[Frame]]:
     if not train:
         raise DatasetError(f"{d.root}: no training frames for domains {d.domains}")
     if not val:
-        raise DatasetError(f"{d.val_root or d.root}: no validation frames (set data.val_fraction > 0 or data.val_domains)")
+        raise DatasetError(
+            f"{d.val_root or d.root}: no validation frames (set data.val_fraction > 0 or data.val_domains)"
+        )
     return train, val
 
 
@@ -111,22 +129,41 @@ def _worker_init(_: int) -> None:
 def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame], val_frames: list[Frame]):
     size = config.image_size
     closing = config.data.label_closing
-    train_ds = AgriSegDataset(config.data.root, split="all", seed=config.seed, frames=train_frames,
-                              transform=train_transform(size, config.augment), image_size=size, label_closing=closing)
-    val_ds = AgriSegDataset(config.data.root, split="all", seed=config.seed, frames=val_frames,
-                            transform=eval_transform(size), image_size=size, label_closing=closing)
-    base = DistributedSampler(train_ds, num_replicas=dist.world_size, rank=dist.rank, shuffle=True,
-                              seed=config.seed, drop_last=False)
+    train_ds = AgriSegDataset(
+        config.data.root,
+        split="all",
+        seed=config.seed,
+        frames=train_frames,
+        transform=train_transform(size, config.augment),
+        image_size=size,
+        label_closing=closing,
+    )
+    val_ds = AgriSegDataset(
+        config.data.root,
+        split="all",
+        seed=config.seed,
+        frames=val_frames,
+        transform=eval_transform(size),
+        image_size=size,
+        label_closing=closing,
+    )
+    base = DistributedSampler(
+        train_ds, num_replicas=dist.world_size, rank=dist.rank, shuffle=True, seed=config.seed, drop_last=False
+    )
     sampler = EpochSampler(base)
     common: dict[str, Any] = {"num_workers": config.num_workers, "pin_memory": dist.device.type == "cuda"}
     if config.num_workers > 0:
-        common.update(prefetch_factor=config.prefetch_factor, persistent_workers=True,
-                      worker_init_fn=_worker_init)
+        common.update(prefetch_factor=config.prefetch_factor, persistent_workers=True, worker_init_fn=_worker_init)
     per_rank = len(base)
-    train_loader = DataLoader(train_ds, batch_size=config.batch_size, sampler=sampler,
-                              drop_last=per_rank > config.batch_size, **common)
-    val_loader = DataLoader(val_ds, batch_size=config.eval_batch_size or config.batch_size,
-                            sampler=ShardSampler(len(val_ds), dist.rank, dist.world_size), **common)
+    train_loader = DataLoader(
+        train_ds, batch_size=config.batch_size, sampler=sampler, drop_last=per_rank > config.batch_size, **common
+    )
+    val_loader = DataLoader(
+        val_ds,
+        batch_size=config.eval_batch_size or config.batch_size,
+        sampler=ShardSampler(len(val_ds), dist.rank, dist.world_size),
+        **common,
+    )
     return train_loader, sampler, val_loader
 
 
@@ -152,8 +189,10 @@ def claim_run_folder(out_dir: Path, *, resume: bool, force: bool) -> None:
     if not existing:
         return
     if not force:
-        raise FileExistsError(f"{out_dir}: already holds a training run ({', '.join(existing)}); "
-                              "pass --resume to continue it or --force to start over")
+        raise FileExistsError(
+            f"{out_dir}: already holds a training run ({', '.join(existing)}); "
+            "pass --resume to continue it or --force to start over"
+        )
     import shutil
 
     for name in RUN_OUTPUTS:
@@ -195,8 +234,11 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     train_frames, val_frames = select_frames(config)
     # Decode every frame once now: a corrupt one must stop the run here, naming the file, not
     # as a worker traceback hours in (or never, when the sampler happens not to pick it).
-    require_sound_frames(train_frames + val_frames, out_dir / "frame_check.json" if dist.is_main else None,
-                         threads=max(1, config.num_workers))
+    require_sound_frames(
+        train_frames + val_frames,
+        out_dir / "frame_check.json" if dist.is_main else None,
+        threads=max(1, config.num_workers),
+    )
     train_loader, sampler, val_loader = build_loaders(config, dist, train_frames, val_frames)
 
     model = build_model(config.backbone_weights)
@@ -220,12 +262,24 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     elif config.schedule == "step":
         scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.step_size, gamma=config.gamma)
     scaler = torch.amp.GradScaler("cuda") if cuda and config.amp else None
-    ctx = StepContext(net, optimizer, SegLoss(config.dice_weight), dist.device, scaler,
-                      amp=cuda and config.amp, channels_last=config.channels_last)
+    ctx = StepContext(
+        net,
+        optimizer,
+        SegLoss(config.dice_weight),
+        dist.device,
+        scaler,
+        amp=cuda and config.amp,
+        channels_last=config.channels_last,
+    )
 
     averaged = AveragedModel(model) if config.swa_start_epoch is not None else None
-    info = model_info(backbone_weights=str(config.backbone_weights), input_size=(config.image_size, config.image_size),
-                      family=config.family, train_data=_describe_data(config), threshold=config.threshold)
+    info = model_info(
+        backbone_weights=str(config.backbone_weights),
+        input_size=(config.image_size, config.image_size),
+        family=config.family,
+        train_data=_describe_data(config),
+        threshold=config.threshold,
+    )
     config_dict = to_dict(config)
     best_path, last_path = out_dir / "best.pt", out_dir / "last.pt"
     start_epoch, skip_steps, best_iou, history = 0, 0, -math.inf, []
@@ -250,23 +304,38 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     if dist.is_main:
         out_dir.mkdir(parents=True, exist_ok=True)
         write_text(out_dir / "config.yaml", yaml.safe_dump(config_dict, sort_keys=False))
-        save_split(out_dir / "split.json", {"train": train_frames, "val": val_frames},
-                   root=str(config.data.root), val_root=str(config.data.val_root or config.data.root))
+        save_split(
+            out_dir / "split.json",
+            {"train": train_frames, "val": val_frames},
+            root=str(config.data.root),
+            val_root=str(config.data.val_root or config.data.root),
+        )
 
     progress = {"epoch": start_epoch, "step": skip_steps}
 
     def save_last(metrics: dict[str, float]) -> None:
-        write_training_checkpoint(last_path, model=model, info=info, epoch=progress["epoch"], metrics=metrics,
-                                  config=config_dict, training_state={
-                                      "epoch": progress["epoch"], "step": progress["step"],
-                                      "optimizer": optimizer.state_dict(),
-                                      "scheduler": scheduler.state_dict() if scheduler is not None else None,
-                                      "scaler": scaler.state_dict() if scaler is not None else {},
-                                      "rng": rng_state(), "best_iou": best_iou, "history": history,
-                                      # not cpu_state_dict: it unwraps `.module` and would drop n_averaged
-                                      "swa": None if averaged is None else
-                                      {k: v.detach().cpu().clone() for k, v in averaged.state_dict().items()},
-                                  })
+        write_training_checkpoint(
+            last_path,
+            model=model,
+            info=info,
+            epoch=progress["epoch"],
+            metrics=metrics,
+            config=config_dict,
+            training_state={
+                "epoch": progress["epoch"],
+                "step": progress["step"],
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict() if scheduler is not None else None,
+                "scaler": scaler.state_dict() if scaler is not None else {},
+                "rng": rng_state(),
+                "best_iou": best_iou,
+                "history": history,
+                # not cpu_state_dict: it unwraps `.module` and would drop n_averaged
+                "swa": None
+                if averaged is None
+                else {k: v.detach().cpu().clone() for k, v in averaged.state_dict().items()},
+            },
+        )
 
     interrupted = False
     swa_path: Path | None = None
@@ -280,8 +349,9 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
         if not dist.is_main:
             return
         every, minutes = config.checkpoint_every_steps, config.checkpoint_every_minutes
-        due = (every is not None and step % every == 0) or \
-              (minutes is not None and time.monotonic() - saved_at >= 60.0 * minutes)
+        due = (every is not None and step % every == 0) or (
+            minutes is not None and time.monotonic() - saved_at >= 60.0 * minutes
+        )
         if due and step < steps_per_epoch:  # the epoch end saves anyway, with its metrics
             save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
             saved_at = time.monotonic()
@@ -295,21 +365,38 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
             skip = skip_steps if epoch == start_epoch else 0
             progress.update(epoch=epoch, step=skip)
             sampler.set_epoch(epoch, skip=skip * config.batch_size)
-            bar = tqdm(total=max(0, steps_per_epoch - skip), desc=f"epoch {epoch + 1}/{config.epochs}",
-                       disable=not (config.progress and dist.is_main), leave=False)
-            train = train_one_epoch(ctx, train_loader, max_steps=steps_per_epoch - skip,
-                                    on_step=lambda s, skip=skip: after_step(skip + s), progress=bar)
+            bar = tqdm(
+                total=max(0, steps_per_epoch - skip),
+                desc=f"epoch {epoch + 1}/{config.epochs}",
+                disable=not (config.progress and dist.is_main),
+                leave=False,
+            )
+            train = train_one_epoch(
+                ctx,
+                train_loader,
+                max_steps=steps_per_epoch - skip,
+                on_step=lambda s, skip=skip: after_step(skip + s),
+                progress=bar,
+            )
             bar.close()
             keep = config.preview_images if dist.is_main else 0
-            bar = tqdm(total=len(val_loader), desc="validate", disable=not (config.progress and dist.is_main),
-                       leave=False)
+            bar = tqdm(
+                total=len(val_loader), desc="validate", disable=not (config.progress and dist.is_main), leave=False
+            )
             val, samples = evaluate(ctx, val_loader, threshold=config.threshold, keep=keep, progress=bar)
             bar.close()
             lr = optimizer.param_groups[0]["lr"]
             if scheduler is not None:
                 scheduler.step()
-            row = {"epoch": epoch + 1, "train_loss": train["loss"], "val_loss": val["loss"], "val_iou": val["iou"],
-                   "val_pixel_acc": val["pixel_acc"], "lr": lr, "seconds": time.perf_counter() - started}
+            row = {
+                "epoch": epoch + 1,
+                "train_loss": train["loss"],
+                "val_loss": val["loss"],
+                "val_iou": val["iou"],
+                "val_pixel_acc": val["pixel_acc"],
+                "lr": lr,
+                "seconds": time.perf_counter() - started,
+            }
             history.append(row)
             last_metrics = row
             improved = val["iou"] > best_iou
@@ -320,38 +407,64 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
             if dist.is_main:
                 metrics = {k: v for k, v in row.items() if k != "epoch"}
                 if improved:
-                    write_training_checkpoint(best_path, model=model, info=info, epoch=epoch + 1,
-                                              metrics=metrics, config=config_dict)
+                    write_training_checkpoint(
+                        best_path, model=model, info=info, epoch=epoch + 1, metrics=metrics, config=config_dict
+                    )
                 save_last(metrics)
                 assert logger is not None
                 logger.epoch(history)
                 logger.preview(epoch + 1, samples, config.threshold)
-                print(f"epoch {epoch + 1}/{config.epochs}: train loss {train['loss']:.4f}  val loss "
-                      f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
-                      f"({row['seconds']:.0f} s){'  *best*' if improved else ''}", flush=True)
+                print(
+                    f"epoch {epoch + 1}/{config.epochs}: train loss {train['loss']:.4f}  val loss "
+                    f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
+                    f"({row['seconds']:.0f} s){'  *best*' if improved else ''}",
+                    flush=True,
+                )
             barrier()
         if averaged is not None and int(averaged.n_averaged) > 0:
             sampler.set_epoch(config.epochs)
-            swa_path = _finish_weight_average(config, ctx, averaged, train_loader, steps_per_epoch, val_loader,
-                                              out_dir, dist, info, config_dict)
+            swa_path = _finish_weight_average(
+                config, ctx, averaged, train_loader, steps_per_epoch, val_loader, out_dir, dist, info, config_dict
+            )
     except DatasetError as exc:  # from a loader worker: its message is the worker's whole traceback
         raise DatasetError(worker_error_line(exc)) from None
     except KeyboardInterrupt:
         interrupted = True
         if dist.is_main:
             save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
-            print(f"\ninterrupted: saved {last_path} (epoch {progress['epoch'] + 1}, step {progress['step']}); "
-                  "continue with --resume", flush=True)
+            print(
+                f"\ninterrupted: saved {last_path} (epoch {progress['epoch'] + 1}, step {progress['step']}); "
+                "continue with --resume",
+                flush=True,
+            )
     finally:
         if logger is not None:
             logger.close()
-    return FitResult(best_path, last_path, history, model, interrupted, dist.rank, dist.world_size, swa_path,
-                     averaged.module if swa_path is not None else None)
+    return FitResult(
+        best_path,
+        last_path,
+        history,
+        model,
+        interrupted,
+        dist.rank,
+        dist.world_size,
+        swa_path,
+        averaged.module if swa_path is not None else None,
+    )
 
 
-def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: AveragedModel, train_loader,
-                           steps: int, val_loader, out_dir: Path, dist: DistInfo, info: dict[str, Any],
-                           config_dict: dict[str, Any]) -> Path:
+def _finish_weight_average(
+    config: TrainConfig,
+    ctx: StepContext,
+    averaged: AveragedModel,
+    train_loader,
+    steps: int,
+    val_loader,
+    out_dir: Path,
+    dist: DistInfo,
+    info: dict[str, Any],
+    config_dict: dict[str, Any],
+) -> Path:
     """BatchNorm statistics for the averaged weights, its validation, and swa.pt.
 
     The running statistics of the last epoch belong to the last weights, not to their average:
@@ -361,8 +474,17 @@ def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: Aver
     from tqdm import tqdm
 
     show = config.progress and dist.is_main
-    update_bn(tqdm(itertools.islice(train_loader, steps), total=steps, desc="swa: BatchNorm statistics",
-                   disable=not show, leave=False), averaged.module, device=dist.device)
+    update_bn(
+        tqdm(
+            itertools.islice(train_loader, steps),
+            total=steps,
+            desc="swa: BatchNorm statistics",
+            disable=not show,
+            leave=False,
+        ),
+        averaged.module,
+        device=dist.device,
+    )
     # Each rank saw its own shard: average the statistics so that every rank validates, and rank
     # 0 saves, the same model (update_bn's variance is itself a mean of per-batch variances).
     for module in averaged.module.modules():
@@ -370,18 +492,27 @@ def _finish_weight_average(config: TrainConfig, ctx: StepContext, averaged: Aver
             for buffer in (module.running_mean, module.running_var):
                 all_reduce_sum(buffer).div_(dist.world_size)
     bar = tqdm(total=len(val_loader), desc="swa: validate", disable=not show, leave=False)
-    val, _ = evaluate(dataclasses.replace(ctx, model=averaged.module), val_loader,
-                      threshold=config.threshold, progress=bar)
+    val, _ = evaluate(
+        dataclasses.replace(ctx, model=averaged.module), val_loader, threshold=config.threshold, progress=bar
+    )
     bar.close()
     path = out_dir / "swa.pt"
     if dist.is_main:
-        metrics = {"val_loss": val["loss"], "val_iou": val["iou"], "val_pixel_acc": val["pixel_acc"],
-                   "swa_epochs": float(averaged.n_averaged)}
-        write_training_checkpoint(path, model=averaged.module, info=info, epoch=config.epochs, metrics=metrics,
-                                  config=config_dict)
-        print(f"swa: average of epochs {config.swa_start_epoch}-{config.epochs} "
-              f"({int(averaged.n_averaged)} epochs): val loss {val['loss']:.4f}  IoU {val['iou']:.4f}  "
-              f"acc {val['pixel_acc']:.4f}  -> {path}", flush=True)
+        metrics = {
+            "val_loss": val["loss"],
+            "val_iou": val["iou"],
+            "val_pixel_acc": val["pixel_acc"],
+            "swa_epochs": float(averaged.n_averaged),
+        }
+        write_training_checkpoint(
+            path, model=averaged.module, info=info, epoch=config.epochs, metrics=metrics, config=config_dict
+        )
+        print(
+            f"swa: average of epochs {config.swa_start_epoch}-{config.epochs} "
+            f"({int(averaged.n_averaged)} epochs): val loss {val['loss']:.4f}  IoU {val['iou']:.4f}  "
+            f"acc {val['pixel_acc']:.4f}  -> {path}",
+            flush=True,
+        )
     barrier()
     return path
 

@@ -17,7 +17,7 @@ import numpy as np
 from segmin.data.synth.mesh import Mesh, cylinders, ellipsoid_area, ellipsoid_shell_points, leaves
 
 BackdropPart = tuple[str, Mesh, int, tuple[float, float, float, float]]
-TREE_LEAVES = 260      # leaf triangles per backdrop tree at most (they are far: big leaves are fine)
+TREE_LEAVES = 260  # leaf triangles per backdrop tree at most (they are far: big leaves are fine)
 BUILDING_TINTS = ((0.95, 0.93, 0.85), (0.85, 0.55, 0.45), (0.7, 0.7, 0.72), (0.9, 0.8, 0.6))
 
 
@@ -29,8 +29,9 @@ def _field_box(layout, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     return pts.min(axis=0) - margin, pts.max(axis=0) + margin
 
 
-def _around(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray, distance: float,
-            side: int | None = None) -> tuple[np.ndarray, int]:
+def _around(
+    rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray, distance: float, side: int | None = None
+) -> tuple[np.ndarray, int]:
     """A point `distance` beyond the box edge on `side` (0 = beyond the row ends, 1 = before the
     entrance, 2 = right, 3 = left), spread along that side."""
     side = int(rng.integers(4)) if side is None else side
@@ -137,7 +138,9 @@ def backdrop_meshes(spec, layout, terrain, rng: np.random.Generator, textures) -
         for k in range(count):
             xy, _ = _around(rng, lo, hi, distance + rng.uniform(0, 4), side)
             foot = np.array([xy[0], xy[1], float(terrain.height(*xy))])
-            parts.append(("backdrop_tree", tree_mesh(rng, foot, rng.uniform(*bd.tree_height), 160), leaf_tex, (1, 1, 1, 1)))
+            parts.append(
+                ("backdrop_tree", tree_mesh(rng, foot, rng.uniform(*bd.tree_height), 160), leaf_tex, (1, 1, 1, 1))
+            )
     for _ in range(bd.hedges):
         side = int(rng.integers(4))
         distance = rng.uniform(1.0, max(1.5, 0.5 * bd.tree_distance[1]))
@@ -150,7 +153,14 @@ def backdrop_meshes(spec, layout, terrain, rng: np.random.Generator, textures) -
             a, b = np.array([lo[0] - 0.2 * span[0], y]), np.array([hi[0] + 0.2 * span[0], y])
         for k in range(4):  # in pieces, so culling and TinyRenderer's bounding boxes stay small
             pa, pb = a + (b - a) * k / 4, a + (b - a) * (k + 1) / 4
-            parts.append(("backdrop_tree", hedge_mesh(rng, pa, pb, rng.uniform(*bd.hedge_height), terrain), leaf_tex, (1, 1, 1, 1)))
+            parts.append(
+                (
+                    "backdrop_tree",
+                    hedge_mesh(rng, pa, pb, rng.uniform(*bd.hedge_height), terrain),
+                    leaf_tex,
+                    (1, 1, 1, 1),
+                )
+            )
     for _ in range(bd.buildings):
         xy, _ = _around(rng, lo, hi, rng.uniform(max(8.0, bd.tree_distance[0]), max(10.0, bd.tree_distance[1])))
         foot = np.array([xy[0], xy[1], float(terrain.height(*xy))])

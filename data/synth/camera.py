@@ -19,11 +19,11 @@ class CameraModel:
     width: int = 224
     height: int = 224
     hfov_deg: float = 69.0
-    sensor_aspect: float = 4.0 / 3.0     # width / height of the physical colour sensor
+    sensor_aspect: float = 4.0 / 3.0  # width / height of the physical colour sensor
     near: float = 0.05
     far: float = 60.0
     mount_forward: float = 0.2
-    mount_height: float = 0.40           # Jackal camera height above the ground
+    mount_height: float = 0.40  # Jackal camera height above the ground
     tilt_deg: float = 15.0
     # Depth noise (RealSense-like): sigma = depth_noise_k * z^2, random dropouts, max range.
     depth_noise_enabled: bool = True
@@ -58,10 +58,17 @@ class CameraModel:
         fx = (self.width / 2) / math.tan(math.radians(self.hfov_deg) / 2)
         fy = (self.height / 2) / math.tan(math.radians(self.vfov_deg) / 2)
         return {
-            "width": self.width, "height": self.height, "fx": fx, "fy": fy,
-            "cx": self.width / 2, "cy": self.height / 2 - 1,
-            "hfov_deg": self.hfov_deg, "vfov_deg": self.vfov_deg,
-            "near": self.near, "far": self.far, "max_range": self.max_range,
+            "width": self.width,
+            "height": self.height,
+            "fx": fx,
+            "fy": fy,
+            "cx": self.width / 2,
+            "cy": self.height / 2 - 1,
+            "hfov_deg": self.hfov_deg,
+            "vfov_deg": self.vfov_deg,
+            "near": self.near,
+            "far": self.far,
+            "max_range": self.max_range,
         }
 
     def pixel_rays(self) -> np.ndarray:

@@ -27,8 +27,13 @@ def register(commands, bench) -> None:
     r.set_defaults(func=_render)
 
     pv = sub.add_parser("preview", help="contact sheet (RGB | mask overlay | depth) of a few frames per world")
-    pv.add_argument("--world", nargs="+", required=True, action=NamesThenOverrides,
-                    help="world names or YAML paths (KEY=VALUE tokens after them are overrides)")
+    pv.add_argument(
+        "--world",
+        nargs="+",
+        required=True,
+        action=NamesThenOverrides,
+        help="world names or YAML paths (KEY=VALUE tokens after them are overrides)",
+    )
     pv.add_argument("--out", type=Path, required=True, help="PNG file to write")
     pv.add_argument("--frames", type=int, default=2, help="frames per world (default 2)")
     pv.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
@@ -69,13 +74,23 @@ def _render(args) -> int:
     check_writable(args.out)  # before loading anything heavy
     spec = load_world_spec(args.world, overrides_of(args))
     job = RenderJob(
-        spec=spec, out=args.out, frames=args.frames, camera=_camera(args.size), seed=args.seed,
-        frames_per_subset=args.frames_per_subset, noisy_depth=not args.exact_depth, workers=args.workers,
-        shard=parse_shard(args.shard), overwrite=args.overwrite, progress=not args.no_progress,
+        spec=spec,
+        out=args.out,
+        frames=args.frames,
+        camera=_camera(args.size),
+        seed=args.seed,
+        frames_per_subset=args.frames_per_subset,
+        noisy_depth=not args.exact_depth,
+        workers=args.workers,
+        shard=parse_shard(args.shard),
+        overwrite=args.overwrite,
+        progress=not args.no_progress,
     )
     summary = render_dataset(job)
-    print(f"wrote {summary['written']} frames ({summary['skipped']} already done) to {summary['out']} "
-          f"in {summary['seconds']:.1f} s: {summary['fps']:.1f} frames/s")
+    print(
+        f"wrote {summary['written']} frames ({summary['skipped']} already done) to {summary['out']} "
+        f"in {summary['seconds']:.1f} s: {summary['fps']:.1f} frames/s"
+    )
     return 0
 
 
@@ -147,14 +162,14 @@ def _bench(args) -> int:
     from segmin.data.synth.render import Renderer
     from segmin.data.synth.spec import TEST_FIELDS, load_world_spec
     from segmin.data.synth.world import build_world
-    from segmin.data.synth.writer import RenderJob, render_dataset
-
-    from segmin.data.synth.writer import FrameRenderer, encode_frame
+    from segmin.data.synth.writer import FrameRenderer, RenderJob, encode_frame, render_dataset
 
     camera = _camera(args.size)
     fields = args.fields or list(TEST_FIELDS)
-    print(f"segmin bench synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
-          f"{args.frames} frames per run, {load_average()}")
+    print(
+        f"segmin bench synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
+        f"{args.frames} frames per run, {load_average()}"
+    )
     print("frames/s: whole run (incl. building the world in each worker) and steady (after the first task);")
     print("cpu ms/frame: render + encode in one process (CPU time, independent of other load)")
     header = f"{'world':20s} " + " ".join(f"{f'{w}w run':>8s} {f'{w}w steady':>10s}" for w in args.workers)
@@ -164,8 +179,9 @@ def _bench(args) -> int:
         cells = []
         for workers in args.workers:
             with tempfile.TemporaryDirectory(prefix="segmin_bench_") as tmp:
-                job = RenderJob(spec=spec, out=Path(tmp), frames=args.frames, camera=camera,
-                                workers=workers, progress=False)
+                job = RenderJob(
+                    spec=spec, out=Path(tmp), frames=args.frames, camera=camera, workers=workers, progress=False
+                )
                 summary = render_dataset(job)
             cells.append(f"{summary['fps']:8.1f} {summary['steady_fps']:10.1f}")
         fr = FrameRenderer(spec, camera, spec.seed, 10, True)
@@ -200,10 +216,12 @@ def _bench(args) -> int:
                 samples.append(time.perf_counter() - t)
                 cpu.append(time.process_time() - c)
             times[length] = float(np.mean(cpu))
-            print(f"row length {length:5.0f} m: {len(world.chunks):5d} chunks, "
-                  f"{sum(len(c.bodies) for c in world.chunks):5d} bodies, build {build_s:.1f} s, "
-                  f"render {1000 * times[length]:.1f} ms/frame CPU (median wall {1000 * np.median(samples):.1f} ms)",
-                  flush=True)
+            print(
+                f"row length {length:5.0f} m: {len(world.chunks):5d} chunks, "
+                f"{sum(len(c.bodies) for c in world.chunks):5d} bodies, build {build_s:.1f} s, "
+                f"render {1000 * times[length]:.1f} ms/frame CPU (median wall {1000 * np.median(samples):.1f} ms)",
+                flush=True,
+            )
         finally:
             p.disconnect(client)
     print(f"200 m / 20 m per-frame render time ratio (CPU): {times[200.0] / times[20.0]:.2f} (target <= 1.5)")

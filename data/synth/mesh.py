@@ -31,7 +31,7 @@ class Mesh:
         return len(self.indices) // 3
 
     @staticmethod
-    def concat(meshes: list["Mesh"]) -> "Mesh":
+    def concat(meshes: list[Mesh]) -> Mesh:
         meshes = [m for m in meshes if len(m.indices)]
         if not meshes:
             return Mesh()
@@ -77,8 +77,15 @@ def _perpendicular_frames(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-def cylinders(p0: np.ndarray, p1: np.ndarray, r0: np.ndarray, r1: np.ndarray, sides: int,
-              uv_region: tuple[float, float, float, float] = UV_BARK, caps: bool = False) -> Mesh:
+def cylinders(
+    p0: np.ndarray,
+    p1: np.ndarray,
+    r0: np.ndarray,
+    r1: np.ndarray,
+    sides: int,
+    uv_region: tuple[float, float, float, float] = UV_BARK,
+    caps: bool = False,
+) -> Mesh:
     """Tapered open prisms from p0 to p1 (arrays of shape (n, 3) and (n,)), outward faces only."""
     p0, p1 = np.atleast_2d(p0).astype(float), np.atleast_2d(p1).astype(float)
     r0, r1 = np.broadcast_to(r0, (len(p0),)).astype(float), np.broadcast_to(r1, (len(p0),)).astype(float)
@@ -118,15 +125,23 @@ def cylinders(p0: np.ndarray, p1: np.ndarray, r0: np.ndarray, r1: np.ndarray, si
                 b_i, b_j = k * 2 * sides + s, k * 2 * sides + (s + 1) % sides
                 cap_idx += [c_top, t_i, t_j, c_bot, b_j, b_i]
         mesh = Mesh(
-            np.concatenate([verts, cap_v]), np.concatenate([normals, cap_n]),
-            np.concatenate([mesh.uvs, cap_uv]), np.concatenate([idx, np.array(cap_idx, dtype=np.int64)]),
+            np.concatenate([verts, cap_v]),
+            np.concatenate([normals, cap_n]),
+            np.concatenate([mesh.uvs, cap_uv]),
+            np.concatenate([idx, np.array(cap_idx, dtype=np.int64)]),
         )
     return mesh
 
 
-def leaves(centres: np.ndarray, sizes: np.ndarray, rng: np.random.Generator,
-           uv_region: tuple[float, float, float, float] = UV_LEAF, up_bias: float = 0.3,
-           double_sided: bool = True, facing: np.ndarray | None = None) -> Mesh:
+def leaves(
+    centres: np.ndarray,
+    sizes: np.ndarray,
+    rng: np.random.Generator,
+    uv_region: tuple[float, float, float, float] = UV_LEAF,
+    up_bias: float = 0.3,
+    double_sided: bool = True,
+    facing: np.ndarray | None = None,
+) -> Mesh:
     """One irregular triangle per leaf.
 
     With `facing` (n, 3) (e.g. the outward direction of the cluster surface) each leaf is
@@ -161,7 +176,9 @@ def leaves(centres: np.ndarray, sizes: np.ndarray, rng: np.random.Generator,
         return Mesh(verts, norms, uvs, front.astype(np.int64))
     back = (3 * n + np.arange(3 * n).reshape(n, 3)[:, ::-1]).reshape(-1)
     return Mesh(
-        np.concatenate([verts, verts]), np.concatenate([norms, -norms]), np.concatenate([uvs, uvs]),
+        np.concatenate([verts, verts]),
+        np.concatenate([norms, -norms]),
+        np.concatenate([uvs, uvs]),
         np.concatenate([front, back]).astype(np.int64),
     )
 
@@ -189,8 +206,12 @@ def blades(bases: np.ndarray, heights: np.ndarray, rng: np.random.Generator, per
     norms = np.repeat(normal, 3, axis=0)
     front = np.arange(3 * n)
     back = (3 * n + np.arange(3 * n).reshape(n, 3)[:, ::-1]).reshape(-1)
-    return Mesh(np.concatenate([verts, verts]), np.concatenate([norms, -norms]), np.concatenate([uvs, uvs]),
-                np.concatenate([front, back]).astype(np.int64))
+    return Mesh(
+        np.concatenate([verts, verts]),
+        np.concatenate([norms, -norms]),
+        np.concatenate([uvs, uvs]),
+        np.concatenate([front, back]).astype(np.int64),
+    )
 
 
 def grid_surface(xs: np.ndarray, ys: np.ndarray, height_fn, normal_fn, uv_scale: float) -> Mesh:
@@ -210,8 +231,9 @@ def grid_surface(xs: np.ndarray, ys: np.ndarray, height_fn, normal_fn, uv_scale:
     return Mesh(verts, normals, uvs, idx.astype(np.int64))
 
 
-def ellipsoid_shell_points(centre: np.ndarray, radii: np.ndarray, n: int, rng: np.random.Generator,
-                           depth: float = 0.35) -> tuple[np.ndarray, np.ndarray]:
+def ellipsoid_shell_points(
+    centre: np.ndarray, radii: np.ndarray, n: int, rng: np.random.Generator, depth: float = 0.35
+) -> tuple[np.ndarray, np.ndarray]:
     """`n` points inside an axis-aligned ellipsoid, concentrated near its surface, and the
     outward surface normal at each point's direction."""
     d = _unit(rng.normal(size=(n, 3)))

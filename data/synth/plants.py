@@ -27,8 +27,8 @@ class Plant:
     """Skeleton of one plant; `mesh(lod)` turns it into triangles in world coordinates."""
 
     kind: str
-    base: np.ndarray                 # (3,) trunk foot on the ground
-    along: np.ndarray                # (2,) unit row direction
+    base: np.ndarray  # (3,) trunk foot on the ground
+    along: np.ndarray  # (2,) unit row direction
     trunk_radius: float
     leaf_size: float
     density: float
@@ -82,7 +82,7 @@ class Plant:
         # Leaf count and size so that about `density` of the surface is covered (Poisson overlap).
         budget = LEAF_BUDGET[self.kind] // LOD_FACTORS[level]
         cover = -np.log(max(1.0 - self.density, 0.02))
-        n = int(min(budget, len(local), max(4, 2.0 * cover * visible_area / self.leaf_size ** 2)))
+        n = int(min(budget, len(local), max(4, 2.0 * cover * visible_area / self.leaf_size**2)))
         size = max(self.leaf_size, float(np.sqrt(2.0 * cover * visible_area / max(n, 1))))
         pick = rng.choice(len(local), size=n, replace=False) if n < len(local) else np.arange(len(local))
         # Outermost leaves (towards the gaps) first: TinyRenderer draws triangles in order and
@@ -101,14 +101,17 @@ def _i(rng: np.random.Generator, pair) -> int:
     return int(rng.integers(pair[0], pair[1] + 1))
 
 
-def make_plant(spec: WorldSpec, rng: np.random.Generator, base: np.ndarray, along: np.ndarray,
-               row_index: int) -> Plant:
+def make_plant(spec: WorldSpec, rng: np.random.Generator, base: np.ndarray, along: np.ndarray, row_index: int) -> Plant:
     """Draw one plant of the spec's crop at `base` (ground point) facing `along` the row."""
     ps = spec.plants
     plant = Plant(
-        kind=spec.crop, base=np.asarray(base, float), along=np.asarray(along, float),
-        trunk_radius=_u(rng, ps.trunk_radius), leaf_size=_u(rng, ps.leaf_size),
-        density=ps.leaf_density, seed=int(rng.integers(2**31)),
+        kind=spec.crop,
+        base=np.asarray(base, float),
+        along=np.asarray(along, float),
+        trunk_radius=_u(rng, ps.trunk_radius),
+        leaf_size=_u(rng, ps.leaf_size),
+        density=ps.leaf_density,
+        seed=int(rng.integers(2**31)),
     )
     if ps.sparse_probability > 0 and rng.uniform() < ps.sparse_probability:
         plant.density = ps.leaf_density * float(rng.uniform(0.3, 0.55))  # young shoots on the wires
@@ -136,8 +139,13 @@ def _vine(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: in
         _seg(plant, top, [sign * arm, lean[1] + rng.normal(0, 0.02), trunk_h + 0.04], 0.6 * r, 0.35 * r)
     for _ in range(_i(rng, ps.branches)):  # shoots up into the canopy
         a0 = rng.uniform(-arm, arm)
-        _seg(plant, [a0, lean[1], trunk_h + 0.03], [a0 + rng.normal(0, 0.15), rng.normal(0, 0.08), height * 0.92],
-             0.009, 0.005)
+        _seg(
+            plant,
+            [a0, lean[1], trunk_h + 0.03],
+            [a0 + rng.normal(0, 0.15), rng.normal(0, 0.08), height * 0.92],
+            0.009,
+            0.005,
+        )
     n = _i(rng, ps.clusters)
     span = 0.5 * ps.spacing
     depth = height - bottom
@@ -148,8 +156,9 @@ def _vine(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: in
         radii = np.array([span / n * 1.3 + 0.08, 0.5 * width * rng.uniform(0.8, 1.15), rz])
         plant.clusters.append((np.array([a, rng.normal(0, 0.04), hz]), radii))
     # The top of the hedge: one flatter cluster that reaches the nominal height.
-    plant.clusters.append((np.array([rng.normal(0, 0.1), 0.0, height - 0.18]),
-                           np.array([span * 0.9, 0.5 * width * 0.8, 0.18])))
+    plant.clusters.append(
+        (np.array([rng.normal(0, 0.1), 0.0, height - 0.18]), np.array([span * 0.9, 0.5 * width * 0.8, 0.18]))
+    )
 
 
 def _pear(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: int) -> None:
@@ -169,8 +178,9 @@ def _pear(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: in
     for k in range(n):
         hz = bottom + (height - bottom) * (k + 0.5) / n + rng.normal(0, 0.08)
         taper = 1.0 - 0.45 * (hz - bottom) / max(height - bottom, 1e-3)  # narrower at the top
-        radii = np.array([rng.uniform(0.3, 0.45) * taper + 0.1, 0.5 * width * taper * rng.uniform(0.8, 1.1),
-                          rng.uniform(0.25, 0.4)])
+        radii = np.array(
+            [rng.uniform(0.3, 0.45) * taper + 0.1, 0.5 * width * taper * rng.uniform(0.8, 1.1), rng.uniform(0.25, 0.4)]
+        )
         plant.clusters.append((np.array([rng.normal(0, 0.12), rng.normal(0, 0.06), hz]), radii))
 
 
@@ -224,12 +234,17 @@ def _pergola(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index:
     for k in range(n):  # flat clusters: a leaf ceiling over the span, edges at the free bands
         c = c0 + (c1 - c0) * (k + 0.5) / n
         rc = min(0.5 * (c1 - c0) / n * 1.3, c - c0, c1 - c)  # never past the band edges
-        plant.clusters.append((np.array([rng.normal(0, 0.1), c, ph + 0.4 * thickness]),
-                               np.array([along, rc, 0.5 * thickness])))
+        plant.clusters.append(
+            (np.array([rng.normal(0, 0.1), c, ph + 0.4 * thickness]), np.array([along, rc, 0.5 * thickness]))
+        )
     for sign, reach in ((1, reach_left), (-1, reach_right)):  # shoots hanging at the band edges
         drop = rng.uniform(0.15, 0.4)
-        plant.clusters.append((np.array([rng.normal(0, 0.15), sign * (reach - 0.2), ph - drop * 0.4]),
-                               np.array([0.35 * ps.spacing, 0.2, drop * 0.5 + 0.05])))
+        plant.clusters.append(
+            (
+                np.array([rng.normal(0, 0.15), sign * (reach - 0.2), ph - drop * 0.4]),
+                np.array([0.35 * ps.spacing, 0.2, drop * 0.5 + 0.05]),
+            )
+        )
     if rng.uniform() < 0.5:  # now and then a sucker low on the trunk
         z = _u(rng, ps.canopy_bottom)
         plant.clusters.append((np.array([0.0, rng.normal(0, 0.1), z]), np.array([0.2, 0.15, 0.2])))
@@ -257,9 +272,13 @@ def _hanging_shoots(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> 
     for _ in range(n):
         centre, radii = plant.clusters[int(rng.integers(len(plant.clusters)))]
         side = rng.choice([-1.0, 1.0])
-        start = centre + np.array([rng.uniform(-radii[0], radii[0]), side * radii[1] * 0.8, radii[2] * rng.uniform(-0.2, 0.6)])
+        start = centre + np.array(
+            [rng.uniform(-radii[0], radii[0]), side * radii[1] * 0.8, radii[2] * rng.uniform(-0.2, 0.6)]
+        )
         out = rng.uniform(0.15, 0.45)
         tip = start + np.array([rng.normal(0, 0.15), side * out, -rng.uniform(0.1, 0.5)])
         _seg(plant, start, tip, 0.006, 0.003)
         mid = (start + tip) / 2
-        plant.clusters.append((mid + np.array([0, side * 0.05, 0]), np.array([0.12, 0.1 + 0.5 * out, 0.1]) * rng.uniform(0.7, 1.3)))
+        plant.clusters.append(
+            (mid + np.array([0, side * 0.05, 0]), np.array([0.12, 0.1 + 0.5 * out, 0.1]) * rng.uniform(0.7, 1.3))
+        )

@@ -26,13 +26,13 @@ from segmin.data.synth.world import World
 class PoseOffset:
     """Camera pose perturbation relative to the nominal robot pose (metres, radians)."""
 
-    lateral: float = 0.0   # + = left of the robot heading
+    lateral: float = 0.0  # + = left of the robot heading
     yaw: float = 0.0
-    pitch: float = 0.0     # + = camera looks further up
+    pitch: float = 0.0  # + = camera looks further up
     roll: float = 0.0
 
     @staticmethod
-    def coerce(value) -> "PoseOffset":
+    def coerce(value) -> PoseOffset:
         if value is None:
             return PoseOffset()
         if isinstance(value, PoseOffset):
@@ -46,17 +46,18 @@ class PoseOffset:
 class RenderedFrame:
     """One camera frame. `camera_pose` is camera-to-world 4x4 (OpenCV axes: x right, y down, z forward)."""
 
-    rgb: np.ndarray           # uint8 H x W x 3
-    depth: np.ndarray         # float32 H x W metres, planar, 0 = invalid / no return
-    mask: np.ndarray          # bool H x W, exact vegetation (trunks, branches, leaves)
-    camera_pose: np.ndarray   # float64 4 x 4
+    rgb: np.ndarray  # uint8 H x W x 3
+    depth: np.ndarray  # float32 H x W metres, planar, 0 = invalid / no return
+    mask: np.ndarray  # bool H x W, exact vegetation (trunks, branches, leaves)
+    camera_pose: np.ndarray  # float64 4 x 4
     robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    body_ids: np.ndarray | None = None   # int32 H x W pybullet body id per pixel, -1 = nothing hit
+    body_ids: np.ndarray | None = None  # int32 H x W pybullet body id per pixel, -1 = nothing hit
     stats: dict = field(default_factory=dict)
 
 
-def camera_pose(world: World, camera: CameraModel, x: float, y: float, yaw: float,
-                pose_offset: PoseOffset | None = None) -> np.ndarray:
+def camera_pose(
+    world: World, camera: CameraModel, x: float, y: float, yaw: float, pose_offset: PoseOffset | None = None
+) -> np.ndarray:
     """Camera-to-world 4x4 of the camera on a robot at (x, y, yaw), following the terrain."""
     off = PoseOffset.coerce(pose_offset)
     x = x - math.sin(yaw) * off.lateral
@@ -117,7 +118,7 @@ class Renderer:
         self.texture: dict[int, int] = {}
         self.shown: dict[int, bool] = {}
         self.hidden: set[int] = set()  # bodies kept hidden whatever the culling says (tests, ablations)
-        self.state = self.bodies >= 0   # shown flag per (chunk, level), mirrors `shown`
+        self.state = self.bodies >= 0  # shown flag per (chunk, level), mirrors `shown`
         # Put every body in a known state: another renderer may have used this world before.
         for c in chunks:
             for b in c.bodies:
@@ -126,8 +127,9 @@ class Renderer:
                 self.rgba[b] = list(c.tint[:3])
                 self.texture[b] = c.texture
                 self.shown[b] = True
-                p.changeVisualShape(b, -1, textureUniqueId=c.texture, rgbaColor=self.rgba[b] + [1.0],
-                                    physicsClientId=self.client)
+                p.changeVisualShape(
+                    b, -1, textureUniqueId=c.texture, rgbaColor=self.rgba[b] + [1.0], physicsClientId=self.client
+                )
         self._noise_rng = np.random.default_rng([world.seed, 7])
         self.far_ground = np.array([0.42, 0.42, 0.3], np.float32)
 
@@ -138,17 +140,22 @@ class Renderer:
         key = (cam.width, cam.height, cam.hfov_deg, cam.sensor_aspect, cam.near, cam.far)
         if key not in self._optics:
             aspect = math.tan(math.radians(cam.hfov_deg) / 2) / math.tan(math.radians(cam.vfov_deg) / 2)
-            projection = p.computeProjectionMatrixFOV(cam.vfov_deg, aspect, cam.near, cam.far,
-                                                      physicsClientId=self.client)
+            projection = p.computeProjectionMatrixFOV(
+                cam.vfov_deg, aspect, cam.near, cam.far, physicsClientId=self.client
+            )
             rays = cam.pixel_rays()
             rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
             small = (max(2, cam.width // 4), max(2, cam.height // 4))
-            yy, xx = np.mgrid[0:cam.height, 0:cam.width].astype(np.float32)
+            yy, xx = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float32)
             radius = np.hypot((xx - cam.width / 2) / (cam.width / 2), (yy - cam.height / 2) / (cam.height / 2))
             if len(self._optics) > 64:
                 self._optics.clear()
-            self._optics[key] = (aspect, projection, cv2.resize(rays, small, interpolation=cv2.INTER_AREA),
-                                 (radius / math.sqrt(2)).astype(np.float32))
+            self._optics[key] = (
+                aspect,
+                projection,
+                cv2.resize(rays, small, interpolation=cv2.INTER_AREA),
+                (radius / math.sqrt(2)).astype(np.float32),
+            )
         self.aspect, self.projection, self.rays_small, self.radius = self._optics[key]
         self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
         self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
@@ -184,8 +191,9 @@ class Renderer:
                 self.rgba[b] = [min(max(float(v), 0.0), 1.0) for v in tint]
                 self.texture[b] = texture
                 alpha = 1.0 if self.shown[b] else 0.0
-                p.changeVisualShape(b, -1, textureUniqueId=texture, rgbaColor=self.rgba[b] + [alpha],
-                                    physicsClientId=self.client)
+                p.changeVisualShape(
+                    b, -1, textureUniqueId=texture, rgbaColor=self.rgba[b] + [alpha], physicsClientId=self.client
+                )
 
     # ----------------------------------------------------------------- culling
     def _cull(self, pose: np.ndarray) -> dict:
@@ -196,12 +204,12 @@ class Renderer:
         with np.errstate(invalid="ignore"):
             visible = (
                 (rel[:, 2] > -r)
-                & (np.abs(rel[:, 0]) <= rel[:, 2] * self.tan_h + r * math.sqrt(1 + self.tan_h ** 2))
-                & (np.abs(rel[:, 1]) <= rel[:, 2] * self.tan_v + r * math.sqrt(1 + self.tan_v ** 2))
+                & (np.abs(rel[:, 0]) <= rel[:, 2] * self.tan_h + r * math.sqrt(1 + self.tan_h**2))
+                & (np.abs(rel[:, 1]) <= rel[:, 2] * self.tan_v + r * math.sqrt(1 + self.tan_v**2))
             )
         visible |= self.always
         # Distance to each chunk's capsule (rows are long and thin: a sphere is too loose).
-        ab2 = np.maximum((self.cap_ab ** 2).sum(axis=1), 1e-9)
+        ab2 = np.maximum((self.cap_ab**2).sum(axis=1), 1e-9)
         t = np.clip(((pos - self.cap_a) * self.cap_ab).sum(axis=1) / ab2, 0, 1)
         closest = self.cap_a + t[:, None] * self.cap_ab
         dist = np.linalg.norm(closest - pos, axis=1) - np.where(self.always, 0.0, self.cap_r)
@@ -218,17 +226,33 @@ class Renderer:
             self.shown[b] = w
             p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0], physicsClientId=self.client)
         self.state = want
-        return {"visible_chunks": int(visible.sum()), "fine_chunks": int((visible & (level == 0)).sum()),
-                "changes": len(changed[0]), "triangles": int(self.tris[want].sum())}
+        return {
+            "visible_chunks": int(visible.sum()),
+            "fine_chunks": int((visible & (level == 0)).sum()),
+            "changes": len(changed[0]),
+            "triangles": int(self.tris[want].sum()),
+        }
 
     # ----------------------------------------------------------------- sky
     def _draw_look(self, rng: np.random.Generator | None, heading: float) -> dict:
         """Per-frame sky, sun and haze drawn from the world's `sky` ranges (fixed without rng)."""
         if rng is None:
-            return {"overcast": False, "cover": 0.0, "haze": 0.0, "shadow": False,
-                    "horizon": np.array([0.80, 0.85, 0.90]), "zenith": np.array([0.35, 0.55, 0.85]),
-                    "light": dict(lightDirection=[0.4, 0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=100.0,
-                                  lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.05)}
+            return {
+                "overcast": False,
+                "cover": 0.0,
+                "haze": 0.0,
+                "shadow": False,
+                "horizon": np.array([0.80, 0.85, 0.90]),
+                "zenith": np.array([0.35, 0.55, 0.85]),
+                "light": dict(
+                    lightDirection=[0.4, 0.3, 1.0],
+                    lightColor=[1.0, 1.0, 1.0],
+                    lightDistance=100.0,
+                    lightAmbientCoeff=0.55,
+                    lightDiffuseCoeff=0.5,
+                    lightSpecularCoeff=0.05,
+                ),
+            }
         sky = self.world.spec.sky
         # The first draws keep the order of the original renderer (sun, colour, terms, sky colours).
         az, el = rng.uniform(0, 2 * np.pi), math.radians(rng.uniform(*sky.sun_elevation))
@@ -245,19 +269,32 @@ class Renderer:
             cover, warm = 0.0, warm * 0.3
             ambient, diffuse, specular = rng.uniform(0.6, 0.85), rng.uniform(0.1, 0.3), 0.0
         elif sky.backlight_probability > 0 and rng.uniform() < sky.backlight_probability:
-            az = heading + rng.normal(0, 0.4)        # sun ahead, low: plants seen from their dark side
+            az = heading + rng.normal(0, 0.4)  # sun ahead, low: plants seen from their dark side
             el = math.radians(rng.uniform(8, 30))
             horizon = np.clip(horizon + 0.12, 0, 1)
         haze = rng.uniform(*sky.haze) if sky.haze[1] > 0 else 0.0
-        shadow = (not overcast and self.world.spec.render.shadow_probability > 0
-                  and rng.uniform() < self.world.spec.render.shadow_probability)
+        shadow = (
+            not overcast
+            and self.world.spec.render.shadow_probability > 0
+            and rng.uniform() < self.world.spec.render.shadow_probability
+        )
         light = dict(
             lightDirection=[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
             lightColor=[float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
-            lightDistance=100.0, lightAmbientCoeff=ambient, lightDiffuseCoeff=diffuse, lightSpecularCoeff=specular,
+            lightDistance=100.0,
+            lightAmbientCoeff=ambient,
+            lightDiffuseCoeff=diffuse,
+            lightSpecularCoeff=specular,
         )
-        return {"overcast": overcast, "cover": cover, "haze": haze, "shadow": shadow,
-                "horizon": horizon, "zenith": zenith, "light": light}
+        return {
+            "overcast": overcast,
+            "cover": cover,
+            "haze": haze,
+            "shadow": shadow,
+            "horizon": horizon,
+            "zenith": zenith,
+            "light": light,
+        }
 
     def _sky(self, pose: np.ndarray, rng: np.random.Generator | None, look: dict) -> np.ndarray:
         """Sky (and distant ground below the horizon), computed at 1/4 resolution and upsampled:
@@ -280,8 +317,9 @@ class Renderer:
             h, w = elev.shape
             small = rng.uniform(0, 1, size=(5, 7)).astype(np.float32)
             fine = rng.uniform(0, 1, size=(14, 14)).astype(np.float32)
-            clouds = (0.75 * cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
-                      + 0.25 * cv2.resize(fine, (w, h), interpolation=cv2.INTER_CUBIC))
+            clouds = 0.75 * cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC) + 0.25 * cv2.resize(
+                fine, (w, h), interpolation=cv2.INTER_CUBIC
+            )
             amount = np.clip((clouds - (1 - cover)) * 3, 0, 1) * np.clip(elev * 8 + 0.3, 0, 1)
             grey = np.float32(rng.uniform(0.75, 1.0))
             sky += amount[..., None] * (grey - sky)
@@ -289,19 +327,34 @@ class Renderer:
         return (np.clip(sky, 0, 1) * 255).astype(np.uint8)
 
     # ----------------------------------------------------------------- render
-    def render(self, x: float, y: float, yaw: float, *, rng: np.random.Generator | None = None,
-               noisy_depth: bool = False, pose_offset=None) -> RenderedFrame:
+    def render(
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        *,
+        rng: np.random.Generator | None = None,
+        noisy_depth: bool = False,
+        pose_offset=None,
+    ) -> RenderedFrame:
         """Render the camera of a robot at (x, y, yaw); `rng` randomises light, sky and exposure."""
         cam = self.camera
         pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
         stats = self._cull(pose)
         eye = pose[:3, 3]
-        view = p.computeViewMatrix(eye.tolist(), (eye + pose[:3, 2]).tolist(), (-pose[:3, 1]).tolist(),
-                                   physicsClientId=self.client)
+        view = p.computeViewMatrix(
+            eye.tolist(), (eye + pose[:3, 2]).tolist(), (-pose[:3, 1]).tolist(), physicsClientId=self.client
+        )
         look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
         _, _, rgba, zbuf, seg = p.getCameraImage(
-            cam.width, cam.height, view, self.projection, shadow=int(look["shadow"]), renderer=p.ER_TINY_RENDERER,
-            physicsClientId=self.client, **look["light"],
+            cam.width,
+            cam.height,
+            view,
+            self.projection,
+            shadow=int(look["shadow"]),
+            renderer=p.ER_TINY_RENDERER,
+            physicsClientId=self.client,
+            **look["light"],
         )
         rgba = np.reshape(np.asarray(rgba, np.uint8), (cam.height, cam.width, 4))
         zbuf = np.reshape(np.asarray(zbuf, np.float32), (cam.height, cam.width))
@@ -318,7 +371,9 @@ class Renderer:
         if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
             fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
             fade[~hit] = 0.0
-            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(np.uint8)
+            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(
+                np.uint8
+            )
         if rng is not None:
             gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
             rgb = cv2.multiply(rgb, (float(gain[0]), float(gain[1]), float(gain[2]), 0.0))  # saturating
@@ -329,6 +384,12 @@ class Renderer:
                 rgb = (rgb * falloff[..., None]).astype(np.uint8)
         if noisy_depth and cam.depth_noise_enabled:
             depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
-        return RenderedFrame(rgb=rgb, depth=depth, mask=mask, camera_pose=pose,
-                             robot_pose=(float(x), float(y), float(yaw)), body_ids=ids,
-                             stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])})
+        return RenderedFrame(
+            rgb=rgb,
+            depth=depth,
+            mask=mask,
+            camera_pose=pose,
+            robot_pose=(float(x), float(y), float(yaw)),
+            body_ids=ids,
+            stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])},
+        )

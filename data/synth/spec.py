@@ -78,14 +78,14 @@ class RowsSpec:
     """Row layout: `count` plant rows, `count - 1` gaps the robot can drive through."""
 
     count: int = 4
-    length: float = 25.0          # along the row, from the entrance at s = 0
-    spacing: float = 1.8          # distance between neighbouring row lines
-    start_x: float = 0.0          # x of the row entrance
-    curve_radius: float = 0.0     # 0 = straight; > 0 bends left, < 0 bends right
-    curve_start: float = 0.0      # straight part before the bend starts
+    length: float = 25.0  # along the row, from the entrance at s = 0
+    spacing: float = 1.8  # distance between neighbouring row lines
+    start_x: float = 0.0  # x of the row entrance
+    curve_radius: float = 0.0  # 0 = straight; > 0 bends left, < 0 bends right
+    curve_start: float = 0.0  # straight part before the bend starts
     polyline: list[tuple[float, float]] = field(default_factory=list)  # optional reference line (x, y)
     lateral_jitter: float = 0.03  # plant offset from the row line (std, m)
-    eval_gap: int = -1            # gap the evaluation drives through; -1 = the middle one
+    eval_gap: int = -1  # gap the evaluation drives through; -1 = the middle one
 
     def __post_init__(self) -> None:
         if self.count < 2:
@@ -106,7 +106,6 @@ class RowsSpec:
             self._check_polyline(half_width)
         if not -1 <= self.eval_gap < self.count - 1:
             raise ValueError(f"rows.eval_gap: must be -1 or a gap index below {self.count - 1}, got {self.eval_gap}")
-
 
     def _check_polyline(self, half_width: float) -> None:
         """The reference line must be long enough and turn gently enough for the outer rows."""
@@ -144,21 +143,21 @@ class PlantsSpec:
     """One plant = trunk, a few branches and a canopy of leaf clusters (see `plants.py`)."""
 
     spacing: float = 1.3
-    spacing_jitter: float = 0.15          # uniform +- along the row (m)
-    gap_probability: float = 0.05         # chance a plant is missing
-    height: Range = (1.8, 2.1)            # top of the canopy above ground
-    trunk_height: Range = (0.6, 0.8)      # where the trunk splits into branches / cordon
+    spacing_jitter: float = 0.15  # uniform +- along the row (m)
+    gap_probability: float = 0.05  # chance a plant is missing
+    height: Range = (1.8, 2.1)  # top of the canopy above ground
+    trunk_height: Range = (0.6, 0.8)  # where the trunk splits into branches / cordon
     trunk_radius: Range = (0.03, 0.05)
-    canopy_bottom: Range = (0.8, 1.0)     # lowest leaves above ground
-    canopy_width: Range = (0.4, 0.6)      # across the row (for pergola: unused, see structures)
-    clusters: tuple[int, int] = (3, 5)    # leaf clusters per plant
+    canopy_bottom: Range = (0.8, 1.0)  # lowest leaves above ground
+    canopy_width: Range = (0.4, 0.6)  # across the row (for pergola: unused, see structures)
+    clusters: tuple[int, int] = (3, 5)  # leaf clusters per plant
     branches: tuple[int, int] = (2, 4)
     low_branches: tuple[int, int] = (0, 0)  # bare-ish branches reaching into the gap below the canopy
     low_branch_reach: float = 0.4
-    leaf_size: Range = (0.08, 0.14)       # triangle edge length (fine level of detail)
-    leaf_density: float = 0.7             # 0..1, how much of each cluster's shell is covered
+    leaf_size: Range = (0.08, 0.14)  # triangle edge length (fine level of detail)
+    leaf_density: float = 0.7  # 0..1, how much of each cluster's shell is covered
     hanging_shoots: tuple[int, int] = (0, 0)  # shoots per plant hanging from the canopy into the row
-    sparse_probability: float = 0.0       # chance a plant is a sparse young vine (a third to half the leaves)
+    sparse_probability: float = 0.0  # chance a plant is a sparse young vine (a third to half the leaves)
     label: Literal["canopy", "plant"] = "canopy"  # canopy: leaves only are 1 (trunks, branches = 0)
 
     def __post_init__(self) -> None:
@@ -198,9 +197,9 @@ class StructuresSpec:
     pole_radius: float = 0.04
     wire_heights: list[float] = field(default_factory=lambda: [0.9, 1.3, 1.7])
     pergola: bool = False
-    pergola_height: float = 2.6       # height of the overhead frame and vine canopy
-    free_band_width: float = 1.2      # free band over each gap (pergola only)
-    free_band_offset: float = 0.0     # band centre offset from the gap middle, + = left (asymmetry)
+    pergola_height: float = 2.6  # height of the overhead frame and vine canopy
+    free_band_width: float = 1.2  # free band over each gap (pergola only)
+    free_band_offset: float = 0.0  # band centre offset from the gap middle, + = left (asymmetry)
 
     def __post_init__(self) -> None:
         _check_positive("structures.pole_spacing", self.pole_spacing)
@@ -218,13 +217,13 @@ class StructuresSpec:
 class TerrainSpec:
     """Uneven ground: a sum of smooth random waves (analytic height and normal)."""
 
-    roughness: float = 0.06           # standard deviation of the height (m)
+    roughness: float = 0.06  # standard deviation of the height (m)
     wavelength: Range = (3.0, 12.0)
     slope: tuple[float, float] = (0.0, 0.0)  # constant slope dz/dx, dz/dy
-    resolution: float = 1.0           # mesh grid step near the camera (m)
-    margin: float = 8.0               # ground beyond the outer rows and row ends (m)
-    grass_tufts: float = 0.6          # tufts per square metre (not vegetation)
-    texture_scale: float = 2.0        # metres per repeat of the ground texture (finer = sharper blades)
+    resolution: float = 1.0  # mesh grid step near the camera (m)
+    margin: float = 8.0  # ground beyond the outer rows and row ends (m)
+    grass_tufts: float = 0.6  # tufts per square metre (not vegetation)
+    texture_scale: float = 2.0  # metres per repeat of the ground texture (finer = sharper blades)
 
     def __post_init__(self) -> None:
         if self.roughness < 0:
@@ -242,15 +241,15 @@ class TerrainSpec:
 class AppearanceSpec:
     """Colour, texture and season ranges sampled per texture variant and per episode."""
 
-    leaf_hue: Range = (70.0, 115.0)        # degrees (green ~ 100)
+    leaf_hue: Range = (70.0, 115.0)  # degrees (green ~ 100)
     leaf_saturation: Range = (0.35, 0.75)
     leaf_value: Range = (0.30, 0.65)
-    autumn_probability: float = 0.15       # chance a texture variant has autumn tones
+    autumn_probability: float = 0.15  # chance a texture variant has autumn tones
     bark_value: Range = (0.22, 0.45)
-    ground_green: Range = (0.2, 0.7)       # grass cover of the "patchy" ground style
+    ground_green: Range = (0.2, 0.7)  # grass cover of the "patchy" ground style
     ground_styles: list[str] = field(default_factory=lambda: list(GROUND_STYLE_NAMES))  # first = variant 0
-    ground_detail: float = 0.5             # amplitude of the grass-blade fine detail (0 = smooth)
-    leaf_detail: float = 0.35              # amplitude of per-texel leaf detail (0 = smooth)
+    ground_detail: float = 0.5  # amplitude of the grass-blade fine detail (0 = smooth)
+    leaf_detail: float = 0.35  # amplitude of per-texel leaf detail (0 = smooth)
     texture_variants: int = 3
 
     def __post_init__(self) -> None:
@@ -269,7 +268,9 @@ class AppearanceSpec:
             raise ValueError("appearance.ground_styles: at least one style")
         for style in self.ground_styles:
             if style not in GROUND_STYLE_NAMES:
-                raise ValueError(f"appearance.ground_styles: unknown style {style!r}; choose from {list(GROUND_STYLE_NAMES)}")
+                raise ValueError(
+                    f"appearance.ground_styles: unknown style {style!r}; choose from {list(GROUND_STYLE_NAMES)}"
+                )
         for name in ("ground_detail", "leaf_detail"):
             if not 0 <= getattr(self, name) <= 2:
                 raise ValueError(f"appearance.{name}: must be within [0, 2], got {getattr(self, name)}")
@@ -281,7 +282,7 @@ class RenderSpec:
 
     cull_distance: float = 35.0
     lod_distances: tuple[float, float] = (4.0, 10.0)  # switch to the next coarser level beyond these
-    chunk_length: float = 3.0       # plants of one row within this length share one body
+    chunk_length: float = 3.0  # plants of one row within this length share one body
     shadow_probability: float = 0.0  # share of frames with TinyRenderer shadows (about 2x the cost)
 
     def __post_init__(self) -> None:
@@ -295,11 +296,11 @@ class RenderSpec:
 class SkySpec:
     """Sky and light per frame: clear to overcast skies, sun height, haze and back-light."""
 
-    overcast_probability: float = 0.0     # white/grey overcast sky, soft light (no strong sun)
-    cloud_cover: Range = (0.0, 0.8)       # cloud amount of clear-sky frames
-    sun_elevation: Range = (20.0, 80.0)   # degrees above the horizon
-    backlight_probability: float = 0.0    # low sun in front of the camera (dark, rim-lit plants)
-    haze: Range = (0.0, 0.0)              # distance haze: fraction of the horizon colour at 50 m
+    overcast_probability: float = 0.0  # white/grey overcast sky, soft light (no strong sun)
+    cloud_cover: Range = (0.0, 0.8)  # cloud amount of clear-sky frames
+    sun_elevation: Range = (20.0, 80.0)  # degrees above the horizon
+    backlight_probability: float = 0.0  # low sun in front of the camera (dark, rim-lit plants)
+    haze: Range = (0.0, 0.0)  # distance haze: fraction of the horizon colour at 50 m
 
     def __post_init__(self) -> None:
         _check_fraction("sky.overcast_probability", self.overcast_probability)
@@ -322,10 +323,10 @@ class CaptureSpec:
     (recorded in meta.json with the frame's intrinsics).
     """
 
-    hfov_deg: Range = (69.0, 69.0)        # horizontal field of view; real robots use 60-120
-    mount_height: Range = (0.4, 0.4)      # camera height above the ground (m)
-    tilt_deg: Range = (15.0, 15.0)        # upward tilt
-    vignetting: Range = (0.0, 0.0)        # corner darkening (fraction of brightness lost)
+    hfov_deg: Range = (69.0, 69.0)  # horizontal field of view; real robots use 60-120
+    mount_height: Range = (0.4, 0.4)  # camera height above the ground (m)
+    tilt_deg: Range = (15.0, 15.0)  # upward tilt
+    vignetting: Range = (0.0, 0.0)  # corner darkening (fraction of brightness lost)
 
     def __post_init__(self) -> None:
         _check_range("capture.hfov_deg", self.hfov_deg, low=10.0)
@@ -349,15 +350,15 @@ class BackdropSpec:
     and the row ends).
     """
 
-    trees: int = 0                        # single trees and forest-edge trees around the field
+    trees: int = 0  # single trees and forest-edge trees around the field
     tree_height: Range = (5.0, 14.0)
     tree_distance: Range = (4.0, 30.0)
-    forest_edges: int = 0                 # dense lines of trees along a side of the field
-    hedges: int = 0                       # low continuous hedges along a side
+    forest_edges: int = 0  # dense lines of trees along a side of the field
+    hedges: int = 0  # low continuous hedges along a side
     hedge_height: Range = (1.2, 3.0)
     buildings: int = 0
     building_height: Range = (3.0, 8.0)
-    hills: float = 0.0                    # probability of a ridge of hills on the horizon
+    hills: float = 0.0  # probability of a ridge of hills on the horizon
 
     def __post_init__(self) -> None:
         for name in ("trees", "forest_edges", "hedges", "buildings"):
@@ -377,7 +378,7 @@ class WorldSpec:
     crop: Literal["vineyard", "pergola", "pear", "tree"]
     family: Literal["vineyards", "trees"]
     seed: int
-    domain: str = ""                # AgriSeg-style domain for the writer; default synth_<name>
+    domain: str = ""  # AgriSeg-style domain for the writer; default synth_<name>
     rows: RowsSpec = field(default_factory=RowsSpec)
     plants: PlantsSpec = field(default_factory=PlantsSpec)
     structures: StructuresSpec = field(default_factory=StructuresSpec)
@@ -393,7 +394,7 @@ class WorldSpec:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
             raise ValueError(f"name: must be a non-empty word (letters, digits, _ or -), got {self.name!r}")
         if not self.domain:
-            base = self.name[len("train_"):] if self.name.startswith("train_") else self.name
+            base = self.name[len("train_") :] if self.name.startswith("train_") else self.name
             self.domain = f"synth_{base}"
         if not self.domain.replace("_", "").replace("-", "").isalnum():
             raise ValueError(f"domain: must be a word usable as a folder name, got {self.domain!r}")
@@ -412,7 +413,10 @@ class WorldSpec:
                 f"rows.spacing: {self.rows.spacing} m leaves a free gap of {free:.2f} m between the rows "
                 f"(canopy and trunks subtracted); the robot needs more than {MIN_GAP_WIDTH} m"
             )
-        if self.structures.pergola and self.structures.free_band_width / 2 + abs(self.structures.free_band_offset) >= self.rows.spacing / 2:
+        if (
+            self.structures.pergola
+            and self.structures.free_band_width / 2 + abs(self.structures.free_band_offset) >= self.rows.spacing / 2
+        ):
             raise ValueError(
                 "structures.free_band_width: the free band (with its offset) must fit between the rows "
                 f"({self.structures.free_band_width} + 2*{abs(self.structures.free_band_offset)} >= {self.rows.spacing})"
@@ -460,19 +464,19 @@ def pergola_reach(spec: WorldSpec) -> tuple[float, float]:
     """(right, left) reach of a pergola row's canopy towards the gaps on each side (m)."""
     s = spec.structures
     half = spec.rows.spacing / 2
-    left = half + s.free_band_offset - s.free_band_width / 2     # towards the gap on the left
-    right = half - s.free_band_offset - s.free_band_width / 2    # towards the gap on the right
+    left = half + s.free_band_offset - s.free_band_width / 2  # towards the gap on the left
+    right = half - s.free_band_offset - s.free_band_width / 2  # towards the gap on the right
     return max(right, 0.0), max(left, 0.0)
 
 
 __all__ = [
+    "GROUND_STYLE_NAMES",
     "MAX_POLYLINE_FOLD",
     "MIN_GAP_WIDTH",
     "TEST_FIELDS",
     "AppearanceSpec",
     "BackdropSpec",
     "CaptureSpec",
-    "GROUND_STYLE_NAMES",
     "PlantsSpec",
     "RenderSpec",
     "RowsSpec",

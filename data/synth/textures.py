@@ -61,11 +61,14 @@ def plant_atlas(rng: np.random.Generator, appearance, autumn: bool) -> np.ndarra
     val = rng.uniform(*appearance.leaf_value)
     mottle = _noise(rng, size, (8, 16, 32, 64))[:, half:]
     hue_field = hue + (mottle - 0.5) * (30 if autumn else 14)
-    hsv = np.stack([
-        (hue_field % 360) / 2.0,
-        np.full_like(mottle, sat) * 255 * (0.85 + 0.3 * mottle),
-        np.clip(val * (0.7 + 0.6 * mottle), 0, 1) * 255,
-    ], axis=-1).astype(np.float32)
+    hsv = np.stack(
+        [
+            (hue_field % 360) / 2.0,
+            np.full_like(mottle, sat) * 255 * (0.85 + 0.3 * mottle),
+            np.clip(val * (0.7 + 0.6 * mottle), 0, 1) * 255,
+        ],
+        axis=-1,
+    ).astype(np.float32)
     hsv[..., 1] = np.clip(hsv[..., 1], 0, 255)
     leaf = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB).astype(np.float32) / 255.0
     ys, xs = np.mgrid[0:size, 0:half]
@@ -138,7 +141,10 @@ def ground_texture(rng: np.random.Generator, appearance, style: str = "patchy") 
         weeds = _spots(rng, size, int(rng.integers(10, 40)), (2, 6))
         base = base * (1 - 0.45 * weeds[..., None])
         flowers = _spots(rng, size, int(rng.integers(0, 80)), (1, 1))
-        base = base * (1 - flowers[..., None]) + _hsv(rng.choice([50, 55, 0]), rng.uniform(0, 0.8), 0.95) * flowers[..., None]
+        base = (
+            base * (1 - flowers[..., None])
+            + _hsv(rng.choice([50, 55, 0]), rng.uniform(0, 0.8), 0.95) * flowers[..., None]
+        )
     elif style == "dry":  # dry summer grass: straw with a few green tufts
         cover = np.clip((patches - rng.uniform(0.5, 0.9)) * 4 + 0.5, 0, 1)[..., None]
         base = straw[None, None] * (1 - cover) + grass[None, None] * cover

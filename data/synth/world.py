@@ -114,8 +114,8 @@ class Chunk:
 
     centre: np.ndarray
     radius: float
-    bodies: list[int]    # one pybullet body per level of detail, finest first
-    kind: str            # "plants", "structure", "ground", "grass"
+    bodies: list[int]  # one pybullet body per level of detail, finest first
+    kind: str  # "plants", "structure", "ground", "grass"
     texture: int = -1
     triangles: list[int] = field(default_factory=list)  # per level
     capsule: tuple[np.ndarray, np.ndarray, float] | None = None  # tighter bound for distances
@@ -178,13 +178,17 @@ def _gap_geometry(spec: WorldSpec, offsets: np.ndarray) -> tuple[list[float], li
 
 def _body(client: int, mesh: Mesh, rgba=(1, 1, 1, 1), texture: int = -1) -> int:
     vs = p.createVisualShape(
-        p.GEOM_MESH, vertices=mesh.vertices.tolist(), indices=mesh.indices.astype(int).tolist(),
-        normals=mesh.normals.tolist(), uvs=mesh.uvs.tolist(), rgbaColor=list(rgba), physicsClientId=client,
+        p.GEOM_MESH,
+        vertices=mesh.vertices.tolist(),
+        indices=mesh.indices.astype(int).tolist(),
+        normals=mesh.normals.tolist(),
+        uvs=mesh.uvs.tolist(),
+        rgbaColor=list(rgba),
+        physicsClientId=client,
     )
     if vs < 0:
         raise RuntimeError("pybullet refused a visual mesh")
-    body = p.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vs,
-                             physicsClientId=client)
+    body = p.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vs, physicsClientId=client)
     if texture >= 0:
         p.changeVisualShape(body, -1, textureUniqueId=texture, physicsClientId=client)
     return body
@@ -194,17 +198,22 @@ def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1,
     levels = [m for m in levels if m.n_triangles]
     centre, radius = levels[0].bounding_sphere()
     bodies = [_body(client, m, rgba, texture) for m in levels]
-    return Chunk(centre=centre, radius=radius, bodies=bodies, kind=kind, texture=texture,
-                 triangles=[m.n_triangles for m in levels], capsule=levels[0].bounding_capsule(),
-                 tint=tuple(float(v) for v in rgba))
+    return Chunk(
+        centre=centre,
+        radius=radius,
+        bodies=bodies,
+        kind=kind,
+        texture=texture,
+        triangles=[m.n_triangles for m in levels],
+        capsule=levels[0].bounding_capsule(),
+        tint=tuple(float(v) for v in rgba),
+    )
 
 
 def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> World:
     """Build `spec` into the (DIRECT) pybullet client `client_id`; `seed` overrides `spec.seed`."""
     seed = spec.seed if seed is None else int(seed)
-    rng_terrain, rng_plants, rng_struct, rng_tex, rng_ground = (
-        np.random.default_rng([seed, k]) for k in range(5)
-    )
+    rng_terrain, rng_plants, rng_struct, rng_tex, rng_ground = (np.random.default_rng([seed, k]) for k in range(5))
     terrain = Terrain(spec, rng_terrain)
     margin = spec.terrain.margin
     layout = RowLayout(spec, extend=margin + GROUND_TILE)
@@ -246,8 +255,10 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
             kinds = [("plants", levels)]
         else:  # leaves (vegetation) and wood (trunks, cordons, shoots: 0 in the mask) apart
             parts = [[pl.mesh_parts(level) for pl in plants[key]] for level in range(len(LOD_FACTORS))]
-            kinds = [("plants", [Mesh.concat([lv for lv, _ in lvl]) for lvl in parts]),
-                     ("wood", [Mesh.concat([wd for _, wd in lvl]) for lvl in parts])]
+            kinds = [
+                ("plants", [Mesh.concat([lv for lv, _ in lvl]) for lvl in parts]),
+                ("wood", [Mesh.concat([wd for _, wd in lvl]) for lvl in parts]),
+            ]
         for kind, levels in kinds:  # leaves first: they hide most of the wood (hidden pixels skip shading)
             if not any(m.n_triangles for m in levels):
                 continue
@@ -255,7 +266,9 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
             chunks.append(ch)
             if kind == "plants":
                 vegetation.update(ch.bodies)
-            tris[kind] = [a + b for a, b in zip(tris[kind], ch.triangles + [0] * (len(LOD_FACTORS) - len(ch.triangles)))]
+            tris[kind] = [
+                a + b for a, b in zip(tris[kind], ch.triangles + [0] * (len(LOD_FACTORS) - len(ch.triangles)))
+            ]
 
     obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
     _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
@@ -269,11 +282,20 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     s_line = np.arange(0.0, rs.length + 1e-9, CENTRELINE_STEP)
     centrelines = [layout.at(s_line, c)[0] for c in centre_offsets]
     return World(
-        spec=spec, client_id=client_id, seed=seed, terrain=terrain, layout=layout,
+        spec=spec,
+        client_id=client_id,
+        seed=seed,
+        terrain=terrain,
+        layout=layout,
         plant_circles=np.array(circles, float).reshape(-1, 3),
         obstacle_circles=np.array(obstacles, float).reshape(-1, 3),
-        centrelines=centrelines, gap_half_widths=half_widths, gap_offsets=list(map(float, centre_offsets)),
-        vegetation_ids=vegetation, chunks=chunks, textures=textures, n_triangles=tris,
+        centrelines=centrelines,
+        gap_half_widths=half_widths,
+        gap_offsets=list(map(float, centre_offsets)),
+        vegetation_ids=vegetation,
+        chunks=chunks,
+        textures=textures,
+        n_triangles=tris,
     )
 
 
@@ -305,7 +327,7 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
             parts.setdefault(int(s // chunk_len), []).append(cylinders(p0, p1, st.pole_radius, st.pole_radius * 0.9, 5))
             obstacles.append((xy[k, 0], xy[k, 1], st.pole_radius))
         # Wires between consecutive poles (thin triangular prisms).
-        for h in ([] if st.pergola else st.wire_heights):
+        for h in [] if st.pergola else st.wire_heights:
             for k in range(len(pole_s) - 1):
                 ss = _wire_stations(pole_s[k], pole_s[k + 1])
                 wxy, _ = layout.at(ss, offset)
@@ -321,7 +343,8 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
                 za = terrain.height(a[0, 0], a[0, 1]) + st.pergola_height
                 zb = terrain.height(b[0, 0], b[0, 1]) + st.pergola_height
                 parts.setdefault(int(s // chunk_len), []).append(
-                    cylinders(np.array([a[0, 0], a[0, 1], za]), np.array([b[0, 0], b[0, 1], zb]), 0.035, 0.035, 4))
+                    cylinders(np.array([a[0, 0], a[0, 1], za]), np.array([b[0, 0], b[0, 1], zb]), 0.035, 0.035, 4)
+                )
         wire_offsets = []
         for off in layout.offsets:
             wire_offsets += [off - 1.0, off, off + 1.0]
@@ -360,12 +383,17 @@ def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
             xs = np.linspace(x0, x0 + GROUND_TILE, steps)
             ys = np.linspace(y0, y0 + GROUND_TILE, steps)
             fine = grid_surface(xs, ys, terrain.height, terrain.normal, uv_scale)
-            coarse = grid_surface(np.linspace(x0, x0 + GROUND_TILE, 3), np.linspace(y0, y0 + GROUND_TILE, 3),
-                                  terrain.height, terrain.normal, uv_scale)
+            coarse = grid_surface(
+                np.linspace(x0, x0 + GROUND_TILE, 3),
+                np.linspace(y0, y0 + GROUND_TILE, 3),
+                terrain.height,
+                terrain.normal,
+                uv_scale,
+            )
             chunks.append(_chunk(client, [fine, coarse], "ground", textures.ground[0]))
             tris["ground"][0] += fine.n_triangles
             tris["ground"][1] += coarse.n_triangles
-            n_tufts = rng.poisson(ts.grass_tufts * GROUND_TILE ** 2)
+            n_tufts = rng.poisson(ts.grass_tufts * GROUND_TILE**2)
             if n_tufts:  # grass and weeds: not vegetation in the mask; drawn near the camera only
                 tx = rng.uniform(x0, x0 + GROUND_TILE, n_tufts)
                 ty = rng.uniform(y0, y0 + GROUND_TILE, n_tufts)

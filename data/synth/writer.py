@@ -31,12 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from segmin.data.synth.camera import CameraModel
-from segmin.data.synth.spec import WorldSpec
 from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.spec import WorldSpec
 
 FORMAT = "segmin-synth/1"
 
@@ -50,8 +50,8 @@ class FramePlan:
     s: float
     reverse: bool
     robot_pose: tuple[float, float, float]
-    pose_offset: tuple[float, float, float, float]   # lateral, yaw, pitch, roll
-    block: int                                        # appearance block
+    pose_offset: tuple[float, float, float, float]  # lateral, yaw, pitch, roll
+    block: int  # appearance block
     capture: tuple[float, float, float] | None = None  # hfov_deg, mount_height, tilt_deg; None = job camera
 
 
@@ -61,7 +61,7 @@ class RenderJob:
     out: Path
     frames: int
     camera: CameraModel = dataclasses.field(default_factory=CameraModel)
-    seed: int | None = None              # dataset seed; default: the spec's seed
+    seed: int | None = None  # dataset seed; default: the spec's seed
     frames_per_subset: int = 1000
     appearance_every: int = 10
     noisy_depth: bool = True
@@ -155,10 +155,19 @@ def plan_frame(world, job_seed: int, frame: int, appearance_every: int) -> Frame
     cs = spec.capture
     if any(lo != hi for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg)):
         # Drawn after the pose, so worlds without camera variety keep their poses.
-        capture = tuple(float(rng.uniform(lo, hi)) if lo != hi else None
-                        for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg))
-    return FramePlan(frame=frame, gap=gap, s=s, reverse=reverse, robot_pose=(x, y, float(yaw)),
-                     pose_offset=offset, block=frame // appearance_every, capture=capture)
+        capture = tuple(
+            float(rng.uniform(lo, hi)) if lo != hi else None for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg)
+        )
+    return FramePlan(
+        frame=frame,
+        gap=gap,
+        s=s,
+        reverse=reverse,
+        robot_pose=(x, y, float(yaw)),
+        pose_offset=offset,
+        block=frame // appearance_every,
+        capture=capture,
+    )
 
 
 def frame_camera(camera: CameraModel, plan: FramePlan) -> CameraModel:
@@ -253,8 +262,9 @@ def _frame_of(name: str) -> int | None:
 class FrameRenderer:
     """A world built in a private pybullet client, rendering planned frames to bytes."""
 
-    def __init__(self, spec: WorldSpec, camera: CameraModel, job_seed: int, appearance_every: int,
-                 noisy_depth: bool) -> None:
+    def __init__(
+        self, spec: WorldSpec, camera: CameraModel, job_seed: int, appearance_every: int, noisy_depth: bool
+    ) -> None:
         import pybullet as p
 
         from segmin.data.synth.render import Renderer
@@ -276,10 +286,18 @@ class FrameRenderer:
             self._block = plan.block
         x, y, yaw = plan.robot_pose
         self.renderer.set_camera(frame_camera(self.camera, plan))
-        out = self.renderer.render(x, y, yaw, rng=np.random.default_rng([self.job_seed, 2, frame]),
-                                   noisy_depth=False, pose_offset=plan.pose_offset)
+        out = self.renderer.render(
+            x,
+            y,
+            yaw,
+            rng=np.random.default_rng([self.job_seed, 2, frame]),
+            noisy_depth=False,
+            pose_offset=plan.pose_offset,
+        )
         if self.noisy_depth:
-            out.depth = self.renderer.camera.apply_depth_noise(out.depth, np.random.default_rng([self.job_seed, 3, frame]))
+            out.depth = self.renderer.camera.apply_depth_noise(
+                out.depth, np.random.default_rng([self.job_seed, 3, frame])
+            )
         return out
 
     def close(self) -> None:
@@ -293,8 +311,7 @@ _WORKER: dict = {}
 
 def _worker_init(job: RenderJob) -> None:
     _WORKER["job"] = job
-    _WORKER["renderer"] = FrameRenderer(job.spec, job.camera, job.dataset_seed, job.appearance_every,
-                                        job.noisy_depth)
+    _WORKER["renderer"] = FrameRenderer(job.spec, job.camera, job.dataset_seed, job.appearance_every, job.noisy_depth)
 
 
 def _worker_run(frames: list[int]) -> int:
@@ -338,7 +355,9 @@ def write_meta(job: RenderJob, world) -> list[Path]:
                 raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
             old_fp = {key: old.get(key) for key in fp}
             if json.loads(json.dumps(old_fp)) != json.loads(json.dumps(fp)):
-                changed = sorted(key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True))
+                changed = sorted(
+                    key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True)
+                )
                 raise ValueError(
                     f"{meta_path}: was rendered with different settings ({', '.join(changed)}); "
                     "use another --out or --overwrite"
@@ -348,24 +367,41 @@ def write_meta(job: RenderJob, world) -> list[Path]:
             plan = plan_frame(world, job.dataset_seed, f, job.appearance_every)
             cam = frame_camera(job.camera, plan)
             pose = camera_pose(world, cam, *plan.robot_pose, pose_offset=plan.pose_offset)
-            extra = {} if plan.capture is None else {"intrinsics": cam.intrinsics(),
-                                                     "mount_height": round(cam.mount_height, 6),
-                                                     "tilt_deg": round(cam.tilt_deg, 6)}
+            extra = (
+                {}
+                if plan.capture is None
+                else {
+                    "intrinsics": cam.intrinsics(),
+                    "mount_height": round(cam.mount_height, 6),
+                    "tilt_deg": round(cam.tilt_deg, 6),
+                }
+            )
             frames[str(f)] = {
-                "gap": plan.gap, "s": round(plan.s, 6), "reverse": plan.reverse,
+                "gap": plan.gap,
+                "s": round(plan.s, 6),
+                "reverse": plan.reverse,
                 "robot_pose": [round(v, 6) for v in plan.robot_pose],
                 "pose_offset": [round(v, 6) for v in plan.pose_offset],
-                "camera_pose": np.round(pose, 6).tolist(), "appearance_block": plan.block,
-                "files": {kind: str(p.relative_to(sub)) for kind, p in
-                          frame_paths(job.out, job.spec.domain, f, job.frames_per_subset).items()},
+                "camera_pose": np.round(pose, 6).tolist(),
+                "appearance_block": plan.block,
+                "files": {
+                    kind: str(p.relative_to(sub))
+                    for kind, p in frame_paths(job.out, job.spec.domain, f, job.frames_per_subset).items()
+                },
                 **extra,
             }
         meta = dict(fp)
-        meta.update({
-            "domain": job.spec.domain, "subset": sub.name, "intrinsics": job.camera.intrinsics(),
-            "world_seed": job.spec.seed, "depth_units": "millimetre (uint16 PNG), 0 = invalid",
-            "mask_values": "0 = background, 255 = vegetation", "frames": frames,
-        })
+        meta.update(
+            {
+                "domain": job.spec.domain,
+                "subset": sub.name,
+                "intrinsics": job.camera.intrinsics(),
+                "world_seed": job.spec.seed,
+                "depth_units": "millimetre (uint16 PNG), 0 = invalid",
+                "mask_values": "0 = background, 255 = vegetation",
+                "frames": frames,
+            }
+        )
         write_json(meta_path, meta)
         written.append(meta_path)
     return written
@@ -392,8 +428,10 @@ def render_dataset(job: RenderJob) -> dict:
     check_writable(job.out)
     with writer_lock(lock_path(job), f"dataset {job.out / job.spec.domain}") as previous:
         if previous and job.progress:
-            print(f"{lock_path(job)}: taking over the lock of pid {previous.get('pid')} on "
-                  f"{previous.get('host')}, which has stopped; resuming its work")
+            print(
+                f"{lock_path(job)}: taking over the lock of pid {previous.get('pid')} on "
+                f"{previous.get('host')}, which has stopped; resuming its work"
+            )
         return _render_locked(job)
 
 
@@ -419,7 +457,8 @@ def check_frame_count(job: RenderJob) -> None:
         raise ValueError(
             f"{job.out / job.spec.domain}: already holds {existing} frames, --frames {job.frames} would drop "
             f"the metadata of {existing - job.frames}; pass --frames {existing} (or more, to extend it), "
-            "another --out, or --overwrite to start over")
+            "another --out, or --overwrite to start over"
+        )
 
 
 def _render_locked(job: RenderJob) -> dict:
@@ -486,9 +525,14 @@ def _render_locked(job: RenderJob) -> dict:
     seconds = end - start
     # Steady rate: after the workers have built their worlds and returned a first task.
     steady = (done - first[1]) / (end - first[0]) if first and done > first[1] and end > first[0] else 0.0
-    return {"written": done, "skipped": skipped, "seconds": seconds,
-            "fps": done / seconds if seconds > 0 and done else 0.0, "steady_fps": steady,
-            "out": str(job.out / domain)}
+    return {
+        "written": done,
+        "skipped": skipped,
+        "seconds": seconds,
+        "fps": done / seconds if seconds > 0 and done else 0.0,
+        "steady_fps": steady,
+        "out": str(job.out / domain),
+    }
 
 
 def _progress(total: int, enabled: bool):

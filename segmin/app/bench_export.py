@@ -32,7 +32,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 def run_bench(args: argparse.Namespace) -> int:
     from segmin.export.bench import run_benchmark
-    from segmin.nav_eval.runtime_bench import perception_step_candidates
+    from segmin.nav_eval.bench.runtime import perception_step_candidates
 
     run_benchmark(
         checkpoint=args.checkpoint,

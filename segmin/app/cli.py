@@ -26,10 +26,13 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.data.synth.cli",
     "segmin.train.cli",
     "segmin.export.cli",
-    "segmin.export.seg_eval_cli",
     "segmin.app.bench_export",
-    "segmin.nav_eval.navigator_cli",
-    "segmin.nav_eval.cli",
+    "segmin.nav_eval.demo.cli",
+    "segmin.nav_eval.replay.cli",
+    "segmin.nav_eval.seg_eval.cli",
+    "segmin.nav_eval.evaluation.cli",
+    "segmin.nav_eval.sweeps.cli",
+    "segmin.nav_eval.bench.cli",
     "segmin.app.pipeline.cli",
 )
 # Errors that are the user's (bad input, a path that is not there or not writable): one line, exit 2.

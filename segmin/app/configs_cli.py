@@ -15,7 +15,9 @@ from segmin.common.shipped import KINDS, copy_shipped, shipped_dir, shipped_name
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
     configs = commands.add_parser("configs", help="list the shipped configs, or copy one out for editing")
     sub = configs.add_subparsers(dest="configs_command", metavar="ACTION", required=True)
-    listing = sub.add_parser("list", help="the shipped worlds, training configs, nav configs, pipeline profiles and sweeps")
+    listing = sub.add_parser(
+        "list", help="the shipped worlds, training configs, nav configs, pipeline profiles and sweeps"
+    )
     listing.add_argument("--paths", action="store_true", help="also print where each kind is installed")
     listing.set_defaults(func=_list)
     copy = sub.add_parser("copy", help="write a shipped config to DIR/<name>.yaml (use it as --config DIR/<name>.yaml)")

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import argparse
 import re
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 OVERRIDES_DEST = "overrides"
 # A dotted config key, then "=": what an override looks like (a world path such as
@@ -31,8 +32,13 @@ def _append(namespace: argparse.Namespace, values: Sequence[str]) -> None:
 class _AppendOverrides(argparse.Action):
     """Positional tokens and `--set` values both append, so their order on the line is kept."""
 
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
         _append(namespace, [values] if isinstance(values, str) else list(values or []))
 
 
@@ -43,8 +49,13 @@ class NamesThenOverrides(argparse.Action):
     `--world a b rows.length=10` would otherwise make `rows.length=10` a world name.
     """
 
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
         names = [v for v in values if not is_override(v)]
         if not names:
             parser.error(f"{option_string}: expected at least one name before the KEY=VALUE overrides")
@@ -54,11 +65,23 @@ class NamesThenOverrides(argparse.Action):
 
 def add_overrides(parser: argparse.ArgumentParser, alias: bool = True, example: str = "section.key=value") -> None:
     """Positional `KEY=VALUE` overrides (nargs="*"), plus `--set KEY=VALUE` when `alias`."""
-    parser.add_argument(OVERRIDES_DEST, nargs="*", action=_AppendOverrides, default=None, metavar="KEY=VALUE",
-                        help=f"config overrides (dotted keys, YAML values), e.g. {example}")
+    parser.add_argument(
+        OVERRIDES_DEST,
+        nargs="*",
+        action=_AppendOverrides,
+        default=None,
+        metavar="KEY=VALUE",
+        help=f"config overrides (dotted keys, YAML values), e.g. {example}",
+    )
     if alias:
-        parser.add_argument("--set", dest=OVERRIDES_DEST, action=_AppendOverrides, default=None,
-                            metavar="KEY=VALUE", help="the same override as an option (repeatable)")
+        parser.add_argument(
+            "--set",
+            dest=OVERRIDES_DEST,
+            action=_AppendOverrides,
+            default=None,
+            metavar="KEY=VALUE",
+            help="the same override as an option (repeatable)",
+        )
 
 
 def overrides_of(args: argparse.Namespace) -> list[str]:

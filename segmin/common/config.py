@@ -88,7 +88,8 @@ def from_dict(cls: type[T], raw: dict[str, Any], *, where: str = "config") -> T:
     for name, value in raw.items():
         kwargs[name] = _coerce(hints[name], value, f"{where}.{name}")
     missing = [
-        n for n, f in fields.items()
+        n
+        for n, f in fields.items()
         if n not in kwargs and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
     ]
     if missing:

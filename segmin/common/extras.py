@@ -29,5 +29,7 @@ def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
     extra = EXTRA_OF_MODULE.get(top)
     if extra is None:
         return None
-    return (f"this command needs the [{extra}] extra (module {top!r} is not installed): "
-            f"pip install 'segmin[{extra}]' (or 'segmin[all]')")
+    return (
+        f"this command needs the [{extra}] extra (module {top!r} is not installed): "
+        f"pip install 'segmin[{extra}]' (or 'segmin[all]')"
+    )

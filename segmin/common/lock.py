@@ -20,9 +20,8 @@ import json
 import os
 import socket
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
-
 
 _HELD: set[int] = set()  # descriptors this process holds locks on, closed in forked children
 
@@ -59,10 +58,15 @@ def _open_locked(path: Path, what: str) -> int:
             holder = _holder(fd)
             os.close(fd)
             who = f"pid {holder.get('pid', '?')} on {holder.get('host', '?')}" if holder else "another process"
-            since = time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(holder["started"])) \
-                if isinstance(holder.get("started"), (int, float)) else ""
-            raise LockHeldError(f"{path}: {what} is being written by {who}{since}; "
-                                "wait for it to finish or stop it (one writer at a time)") from None
+            since = (
+                time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(holder["started"]))
+                if isinstance(holder.get("started"), (int, float))
+                else ""
+            )
+            raise LockHeldError(
+                f"{path}: {what} is being written by {who}{since}; "
+                "wait for it to finish or stop it (one writer at a time)"
+            ) from None
         try:
             same = os.stat(path).st_ino == os.fstat(fd).st_ino
         except FileNotFoundError:

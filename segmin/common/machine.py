@@ -17,5 +17,7 @@ def machine_summary() -> str:
     import torch
 
     device = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
-    return (f"{platform.platform(terse=True)}, Python {sys.version.split()[0]}, {os.cpu_count()} CPU cores, "
-            f"{device}, torch {torch.__version__}")
+    return (
+        f"{platform.platform(terse=True)}, Python {sys.version.split()[0]}, {os.cpu_count()} CPU cores, "
+        f"{device}, torch {torch.__version__}"
+    )

@@ -23,7 +23,13 @@ KINDS: dict[str, str] = {
     "sweeps": "robustness sweeps for `segmin robustness`",
 }
 # What one config of each kind is called in error messages.
-_SINGULAR = {"worlds": "world", "train": "training config", "nav": "nav config", "pipeline": "pipeline profile", "sweeps": "sweep"}
+_SINGULAR = {
+    "worlds": "world",
+    "train": "training config",
+    "nav": "nav config",
+    "pipeline": "pipeline profile",
+    "sweeps": "sweep",
+}
 
 
 def shipped_dir(kind: str) -> Path:

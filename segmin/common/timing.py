@@ -7,8 +7,9 @@ bookkeeping stay outside it, so a 0.2 ms navigator step and a 30 ms ONNX frame a
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ class Latency:
     runs: int
 
     @classmethod
-    def of_seconds(cls, seconds: Sequence[float] | np.ndarray) -> "Latency":
+    def of_seconds(cls, seconds: Sequence[float] | np.ndarray) -> Latency:
         """Median and 95th percentile of per-call wall times given in seconds."""
         samples = np.asarray(seconds, dtype=float)
         return cls(float(np.median(samples) * 1e3), float(np.percentile(samples, 95) * 1e3), int(samples.size))
@@ -31,8 +32,9 @@ class Latency:
         return asdict(self)
 
 
-def time_calls(call: Callable[..., Any], runs: int = 50, warmup: int = 5,
-               inputs: Sequence[Any] | None = None) -> np.ndarray:
+def time_calls(
+    call: Callable[..., Any], runs: int = 50, warmup: int = 5, inputs: Sequence[Any] | None = None
+) -> np.ndarray:
     """Wall time in seconds of each of `runs` calls, after `warmup` untimed calls.
 
     Without `inputs` every call is `call()`; with them, call i is `call(inputs[i % len(inputs)])`

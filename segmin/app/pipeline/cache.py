@@ -57,13 +57,22 @@ class StageCache:
             raise ValueError(f"{path}: unreadable stage record ({exc}); remove it to rerun the stage") from exc
 
     def started(self, stage: str, input_hash: str) -> None:
-        write_json(self.folder(stage) / "stage.json",
-                   {"name": stage, "input_hash": input_hash, "finished": False, "seconds": 0.0, "outputs": None})
+        write_json(
+            self.folder(stage) / "stage.json",
+            {"name": stage, "input_hash": input_hash, "finished": False, "seconds": 0.0, "outputs": None},
+        )
 
     def finished(self, stage: str, input_hash: str, seconds: float, outputs: dict[str, Any]) -> None:
-        write_json(self.folder(stage) / "stage.json",
-                   {"name": stage, "input_hash": input_hash, "finished": True, "seconds": round(seconds, 2),
-                    "outputs": outputs})
+        write_json(
+            self.folder(stage) / "stage.json",
+            {
+                "name": stage,
+                "input_hash": input_hash,
+                "finished": True,
+                "seconds": round(seconds, 2),
+                "outputs": outputs,
+            },
+        )
 
     def invalidate(self, stage: str) -> None:
         """Mark a stage as not finished (its work folder stays, so resumable work is kept)."""

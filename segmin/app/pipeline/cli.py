@@ -17,11 +17,19 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "stages whose inputs did not change and resumes an interrupted one. The last line printed names "
         "the report.",
     )
-    parser.add_argument("--config", default="quick",
-                        help="profile name in configs/pipeline/ (quick, paper, micro) or a YAML path (default: quick)")
+    parser.add_argument(
+        "--config",
+        default="quick",
+        help="profile name in configs/pipeline/ (quick, paper, micro) or a YAML path (default: quick)",
+    )
     parser.add_argument("--out", default=None, help="run folder (default: runs/<profile>)")
-    parser.add_argument("--from", dest="from_stage", choices=STAGES, default=None,
-                        help="rerun this stage and every later one from scratch")
+    parser.add_argument(
+        "--from",
+        dest="from_stage",
+        choices=STAGES,
+        default=None,
+        help="rerun this stage and every later one from scratch",
+    )
     add_overrides(parser, alias=False, example="render.frames_per_world=100 nav.runs=3")
     parser.set_defaults(func=_pipeline)
 
@@ -31,8 +39,7 @@ def _pipeline(args: argparse.Namespace) -> int:
 
     from segmin.app.pipeline.config import load_pipeline_config
     from segmin.app.pipeline.runner import PipelineRunner
-
-    from segmin.nav_eval.evaluate import RunErrors
+    from segmin.nav_eval.evaluation.evaluate import RunErrors
 
     config = load_pipeline_config(args.config, overrides_of(args))
     out = Path(args.out) if args.out else Path("runs") / config.profile

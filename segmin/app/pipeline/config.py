@@ -16,7 +16,7 @@ from typing import Literal
 
 from segmin.common.config import load_config
 from segmin.common.shipped import resolve_config
-from segmin.nav_eval.methods import METHODS
+from segmin.nav_eval.runtime.methods import METHODS
 
 STAGES: tuple[str, ...] = ("render", "train", "export", "real-eval", "nav-eval", "report")
 
@@ -165,13 +165,23 @@ def check_training_sources(config: PipelineConfig) -> None:
     for family, plan in config.families.items():
         overrides = dict(item.split("=", 1) for item in plan.train_overrides if "=" in item)
         data_overrides = {k: v.strip() for k, v in overrides.items() if k.strip().startswith("data.")}
-        paths = {f"families.{family}.train_config": plan.train_config,
-                 **{f"families.{family}.train_overrides {k}": v for k, v in data_overrides.items()
-                    if k.strip() in ("data.root", "data.val_root", "data.split_file")}}
-        names = {f"families.{family}.train_worlds": plan.train_worlds,
-                 f"families.{family}.val_worlds": plan.val_worlds,
-                 **{f"families.{family}.train_overrides {k}": [d.strip(" '\"") for d in v.strip("[]").split(",")]
-                    for k, v in data_overrides.items() if k.strip() in ("data.domains", "data.val_domains")}}
+        paths = {
+            f"families.{family}.train_config": plan.train_config,
+            **{
+                f"families.{family}.train_overrides {k}": v
+                for k, v in data_overrides.items()
+                if k.strip() in ("data.root", "data.val_root", "data.split_file")
+            },
+        }
+        names = {
+            f"families.{family}.train_worlds": plan.train_worlds,
+            f"families.{family}.val_worlds": plan.val_worlds,
+            **{
+                f"families.{family}.train_overrides {k}": [d.strip(" '\"") for d in v.strip("[]").split(",")]
+                for k, v in data_overrides.items()
+                if k.strip() in ("data.domains", "data.val_domains")
+            },
+        }
         check_not_real_data(f"pipeline profile {config.profile!r}", paths=paths, names=names, extra=extra)
 
 

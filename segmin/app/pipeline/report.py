@@ -13,17 +13,17 @@ import re
 from pathlib import Path
 from typing import Any
 
-from segmin.common.atomic import atomic_path, write_text
 from segmin.app.pipeline.cache import StageCache
 from segmin.app.pipeline.config import PipelineConfig
 from segmin.app.pipeline.stages import load_results, read_metrics_csv
+from segmin.common.atomic import atomic_path, write_text
 
 
 def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCache, log) -> dict[str, str]:
     """Write run_dir/report.md and run_dir/report.html; returns their paths."""
-    from segmin.common.provenance import git_commit
-    from segmin.nav_eval.report import table3_markdown
     from segmin.common.machine import machine_summary
+    from segmin.common.provenance import git_commit
+    from segmin.nav_eval.evaluation.report import table3_markdown
 
     families = list(config.families)
     curves = run_dir / "report" / "training_curves.png"
@@ -49,54 +49,89 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
         "| stage | time s | input hash |",
         "|---|---|---|",
     ]
-    for key in ["render", *[f"{s}/{f}" for s in ("train", "export", "real-eval", "nav-eval") for f in families],
-                *(["nav-eval/oracle"] if config.nav.oracle else [])]:
+    for key in [
+        "render",
+        *[f"{s}/{f}" for s in ("train", "export", "real-eval", "nav-eval") for f in families],
+        *(["nav-eval/oracle"] if config.nav.oracle else []),
+    ]:
         record = cache.record(key)
         if record is not None:
             lines.append(f"| {key} | {record.seconds:.1f} | `{record.input_hash}` |")
     if config.parallel_training:
-        lines += ["", "The families' training stages ran side by side (one process and one thread each): "
-                  "their times overlap."]
+        lines += [
+            "",
+            "The families' training stages ran side by side (one process and one thread each): their times overlap.",
+        ]
     lines += ["", "## 1. Data: rendered training worlds", ""]
     render = cache.record("render")
     if render and render.outputs:
         for family, domains in render.outputs["domains"].items():
             counts = {split: _count_frames(run_dir / "render" / split, names) for split, names in domains.items()}
-            lines.append(f"- **{family}**: {counts['train']} training frames from {', '.join(domains['train'])}; "
-                         f"{counts['val']} validation frames from held-out worlds {', '.join(domains['val'])}")
-        lines += ["", "RGB | vegetation mask overlay | depth, one row per training world:", "",
-                  "![contact sheet](render/contact_sheet.png)", ""]
-    lines += ["## 2. Training", "", "| family | epochs | image size | backbone | best val IoU | pixel acc | "
-              "exported | its val IoU | time s |", "|---|---|---|---|---|---|---|---|---|"]
+            lines.append(
+                f"- **{family}**: {counts['train']} training frames from {', '.join(domains['train'])}; "
+                f"{counts['val']} validation frames from held-out worlds {', '.join(domains['val'])}"
+            )
+        lines += [
+            "",
+            "RGB | vegetation mask overlay | depth, one row per training world:",
+            "",
+            "![contact sheet](render/contact_sheet.png)",
+            "",
+        ]
+    lines += [
+        "## 2. Training",
+        "",
+        "| family | epochs | image size | backbone | best val IoU | pixel acc | exported | its val IoU | time s |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for family in families:
         record = cache.record(f"train/{family}")
         if record and record.outputs:
             o = record.outputs
-            lines.append(f"| {family} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
-                         f"{_num(o['best_val_iou'])} | {_num(o['best_val_pixel_acc'])} | {o.get('kept', 'best')} | "
-                         f"{_num(kept_val_iou(o))} | {record.seconds:.0f} |")
-    lines += ["", "Validation IoU is the crop-class IoU summed over the whole held-out set (the paper reports "
-              "IoU on AgriSeg test domains; these are rendered frames). The exported model is the best epoch "
-              "(`best`), or with `swa_start_epoch` the average of the last epochs' weights (`swa`).", ""]
+            lines.append(
+                f"| {family} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
+                f"{_num(o['best_val_iou'])} | {_num(o['best_val_pixel_acc'])} | {o.get('kept', 'best')} | "
+                f"{_num(kept_val_iou(o))} | {record.seconds:.0f} |"
+            )
+    lines += [
+        "",
+        "Validation IoU is the crop-class IoU summed over the whole held-out set (the paper reports "
+        "IoU on AgriSeg test domains; these are rendered frames). The exported model is the best epoch "
+        "(`best`), or with `swa_start_epoch` the average of the last epochs' weights (`swa`).",
+        "",
+    ]
     if curves.is_file():
         lines += ["![training curves](report/training_curves.png)", ""]
-    lines += ["## 3. Export (ONNX, verified against PyTorch)", "",
-              "| family | max abs prob diff | mask agreement | onnxruntime latency median / p95 ms (2 threads) |",
-              "|---|---|---|---|"]
+    lines += [
+        "## 3. Export (ONNX, verified against PyTorch)",
+        "",
+        "| family | max abs prob diff | mask agreement | onnxruntime latency median / p95 ms (2 threads) |",
+        "|---|---|---|---|",
+    ]
     for family in families:
         record = cache.record(f"export/{family}")
         if record and record.outputs:
             v, t = record.outputs["verification"], record.outputs["latency_ms"]
-            lines.append(f"| {family} | {v['max_abs_diff']:.2e} | {100 * v['mask_agreement']:.3f} % | "
-                         f"{t['median']:.2f} / {t['p95']:.2f} |")
+            lines.append(
+                f"| {family} | {v['max_abs_diff']:.2e} | {100 * v['mask_agreement']:.3f} % | "
+                f"{t['median']:.2f} / {t['p95']:.2f} |"
+            )
     lines += ["", *_real_photos(config, cache, families)]
-    lines += ["## 5. Closed loop in the five test fields", "",
-              "With the exported models (trees model: high trees and pear; vineyards model: the three vineyards). "
-              "Ours: mean ± std over runs; the paper's Table 3 value (Gazebo) in brackets.", ""]
+    lines += [
+        "## 5. Closed loop in the five test fields",
+        "",
+        "With the exported models (trees model: high trees and pear; vineyards model: the three vineyards). "
+        "Ours: mean ± std over runs; the paper's Table 3 value (Gazebo) in brackets.",
+        "",
+    ]
     lines += [table3_markdown(model_results) if model_results else "(no results)", ""]
     if oracle_results:
-        lines += ["With the oracle segmenter (the simulator's exact mask), which separates control from perception:",
-                  "", table3_markdown(oracle_results), ""]
+        lines += [
+            "With the oracle segmenter (the simulator's exact mask), which separates control from perception:",
+            "",
+            table3_markdown(oracle_results),
+            "",
+        ]
     lines += ["### Comparison with the paper", "", *_comparison(model_results), ""]
     lines += ["## 6. Figures", ""]
     for family in families:
@@ -113,9 +148,11 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
 
 
 # Known figures on the shipped vineyard photos (issue 12; data/real/vineyard_rows/README.md).
-REAL_REFERENCES = ("the SegMin paper's released vineyard model (ImageNet-pretrained, trained on AgriSeg) scores "
-                   "mean IoU 0.545 (precision 0.67, recall 0.78) with its own preprocessing; the repository's demo "
-                   "`vineyards.onnx` 0.217 (precision 0.24, recall 0.77)")
+REAL_REFERENCES = (
+    "the SegMin paper's released vineyard model (ImageNet-pretrained, trained on AgriSeg) scores "
+    "mean IoU 0.545 (precision 0.67, recall 0.78) with its own preprocessing; the repository's demo "
+    "`vineyards.onnx` 0.217 (precision 0.24, recall 0.77)"
+)
 
 
 def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str]) -> list[str]:
@@ -132,28 +169,39 @@ def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str])
     lines += [
         f"Every exported model segments the labelled photos in `{data}` "
         f"({next(iter(records.values())).outputs['images']} images"
-        + (", the shipped real vineyard rows: Aghi et al. 2021, doi:10.5281/zenodo.4601472, CC BY 4.0" if shipped else "")
+        + (
+            ", the shipped real vineyard rows: Aghi et al. 2021, doi:10.5281/zenodo.4601472, CC BY 4.0"
+            if shipped
+            else ""
+        )
         + "). They are a test set: no stage trains or validates on them. Figures at the photos' own resolution; "
         "precision is n/a when nothing is predicted.",
         "",
         "| family | synthetic val IoU | real mean IoU | real pooled IoU | precision | recall | pixel acc |",
         "|---|---|---|---|---|---|---|",
     ]
-    from segmin.export.seg_eval import fmt  # undefined figures read "n/a", as eval-seg prints them
+    from segmin.nav_eval.seg_eval.score import fmt  # undefined figures read "n/a", as eval-seg prints them
 
     for family, record in records.items():
         o = record.outputs
         train = cache.record(f"train/{family}")
         val_iou = kept_val_iou(train.outputs) if train and train.outputs else None
-        lines.append(f"| {family} | {_num(val_iou)} | {fmt(o['mean_iou'])} | {fmt(o['pooled_iou'])} | "
-                     f"{fmt(o['precision'])} | {fmt(o['recall'])} | {fmt(o['pixel_accuracy'])} |")
+        lines.append(
+            f"| {family} | {_num(val_iou)} | {fmt(o['mean_iou'])} | {fmt(o['pooled_iou'])} | "
+            f"{fmt(o['precision'])} | {fmt(o['recall'])} | {fmt(o['pixel_accuracy'])} |"
+        )
     lines.append("")
     if shipped:
-        lines += ["The photos are vineyards: the vineyards model's figure is in-crop, the trees model's is cross-crop "
-                  "(a model trained on tree rows scored on vine canopy), shown for scale only. "
-                  f"For reference, {REAL_REFERENCES}.", ""]
-    lines += ["Contact sheets: photo | prediction (green: crop found, red: false crop, blue: missed crop) | "
-              "ground truth.", ""]
+        lines += [
+            "The photos are vineyards: the vineyards model's figure is in-crop, the trees model's is cross-crop "
+            "(a model trained on tree rows scored on vine canopy), shown for scale only. "
+            f"For reference, {REAL_REFERENCES}.",
+            "",
+        ]
+    lines += [
+        "Contact sheets: photo | prediction (green: crop found, red: false crop, blue: missed crop) | ground truth.",
+        "",
+    ]
     for family, record in records.items():
         sheet = record.outputs.get("contact_sheet")
         if sheet:
@@ -171,7 +219,7 @@ def _num(value: Any) -> str:
 
 def _comparison(results: list[Any]) -> list[str]:
     """One sentence per field: our SegMinD MAE against the paper's, and whether every run succeeded."""
-    from segmin.nav_eval.report import summarise
+    from segmin.nav_eval.evaluation.report import summarise
 
     lines = []
     for entry in summarise(results):
@@ -182,7 +230,9 @@ def _comparison(results: list[Any]) -> list[str]:
         if entry["paper"] and n and math.isfinite(mae):
             paper_mae = entry["paper"][1]
             verdict = "lower (better)" if mae < paper_mae else "higher (worse)"
-            lines.append(f"- {entry['field']}: SegMinD MAE {mae:.3f} m vs the paper's {paper_mae:.3f} m, {verdict}; {ok}.")
+            lines.append(
+                f"- {entry['field']}: SegMinD MAE {mae:.3f} m vs the paper's {paper_mae:.3f} m, {verdict}; {ok}."
+            )
         else:
             lines.append(f"- {entry['field']}: {ok}.")
     return lines or ["(no SegMinD runs)"]
@@ -229,11 +279,15 @@ def to_html(markdown_text: str, base: Path, *, title: str) -> str:
         return f'src="data:image/png;base64,{data}"'
 
     body = re.sub(r'src="([^"]+\.png)"', inline, body)
-    style = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
-             "table{border-collapse:collapse;font-size:0.85em;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 6px}"
-             "th{background:#f0f0f0}img{max-width:100%}code{background:#f4f4f4}")
-    return (f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{title}</title><style>{style}</style>"
-            f"</head><body>\n{body}\n</body></html>\n")
+    style = (
+        "body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+        "table{border-collapse:collapse;font-size:0.85em;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 6px}"
+        "th{background:#f0f0f0}img{max-width:100%}code{background:#f4f4f4}"
+    )
+    return (
+        f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{title}</title><style>{style}</style>"
+        f"</head><body>\n{body}\n</body></html>\n"
+    )
 
 
 def kept_val_iou(train_outputs: dict) -> float | None:

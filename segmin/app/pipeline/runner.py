@@ -9,28 +9,35 @@ else. `--from STAGE` reruns that stage and every later one from scratch.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from segmin.common.config import to_dict
-from segmin.common.outputs import check_output_dir
 from segmin.app.pipeline import stages
-from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.app.pipeline.cache import StageCache, Timer, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig
+from segmin.app.pipeline.side_by_side import train_side_by_side
+from segmin.common.config import to_dict
+from segmin.common.outputs import check_output_dir
 
 
 class PipelineRunner:
     """One pipeline run in one folder."""
 
-    def __init__(self, config: PipelineConfig, run_dir: str | Path, *, from_stage: str | None = None,
-                 log: Callable[[str], None] | None = None) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig,
+        run_dir: str | Path,
+        *,
+        from_stage: str | None = None,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
         if from_stage is not None and from_stage not in STAGES:
             raise ValueError(f"--from: unknown stage {from_stage!r}; stages are {', '.join(STAGES)}")
         self.config = config
         self.run_dir = Path(run_dir)
         self.cache = StageCache(self.run_dir)
-        self.forced = set(STAGES[STAGES.index(from_stage):]) if from_stage else set()
+        self.forced = set(STAGES[STAGES.index(from_stage) :]) if from_stage else set()
         self.log = log or _default_log
         self.skipped: list[str] = []
         self.ran: list[str] = []
@@ -44,28 +51,37 @@ class PipelineRunner:
         backbone = stages.resolve_backbone(config, self.log)
 
         # Checked before anything runs: a missing photo folder should not wait for training to fail.
-        real_fingerprint = (stages.dataset_fingerprint(config.real_eval.resolved_data())
-                            if config.real_eval.enabled else None)
+        real_fingerprint = (
+            stages.dataset_fingerprint(config.real_eval.resolved_data()) if config.real_eval.enabled else None
+        )
         render_hash = hash_inputs("render", *stages.render_inputs(config))
-        render = self._stage("render", "render", render_hash,
-                             lambda folder, fresh: stages.render_stage(config, folder, overwrite=fresh, log=self.log))
+        render = self._stage(
+            "render",
+            "render",
+            render_hash,
+            lambda folder, fresh: stages.render_stage(config, folder, overwrite=fresh, log=self.log),
+        )
 
         nav_config = stages.nav_config(config)
         upstream: dict[str, str] = {"render": render_hash}
         models: dict[str, tuple[str, str]] = {}
         jobs: dict[str, tuple[Any, str]] = {}
         for family, plan in config.families.items():
-            train_config = stages.train_config_for(config, family, plan, self.cache.folder("render"),
-                                                   render["domains"][family], backbone)
+            train_config = stages.train_config_for(
+                config, family, plan, self.cache.folder("render"), render["domains"][family], backbone
+            )
             jobs[family] = (train_config, hash_inputs("train", render_hash, to_dict(train_config)))
         trained_all = self._train_families(jobs)
         for family, (_, train_hash) in jobs.items():
             trained = trained_all[family]
             export_hash = hash_inputs("export", train_hash, to_dict(config.export))
             exported = self._stage(
-                "export", f"export/{family}", export_hash,
+                "export",
+                f"export/{family}",
+                export_hash,
                 lambda folder, fresh, ckpt=trained["checkpoint"], fam=family: stages.export_stage(
-                    config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log),
+                    config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log
+                ),
             )
             models[family] = (exported["onnx"], export_hash)
             upstream.update({f"train/{family}": train_hash, f"export/{family}": export_hash})
@@ -76,28 +92,46 @@ class PipelineRunner:
                 onnx_path, export_hash = models[family]
                 key = f"real-eval/{family}"
                 upstream[key] = hash_inputs("real-eval", export_hash, real_common)
-                self._stage("real-eval", key, upstream[key],
-                            lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log))
+                self._stage(
+                    "real-eval",
+                    key,
+                    upstream[key],
+                    lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log),
+                )
 
         for family, plan in config.families.items():
             onnx_path, export_hash = models[family]
             key = f"nav-eval/{family}"
-            upstream[key] = hash_inputs("nav", export_hash, _nav_inputs(config, onnx_path), to_dict(nav_config),
-                                        plan.fields)
-            self._stage("nav-eval", key, upstream[key],
-                        lambda folder, fresh, m=onnx_path, f=plan.fields: stages.nav_stage(config, m, f, folder, self.log))
+            upstream[key] = hash_inputs(
+                "nav", export_hash, _nav_inputs(config, onnx_path), to_dict(nav_config), plan.fields
+            )
+            self._stage(
+                "nav-eval",
+                key,
+                upstream[key],
+                lambda folder, fresh, m=onnx_path, f=plan.fields: stages.nav_stage(config, m, f, folder, self.log),
+            )
         if config.nav.oracle:
             fields = [f for plan in config.families.values() for f in plan.fields]
-            upstream["nav-eval/oracle"] = hash_inputs("nav-oracle", _nav_inputs(config, "oracle"), to_dict(nav_config),
-                                                      fields)
-            self._stage("nav-eval", "nav-eval/oracle", upstream["nav-eval/oracle"],
-                        lambda folder, fresh: stages.nav_stage(config, "oracle", fields, folder, self.log))
+            upstream["nav-eval/oracle"] = hash_inputs(
+                "nav-oracle", _nav_inputs(config, "oracle"), to_dict(nav_config), fields
+            )
+            self._stage(
+                "nav-eval",
+                "nav-eval/oracle",
+                upstream["nav-eval/oracle"],
+                lambda folder, fresh: stages.nav_stage(config, "oracle", fields, folder, self.log),
+            )
 
         from segmin.app.pipeline.report import write_pipeline_report
 
         report_hash = hash_inputs("report", upstream, to_dict(config))
-        report = self._stage("report", "report", report_hash,
-                             lambda folder, fresh: write_pipeline_report(config, self.run_dir, self.cache, self.log))
+        report = self._stage(
+            "report",
+            "report",
+            report_hash,
+            lambda folder, fresh: write_pipeline_report(config, self.run_dir, self.cache, self.log),
+        )
         return Path(report["markdown"])
 
     def preflight(self) -> None:
@@ -107,7 +141,7 @@ class PipelineRunner:
         surface only after rendering and training (hours in). The configs loaded here are
         discarded: the stages load them again with the paths only the render stage knows.
         """
-        from segmin.nav_eval.evaluate import resolve_fields
+        from segmin.nav_eval.evaluation.evaluate import resolve_fields
         from segmin.train.config import load_train_config
 
         stages.nav_config(self.config)
@@ -118,7 +152,9 @@ class PipelineRunner:
             except ValueError as exc:
                 raise type(exc)(f"families.{family}: {exc}") from exc
 
-    def _stage(self, stage: str, key: str, input_hash: str, work: Callable[[Path, bool], dict[str, Any]]) -> dict[str, Any]:
+    def _stage(
+        self, stage: str, key: str, input_hash: str, work: Callable[[Path, bool], dict[str, Any]]
+    ) -> dict[str, Any]:
         """Skip a finished stage with the same inputs; otherwise run it (resuming where possible).
 
         `work(folder, fresh)`: `fresh` is true when earlier work in the folder must not be reused
@@ -159,9 +195,14 @@ class PipelineRunner:
         for family, (train_config, train_hash) in jobs.items():
             key = f"train/{family}"
             if not self.config.parallel_training:
-                results[family] = self._stage("train", key, train_hash,
-                                              lambda folder, fresh, tc=train_config: stages.train_stage(
-                                                  tc, folder, resume=_resumable(folder, fresh), log=self.log))
+                results[family] = self._stage(
+                    "train",
+                    key,
+                    train_hash,
+                    lambda folder, fresh, tc=train_config: stages.train_stage(
+                        tc, folder, resume=_resumable(folder, fresh), log=self.log
+                    ),
+                )
                 continue
             done, fresh = self._begin("train", key, train_hash)
             if done is not None:

@@ -9,8 +9,9 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from segmin.app.pipeline import stages
 
@@ -34,15 +35,23 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
     total = sum(config.epochs for config, _, _ in todo.values())
     context = multiprocessing.get_context("spawn")  # torch's thread pools do not survive a fork
     results = context.Queue()
-    processes = {family: context.Process(target=_train_family, args=(results, family, config, folder, resume),
-                                         name=f"train-{family}")
-                 for family, (config, folder, resume) in todo.items()}
+    processes = {
+        family: context.Process(
+            target=_train_family, args=(results, family, config, folder, resume), name=f"train-{family}"
+        )
+        for family, (config, folder, resume) in todo.items()
+    }
     outcomes: dict[str, Any] = {}
     with tqdm(total=total, unit="epoch", desc="train") as bar:
         for process in processes.values():
             process.start()
-        log("train: side by side, " + ", ".join(f"{family} (pid {process.pid}, log {todo[family][1] / 'train.log'})"
-                                                for family, process in processes.items()))
+        log(
+            "train: side by side, "
+            + ", ".join(
+                f"{family} (pid {process.pid}, log {todo[family][1] / 'train.log'})"
+                for family, process in processes.items()
+            )
+        )
         try:
             while len(outcomes) < len(processes):
                 try:
@@ -57,9 +66,13 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
                         except queues.Empty:
                             break
                     for family in ended:  # killed, or died without a word
-                        outcomes.setdefault(family, RuntimeError(
-                            f"train/{family}: the training process ended with exit code "
-                            f"{processes[family].exitcode} and no result; see {todo[family][1] / 'train.log'}"))
+                        outcomes.setdefault(
+                            family,
+                            RuntimeError(
+                                f"train/{family}: the training process ended with exit code "
+                                f"{processes[family].exitcode} and no result; see {todo[family][1] / 'train.log'}"
+                            ),
+                        )
                 epochs = sum(len(stages.read_metrics_csv(folder / "metrics.csv")) for _, folder, _ in todo.values())
                 bar.update(epochs - bar.n)
         except KeyboardInterrupt:

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from segmin.common.config import to_dict
 from segmin.app.pipeline.config import FamilyPlan, PipelineConfig
+from segmin.common.config import to_dict
 
 
 def resolve_backbone(config: PipelineConfig, log) -> str:
@@ -61,7 +61,7 @@ def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]
     from segmin.data.synth.spec import load_world_spec
 
     base = load_world_spec(name)
-    stem = base.name[len("train_"):] if base.name.startswith("train_") else base.name
+    stem = base.name[len("train_") :] if base.name.startswith("train_") else base.name
     return [f"seed={base.seed + config.render.val_seed_offset}", f"domain=synth_val_{stem}"]
 
 
@@ -76,13 +76,21 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
     for family, plan in config.families.items():
         domains: dict[str, list[str]] = {"train": [], "val": []}
         train_frames = plan.frames_per_world or config.render.frames_per_world
-        for split, names, frames in (("train", plan.train_worlds, train_frames),
-                                     ("val", plan.val_worlds, config.render.val_frames_per_world)):
+        for split, names, frames in (
+            ("train", plan.train_worlds, train_frames),
+            ("val", plan.val_worlds, config.render.val_frames_per_world),
+        ):
             for name in names:
                 spec = load_world_spec(name, _world_overrides(config, name, split))
                 log(f"render: {family} {split} world {name} ({spec.domain}), {frames} frames")
-                job = RenderJob(spec=spec, out=folder / split, frames=frames, camera=camera,
-                                workers=config.render.workers, overwrite=overwrite)
+                job = RenderJob(
+                    spec=spec,
+                    out=folder / split,
+                    frames=frames,
+                    camera=camera,
+                    workers=config.render.workers,
+                    overwrite=overwrite,
+                )
                 render_dataset(job)
                 domains[split].append(spec.domain)
         outputs["domains"][family] = domains
@@ -95,8 +103,8 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
 def _contact_sheet(config: PipelineConfig, camera, path: Path) -> None:
     import cv2
 
-    from segmin.data.synth.cli import preview_sheet
     from segmin.common.atomic import write_bytes
+    from segmin.data.synth.cli import preview_sheet
 
     worlds = [w for plan in config.families.values() for w in plan.train_worlds]
     sheet = preview_sheet(worlds, config.render.contact_sheet_frames, camera)
@@ -109,8 +117,14 @@ def _contact_sheet(config: PipelineConfig, camera, path: Path) -> None:
 # ------------------------------------------------------------------------------------- train
 
 
-def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, render_dir: Path,
-                     domains: dict[str, list[str]], backbone: str):
+def train_config_for(
+    config: PipelineConfig,
+    family: str,
+    plan: FamilyPlan,
+    render_dir: Path,
+    domains: dict[str, list[str]],
+    backbone: str,
+):
     """The family's training config, pointed at this run's rendered frames."""
     from segmin.train.config import load_train_config
 
@@ -129,8 +143,11 @@ def train_config_for(config: PipelineConfig, family: str, plan: FamilyPlan, rend
     if config.real_eval.data is not None:  # data/real itself is refused by the training config
         from segmin.data.real_sets import check_not_real_data
 
-        check_not_real_data(f"family {family}", extra=[config.real_eval.data],
-                            paths={"data.root": train_config.data.root, "data.val_root": train_config.data.val_root})
+        check_not_real_data(
+            f"family {family}",
+            extra=[config.real_eval.data],
+            paths={"data.root": train_config.data.root, "data.val_root": train_config.data.val_root},
+        )
     return train_config
 
 
@@ -143,17 +160,25 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
     from segmin.models.checkpoint import read_checkpoint
     from segmin.train.run import train_model
 
-    log(f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
-        f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}")
+    log(
+        f"train: {train_config.family} for {train_config.epochs} epochs at {train_config.image_size} px "
+        f"(backbone {train_config.backbone_weights}){', resuming' if resume else ''}"
+    )
     kept = train_model(train_config, folder, resume=resume, force=not resume)
     history = read_metrics_csv(folder / "metrics.csv")
     best_row = max(history, key=lambda r: r.get("val_iou", -1.0)) if history else {}
     # The exported model: best.pt, or swa.pt (weight average) whose validation is not an epoch row.
     kept_metrics = read_checkpoint(kept)["metrics"]
-    return {"checkpoint": str(kept), "epochs": len(history), "best_val_iou": best_row.get("val_iou"),
-            "best_val_pixel_acc": best_row.get("val_pixel_acc", best_row.get("val_acc")),
-            "kept": kept.stem, "kept_val_iou": kept_metrics.get("val_iou"),
-            "backbone_weights": train_config.backbone_weights, "image_size": train_config.image_size}
+    return {
+        "checkpoint": str(kept),
+        "epochs": len(history),
+        "best_val_iou": best_row.get("val_iou"),
+        "best_val_pixel_acc": best_row.get("val_pixel_acc", best_row.get("val_acc")),
+        "kept": kept.stem,
+        "kept_val_iou": kept_metrics.get("val_iou"),
+        "backbone_weights": train_config.backbone_weights,
+        "image_size": train_config.image_size,
+    }
 
 
 def train_stage_logged(train_config, folder: Path, resume: bool) -> dict[str, Any]:
@@ -162,8 +187,11 @@ def train_stage_logged(train_config, folder: Path, resume: bool) -> dict[str, An
     import contextlib
 
     folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / "train.log", "a" if resume else "w", buffering=1) as handle, \
-            contextlib.redirect_stdout(handle), contextlib.redirect_stderr(handle):
+    with (
+        open(folder / "train.log", "a" if resume else "w", buffering=1) as handle,
+        contextlib.redirect_stdout(handle),
+        contextlib.redirect_stderr(handle),
+    ):
         return train_stage(train_config, folder, resume=resume, log=print)
 
 
@@ -194,21 +222,27 @@ def export_stage(config: PipelineConfig, checkpoint: Path, out: Path, val_root: 
     from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     log(f"export: {checkpoint} -> {out}")
-    report = export_checkpoint(ExportOptions(
-        checkpoint=checkpoint, out=out, force=True, exporter=config.export.exporter,
-        verify_frames=config.export.verify_frames, fp16=config.export.fp16, int8=config.export.int8,
-    ))
+    report = export_checkpoint(
+        ExportOptions(
+            checkpoint=checkpoint,
+            out=out,
+            force=True,
+            exporter=config.export.exporter,
+            verify_frames=config.export.verify_frames,
+            fp16=config.export.fp16,
+            int8=config.export.int8,
+        )
+    )
     verification = report["fp32"]["verification_vs_torch"]
     latency = onnx_latency_ms(out, val_root, config.export.latency_frames)
-    return {"onnx": str(out), "verification": verification, "latency_ms": latency,
-            "input_size": report["input_size"]}
+    return {"onnx": str(out), "verification": verification, "latency_ms": latency, "input_size": report["input_size"]}
 
 
 def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2) -> dict[str, float]:
     """Median and p95 of one `OnnxSegmenter.segment` call on rendered validation frames."""
     from segmin.common.timing import time_calls
     from segmin.data.readers import read_image
-    from segmin.nav_eval.segmenter import OnnxSegmenter
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
     paths = sorted(frames_root.rglob("images/*/*.png"))[:count]
     if not paths:
@@ -216,8 +250,13 @@ def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2
     images = [read_image(p) for p in paths]
     segmenter = OnnxSegmenter(model, threads=threads)
     times = time_calls(segmenter.segment, runs=len(images), warmup=min(3, len(images)), inputs=images) * 1e3
-    return {"median": float(np.median(times)), "p95": float(np.percentile(times, 95)),
-            "threads": threads, "frames": len(times), "frame_size": list(images[0].shape[:2])}
+    return {
+        "median": float(np.median(times)),
+        "p95": float(np.percentile(times, 95)),
+        "threads": threads,
+        "frames": len(times),
+        "frame_size": list(images[0].shape[:2]),
+    }
 
 
 # --------------------------------------------------------------------------------- real-eval
@@ -232,7 +271,7 @@ def dataset_fingerprint(root: Path) -> list[tuple[str, int]]:
 
 def real_eval_stage(config: PipelineConfig, model: Path, folder: Path, log) -> dict[str, Any]:
     """Score one family's ONNX on the real photos; results and contact sheet go in the stage folder."""
-    from segmin.export.seg_eval import evaluate_model, write_results
+    from segmin.nav_eval.seg_eval.score import evaluate_model, write_results
 
     data = config.real_eval.resolved_data()
     log(f"real-eval: {model} on {data}")
@@ -246,20 +285,28 @@ def real_eval_stage(config: PipelineConfig, model: Path, folder: Path, log) -> d
 
 
 def nav_config(config: PipelineConfig):
-    from segmin.nav_eval.eval_config import load_nav_config
+    from segmin.nav_eval.sim.config import load_nav_config
 
     return load_nav_config(config.nav.config, config.nav.overrides)
 
 
 def nav_stage(config: PipelineConfig, model: str, fields: list[str], folder: Path, log) -> dict[str, Any]:
     """Drive every method through `fields` with `model` (an ONNX path or 'oracle')."""
-    from segmin.nav_eval.evaluate import raise_for_errors, run_evaluation
+    from segmin.nav_eval.evaluation.evaluate import raise_for_errors, run_evaluation
 
     methods = config.nav.methods_for(model)
     log(f"nav-eval: {model} on {', '.join(fields)} with {', '.join(methods)}, {config.nav.runs} run(s) each")
-    results = run_evaluation(model, fields=fields, methods=methods, runs=config.nav.runs,
-                             out_dir=folder, workers=config.nav.workers, config=nav_config(config),
-                             seed=config.nav.seed, video=config.nav.video)
+    results = run_evaluation(
+        model,
+        fields=fields,
+        methods=methods,
+        runs=config.nav.runs,
+        out_dir=folder,
+        workers=config.nav.workers,
+        config=nav_config(config),
+        seed=config.nav.seed,
+        video=config.nav.video,
+    )
     raise_for_errors(results, f"nav-eval in {folder}")  # never cache a stage whose runs raised
     successes = sum(bool(r.success) for r in results)
     return {"results": str(folder / "results.json"), "runs": len(results), "successes": successes}
@@ -269,7 +316,7 @@ def load_results(path: Path) -> list[Any]:
     """RunResult objects back from a results.json (for a report over cached stages)."""
     import json
 
-    from segmin.nav_eval.evaluate import RunResult
+    from segmin.nav_eval.evaluation.evaluate import RunResult
 
     names = {f.name for f in dataclasses.fields(RunResult)} - {"trajectory", "commands"}
     rows = json.loads(path.read_text())["rows"]

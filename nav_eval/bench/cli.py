@@ -1,0 +1,57 @@
+"""`segmin bench nav-eval` (simulated seconds per wall second) and `segmin bench navigator`
+(the navigators and the runtime per frame)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from segmin.nav_eval.evaluation.cli import add_scenario_options
+
+
+def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
+    b = bench.add_parser("nav-eval", help="simulated seconds per wall-clock second (one worker, ONNX segmenter)")
+    b.add_argument(
+        "--model", default=None, help="ONNX file or 'oracle' (default: an untrained model exported to a temporary file)"
+    )
+    b.add_argument("--field", default="straight_vineyard", help="field to drive (default straight_vineyard)")
+    b.add_argument("--method", default="segmind", help="navigator method (default segmind)")
+    b.add_argument("--seconds", type=float, default=20.0, help="simulated seconds to drive (default 20)")
+    b.add_argument("--threads", type=int, default=1, help="onnxruntime threads (default 1, as with 2 workers)")
+    b.add_argument(
+        "--matrix",
+        action="store_true",
+        help="also run the full matrix (5 fields x 3 methods x 3 runs) on --workers and time it",
+    )
+    b.add_argument("--workers", type=int, default=2, help="workers for --matrix (default 2)")
+    b.add_argument("--out", type=Path, default=None, help="folder for --matrix outputs (default: a temp folder)")
+    add_scenario_options(b)
+    b.set_defaults(func=_bench)
+
+    nav = bench.add_parser("navigator", help="time Navigator.step per method, and the runtime per frame, on one thread")
+    nav.add_argument("--size", type=int, default=224)
+    nav.add_argument("--steps", type=int, default=3000)
+    nav.add_argument(
+        "--model",
+        default=None,
+        help="ONNX file for the full runtime step (default: an untrained model exported to a temp file, "
+        "needs the [train] extra; skipped without it)",
+    )
+    nav.add_argument("--threads", type=int, default=2, help="onnxruntime threads for the full step (default 2)")
+    nav.set_defaults(func=_bench_navigator)
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.bench.closed_loop import bench_nav_eval
+
+    bench_nav_eval(args)
+    return 0
+
+
+def _bench_navigator(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.bench.navigator import bench_navigator, bench_runtime, format_rows, single_thread_environment
+
+    single_thread_environment()
+    print(format_rows(bench_navigator(size=args.size, steps=args.steps), args.size))
+    print(bench_runtime(size=args.size, steps=args.steps, model=args.model, threads=args.threads))
+    return 0

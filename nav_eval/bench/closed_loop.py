@@ -1,0 +1,173 @@
+"""`segmin bench nav-eval`: how fast the closed loop runs, and what the full matrix costs.
+
+One run on one field with the ONNX segmenter on one thread (what each of 2 workers gets on the
+2-core machine), timed per stage: rendering, segmentation (on a helper thread, overlapping the
+next render), navigator, and the rest. The figure of merit is simulated seconds per wall-clock
+second (target >= 3x). The full matrix (5 fields x 3 methods x 3 runs) is estimated from it, or
+measured with `--matrix`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from segmin.common.cli_args import overrides_of
+
+
+class _Timed:
+    """Wraps one method of an object and accumulates its wall time."""
+
+    def __init__(self, target: Any, method: str) -> None:
+        self.calls, self.seconds = 0, 0.0
+        original = getattr(target, method)
+
+        def wrapper(*a: Any, **k: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return original(*a, **k)
+            finally:
+                self.seconds += time.perf_counter() - t0
+                self.calls += 1
+
+        setattr(target, method, wrapper)
+
+    def ms(self) -> float:
+        return 1000.0 * self.seconds / max(self.calls, 1)
+
+
+def untrained_onnx(folder: Path, size: int = 224) -> Path:
+    """An untrained (random-weight) model exported with the export package, for timing only."""
+    import onnx
+    import torch
+
+    from segmin.export.onnx import build_metadata, export_graph, set_metadata
+    from segmin.models import build_model
+    from segmin.models.checkpoint import model_info
+
+    torch.manual_seed(0)
+    path = folder / "untrained.onnx"
+    model = build_model(backbone_weights="none").eval()
+    opset = export_graph(model, path, input_size=(size, size), exporter="legacy")
+    proto = onnx.load(str(path))
+    info = model_info(backbone_weights="none", input_size=(size, size), family="untrained", train_data="none")
+    set_metadata(proto, build_metadata(info, input_size=(size, size), exporter="legacy", opset=opset))
+    onnx.save(proto, str(path))
+    return path
+
+
+def bench_one_run(
+    model: str, field: str, method: str, seconds: float, config: Any, threads: int = 1, seed: int = 0
+) -> dict[str, Any]:
+    """Drive `seconds` of simulated time and return the timing breakdown."""
+    from segmin.nav_eval.evaluation.rollout import make_env, run_episode
+    from segmin.nav_eval.sim.factories import FieldContext, make_follower, make_segmenter
+
+    config = dataclasses.replace(
+        config,
+        run=dataclasses.replace(
+            config.run, time_limit_s=seconds, stall_time_s=10 * seconds, length_m=max(config.run.length_m, 1.0)
+        ),
+    )
+    t0 = time.perf_counter()
+    ctx = FieldContext(field, config)
+    build_s = time.perf_counter() - t0
+    segmenter = make_segmenter(model, threads)
+    env = make_env(ctx, config)
+    follower = make_follower(segmenter, method, ctx.depth_threshold, config)
+    navigator = follower.navigator
+    render = _Timed(ctx.renderer, "render")
+    seg = _Timed(segmenter, next(m for m in ("segment_prepared", "segment_frame", "segment") if hasattr(segmenter, m)))
+    nav = _Timed(navigator, "command")
+    t0 = time.perf_counter()
+    episode = run_episode(env, follower, seed)
+    wall = time.perf_counter() - t0
+    sim = float(episode.trajectory.t[-1])
+    ctx.close()
+    # Segmentation overlaps rendering (nav_eval.sim): "other" is the wall time left after rendering
+    # and the navigator, i.e. the robot, the checks and the segmentation not hidden behind a render.
+    other = max(0.0, wall - render.seconds - nav.seconds)
+    return {
+        "field": field,
+        "method": method,
+        "model": model,
+        "sim_s": sim,
+        "wall_s": wall,
+        "realtime_factor": sim / wall if wall > 0 else float("inf"),
+        "world_build_s": build_s,
+        "frames": render.calls,
+        "render_ms": render.ms(),
+        "segment_ms": seg.ms(),
+        "navigator_ms": nav.ms(),
+        "commands": nav.calls,
+        "other_ms_per_sim_s": 1000 * other / max(sim, 1e-9),
+        "reason": episode.reason,
+        "resolution": f"{ctx.camera.width}x{ctx.camera.height}",
+    }
+
+
+def bench_nav_eval(args: argparse.Namespace) -> None:
+    from segmin.nav_eval.evaluation.evaluate import run_evaluation
+    from segmin.nav_eval.sim.config import load_nav_config
+
+    config = load_nav_config(args.config, overrides_of(args))
+    with tempfile.TemporaryDirectory() as tmp:
+        model = args.model
+        if model is None:
+            t0 = time.perf_counter()
+            model = str(untrained_onnx(Path(tmp)))
+            print(f"no --model: exported an untrained model for timing ({time.perf_counter() - t0:.1f} s)")
+        r = bench_one_run(model, args.field, args.method, args.seconds, config, args.threads, args.seed)
+        print(
+            f"field {r['field']}, method {r['method']}, model {Path(r['model']).name}, {r['resolution']}, "
+            f"onnxruntime threads {args.threads}"
+        )
+        print(f"world build: {r['world_build_s']:.2f} s")
+        print(
+            f"simulated {r['sim_s']:.1f} s in {r['wall_s']:.1f} s wall: {r['realtime_factor']:.2f}x real time "
+            f"(target >= 3x); run ended: {r['reason']}"
+        )
+        print(
+            f"per frame: render {r['render_ms']:.1f} ms x {r['frames']} frames, segment {r['segment_ms']:.1f} ms "
+            f"(wall time on the helper thread, overlapping the next render; it includes waiting for "
+            f"the GIL); navigator {r['navigator_ms']:.2f} ms x "
+            f"{r['commands']} commands; robot, checks and unhidden segmentation "
+            f"{r['other_ms_per_sim_s']:.1f} ms per simulated s"
+        )
+        render_bound = 1000.0 / (r["render_ms"] * r["frames"] / max(r["sim_s"], 1e-9))
+        print(f"rendering alone would allow {render_bound:.2f}x real time at these rates")
+        # Matrix estimate: SegMin/SegMinD need ~42 s for 20 m at ~0.48 m/s; SegZeros may run to the limit.
+        sim_total = 5 * 3 * (2 * 45.0) + 5 * 3 * 60.0
+        workers = max(args.workers, 1)
+        est = sim_total / (r["realtime_factor"] * workers) / 60.0
+        print(
+            f"full matrix estimate (5 fields x 3 methods x 3 runs, ~{sim_total / 60:.0f} simulated min, "
+            f"{workers} workers, perfect scaling): {est:.1f} min (target < 20 min)"
+        )
+        if args.matrix:
+            out = args.out or Path(tmp) / "matrix"
+            t0 = time.perf_counter()
+            results = run_evaluation(
+                model,
+                "all",
+                "segmin,segmind,segzeros",
+                3,
+                out,
+                workers,
+                config,
+                seed=args.seed,
+                progress=True,
+                plots=False,
+            )
+            wall = time.perf_counter() - t0
+            sim = float(np.nansum([r.sim_time for r in results]))
+            print(
+                f"full matrix measured: {len(results)} runs, {sim / 60:.1f} simulated min in {wall / 60:.1f} min wall "
+                f"on {workers} workers ({sim / wall:.2f}x real time overall)"
+            )

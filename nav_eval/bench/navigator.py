@@ -1,0 +1,157 @@
+"""`segmin bench navigator`: time one `Navigator.step` per method on one thread."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from segmin.common.timing import time_calls
+from segmin.nav_eval.demo.scenes import CLOSED_CANOPY_SCENE, DEMO_SCENES, render_scene
+from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
+from segmin.nav_eval.runtime.methods import METHODS
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+
+TARGET_MEDIAN_MS = 0.2
+CORRIDOR_TARGET_MS = 0.5  # SegCorridor's budget (issue: <= 0.5 ms a step at 224 x 224, one thread)
+
+
+def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
+    """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
+    and SegCorridor's on a closed canopy over trunks (its trunk mode: another code path)."""
+    frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
+    mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
+    # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
+    # the check removes nothing here).
+    rgb = np.where(mask[..., None], np.uint8([60, 140, 50]), np.uint8([90, 60, 40])).astype(np.uint8)
+    canopy = [(mask, depth, None, rgb)]
+    runs = [(method, method, frames) for method in METHODS] + [("segcorridor", "segcorridor, trunk mode", canopy)]
+    rows = []
+    for method, label, inputs in runs:
+        navigator = _navigator(method, size)
+        ms = time_calls(lambda frame, nav=navigator: nav.step(*frame), runs=steps, warmup=warmup, inputs=inputs) * 1e3
+        rows.append(
+            {
+                "method": method,
+                "label": label,
+                "median_ms": float(np.median(ms)),
+                "p95_ms": float(np.percentile(ms, 95)),
+            }
+        )
+        if label.endswith("trunk mode") and not navigator.mode_counts["trunks"]:
+            raise RuntimeError("the closed-canopy bench scene did not reach SegCorridor's trunk mode")
+    return rows
+
+
+def _navigator(method: str, size: int) -> object:
+    """A paper navigator, or SegCorridor with the simulator's camera at `size` x `size`."""
+    if method != "segcorridor":
+        return Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
+    from segmin.data.synth.camera import CameraModel
+
+    camera = CameraGeometry.from_camera(CameraModel(width=size, height=size))
+    # Trunk pixels scale with the image's area: below 224 px the trunk test's minimum shrinks with it.
+    trunk_min_points = min(
+        CorridorConfig.trunk_min_points, max(1, round(CorridorConfig.trunk_min_points * (size / 224) ** 2))
+    )
+    return CorridorNavigator(
+        CorridorConfig(depth_threshold=5.0, fuse_frames=3, trunk_min_points=trunk_min_points), camera
+    )
+
+
+def format_rows(rows: list[dict], size: int) -> str:
+    lines = [
+        f"Navigator.step at {size} x {size}, fuse_frames 3, one thread (target median <= {TARGET_MEDIAN_MS} ms, "
+        f"segcorridor <= {CORRIDOR_TARGET_MS} ms)"
+    ]
+    for row in rows:
+        ratio = row["median_ms"] / (CORRIDOR_TARGET_MS if row["method"] == "segcorridor" else TARGET_MEDIAN_MS)
+        lines.append(
+            f"  {row['label']:<24} median {row['median_ms']:.3f} ms  p95 {row['p95_ms']:.3f} ms  "
+            f"({ratio:.2f}x the target budget)"
+        )
+    return "\n".join(lines)
+
+
+def single_thread_environment() -> None:
+    """Pin numpy's thread pools to one thread (the benchmark measures one core)."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def _percentiles(seconds: list[float]) -> str:
+    ms = np.asarray(seconds) * 1e3
+    return f"median {np.median(ms):.3f} ms  p95 {np.percentile(ms, 95):.3f} ms"
+
+
+def bench_runtime(
+    *, size: int = 224, steps: int = 3000, model: str | None = None, threads: int = 2, camera_hz: int = 30
+) -> str:
+    """The robot runtime per camera frame at the paper's rates (30 Hz camera, 20 / 5 Hz, 3 masks).
+
+    First with the masks given (segmentation excluded: the runtime's own bookkeeping, fusion and
+    the navigator), then with an ONNX segmenter: the full perception + fusion + command step of
+    a frame at which a command is computed. Without `model` an untrained model is exported to a
+    temporary file (needs the [train] extra; that part is skipped without it).
+    """
+    import tempfile
+    from pathlib import Path
+
+    from segmin.nav_eval.runtime.follower import RowFollower
+
+    scenes = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
+    rgbs = []
+    for mask, _ in scenes:
+        rgb = np.full((*mask.shape, 3), (120, 95, 70), dtype=np.uint8)
+        rgb[mask] = (40, 140, 35)
+        rgbs.append(rgb)
+
+    def drive(follower: RowFollower, frames: int, with_masks: bool, start: int = 0) -> tuple[list[float], list[float]]:
+        every, fresh = [], []
+        for i in range(start, start + frames):
+            mask, depth = scenes[i % len(scenes)]
+            start = time.perf_counter()
+            out = follower.step(rgbs[i % len(scenes)], depth, i / camera_hz, mask=mask if with_masks else None)
+            elapsed = time.perf_counter() - start
+            every.append(elapsed)
+            if out.fresh:
+                fresh.append(elapsed)
+        return every, fresh
+
+    lines = [f"RowFollower at {size} x {size}, camera {camera_hz} Hz, masks 20 Hz, commands 5 Hz, fuse 3 (SegMinD)"]
+    follower = RowFollower(None, Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
+    every, fresh = drive(follower, steps, with_masks=True)
+    lines.append(
+        f"  per frame, segmentation excluded: {_percentiles(every)} over {len(every)} frames; "
+        f"frames with a command: {_percentiles(fresh)}"
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        if model is None:
+            try:
+                from segmin.nav_eval.bench.closed_loop import untrained_onnx
+
+                model = str(untrained_onnx(Path(tmp), size=size))
+                label = "untrained model exported to a temp file"
+            except ModuleNotFoundError as exc:
+                lines.append(
+                    f"  full step skipped: exporting a model needs the [train] extra ({exc.name}); "
+                    "give --model an .onnx file"
+                )
+                return "\n".join(lines)
+        else:
+            label = Path(model).name
+        from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+        follower = RowFollower(
+            OnnxSegmenter(model, threads=threads), Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0))
+        )
+        frames = max(60, min(steps, 600))
+        drive(follower, 30, with_masks=False)  # warm-up
+        every, fresh = drive(follower, frames, with_masks=False, start=30)
+        lines.append(
+            f"  full step with OnnxSegmenter ({label}, {threads} threads), a frame with a command "
+            f"(segment + fuse + command): {_percentiles(fresh)} over {len(fresh)} commands; "
+            f"every frame: {_percentiles(every)}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""`segmin navigate-demo`: the navigators on analytic row scenes, with no simulator and no model."""

@@ -1,0 +1,444 @@
+"""Run the evaluation matrix (fields x methods x runs) in worker processes and write the outputs.
+
+Public entry point for the pipeline: `run_evaluation(model, fields, methods, runs, out_dir,
+workers, config) -> list[RunResult]`.
+
+Each run is one job. A worker process (spawned, never forked: pybullet and onnxruntime hold
+threads) builds its own pybullet DIRECT client per field, its own segmenter and navigators, and
+returns a `RunResult`. An exception inside a run becomes a failure row (reason "error", with the
+exception text); a crashed worker marks its unfinished jobs the same way. Seeds: the start noise
+and the depth noise of run k in a field depend on (seed, field, k) only, so every method starts
+from the same pose with the same noise (a paired comparison).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+import traceback
+import zlib
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from segmin.common.config import from_dict, to_dict
+from segmin.common.outputs import check_output_dir
+from segmin.nav_eval.evaluation.metrics import compute_metrics
+from segmin.nav_eval.runtime.methods import METHODS
+from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
+from segmin.nav_eval.sim.factories import FieldContext, field_label, make_follower, make_navigator, make_segmenter
+from segmin.nav_eval.sim.mask_dropout import with_dropout
+from segmin.nav_eval.sim.track import Trajectory
+
+METRIC_KEYS = (
+    "clearance_time",
+    "mae",
+    "mse",
+    "heading_avg",
+    "v_avg",
+    "omega_std",
+    "collisions",
+    "min_plant_distance",
+    "distance",
+)
+
+
+@dataclasses.dataclass
+class RunResult:
+    """One row of results.csv / results.json (the trajectory is kept aside for the plots)."""
+
+    field: str
+    method: str
+    run: int
+    seed: int
+    model: str
+    success: bool
+    reason: str
+    error: str = ""
+    clearance_time: float = math.nan
+    mae: float = math.nan
+    mse: float = math.nan
+    heading_avg: float = math.nan
+    v_avg: float = math.nan
+    omega_std: float = math.nan
+    collisions: int = 0
+    min_plant_distance: float = math.nan
+    distance: float = math.nan
+    goal_m: float = math.nan
+    sim_time: float = math.nan
+    wall_time: float = math.nan
+    depth_threshold: float = math.nan
+    gap: int = -1
+    start_x: float = math.nan
+    start_y: float = math.nan
+    start_yaw: float = math.nan
+    # SegCorridor only (NaN for the paper's methods): share of commands from one row / the trunks / the fallback.
+    one_side_share: float = math.nan
+    trunk_share: float = math.nan
+    fallback_share: float = math.nan
+    trajectory: Trajectory | None = dataclasses.field(default=None, repr=False)
+    commands: list = dataclasses.field(default_factory=list, repr=False)
+
+    def row(self) -> dict[str, Any]:
+        """Plain row without the trajectory (for CSV and JSON)."""
+        return {
+            f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("trajectory", "commands")
+        }
+
+
+@dataclasses.dataclass
+class Job:
+    field: str
+    method: str
+    run: int
+    seed: int
+    video_path: str = ""
+    # The run's own NavEvalConfig as plain data (`to_dict`), when it is not the worker's: a sweep
+    # runs many configs on one pool. None: the worker's config.
+    config: dict | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# Field resolution and seeds
+# ---------------------------------------------------------------------------------------------
+
+
+def resolve_fields(fields: str | list[str] | tuple[str, ...]) -> list[str]:
+    """'all' -> the five test fields; 'a,b' or a list -> names or world spec paths (checked)."""
+    from segmin.data.synth.spec import TEST_FIELDS, load_world_spec
+
+    items = [f.strip() for f in fields.split(",")] if isinstance(fields, str) else [str(f) for f in fields]
+    items = [f for f in items if f]
+    if items == ["all"]:
+        items = list(TEST_FIELDS)
+    if not items:
+        raise ValueError("--fields: no field given")
+    for item in items:
+        spec = load_world_spec(item)
+        if spec.name.startswith("train_"):
+            raise ValueError(f"--fields: {item!r} is a training world ({spec.name}); evaluate only on test fields")
+    return items
+
+
+def run_seed(base_seed: int, field: str, run: int) -> int:
+    """Seed of run `run` in `field` (the same for every method: paired starts)."""
+    key = zlib.crc32(field_label(field).encode())
+    return int(np.random.SeedSequence([int(base_seed), key, int(run)]).generate_state(1)[0])
+
+
+class RunErrors(RuntimeError):
+    """Some runs raised (a bug or a broken setup, not bad driving): their numbers are not results."""
+
+    def __init__(self, errored: list[RunResult], total: int, where: str = "") -> None:
+        first = errored[0]
+        detail = first.error.splitlines()[0] if first.error else "no message"
+        super().__init__(
+            f"{where + ': ' if where else ''}{len(errored)} of {total} run(s) raised, e.g. "
+            f"{first.field}/{first.method}/run {first.run}: {detail}"
+        )
+        self.errored = errored
+
+
+def raise_for_errors(results: list[RunResult], where: str = "") -> None:
+    """RunErrors when any run raised. A run that fails by driving badly (collision, timeout,
+    stall) is a result and passes; a run whose code raised is an error and must not be
+    reported, cached or scored as if it were one."""
+    errored = [r for r in results if r.reason == "error"]
+    if errored:
+        raise RunErrors(errored, len(results), where)
+
+
+def preflight(model: str, fields: list[str], methods: list[str], config: NavEvalConfig) -> None:
+    """Check the model and every field's navigator settings before the first run.
+
+    Without this a foreign ONNX file, `navigator.v_max=-1` or a bad depth threshold makes every
+    run raise inside the workers, which only shows up as a table of error rows at the end.
+    Raises ValueError naming the file or the setting.
+    """
+    from segmin.data.synth.spec import load_world_spec
+
+    if str(model) != "oracle":
+        make_segmenter(str(model), threads=1)  # loads and checks the file: metadata, graph in/out
+    for f in fields:
+        check_navigators(load_world_spec(f), field_label(f), methods, config)
+
+
+def check_navigators(spec: Any, label: str, methods: list[str], config: NavEvalConfig) -> None:
+    """Build each method's navigator for the field `spec` (its depth threshold) under `config`."""
+    threshold = config.depth_threshold(spec.name, spec.family)
+    for method in methods:
+        try:
+            make_navigator(method, threshold, config)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"navigator settings for {label} / {method} (depth threshold "
+                f"{threshold!r}, navigator {config.navigator}): {exc}"
+            ) from exc
+
+
+def parse_methods(methods: str | list[str] | tuple[str, ...]) -> list[str]:
+    items = [m.strip().lower() for m in methods.split(",")] if isinstance(methods, str) else list(methods)
+    bad = [m for m in items if m not in METHODS]
+    if bad or not items:
+        raise ValueError(f"--methods: unknown {bad}; choose from {list(METHODS)}")
+    return items
+
+
+# ---------------------------------------------------------------------------------------------
+# Inside a worker
+# ---------------------------------------------------------------------------------------------
+
+
+class Worker:
+    """Per-process state: fields built on first use (the last few kept), one segmenter."""
+
+    # Built fields kept per worker. Jobs come field by field, so one would do for a matrix; a
+    # sweep has dozens of field variants, and each built world holds its own pybullet client.
+    KEEP_FIELDS = 2
+
+    def __init__(self, model: str, config: NavEvalConfig, threads: int = 1) -> None:
+        self.model = str(model)
+        self.config = config
+        self.threads = threads
+        self._segmenter: Any = None
+        self._fields: dict[tuple, FieldContext] = {}
+
+    def field(self, name: str, config: NavEvalConfig | None = None) -> FieldContext:
+        """The field built for `config` (camera size and gap; the worker's config by default)."""
+        config = config or self.config
+        key = (name, config.perception.width, config.perception.height, config.run.gap)
+        ctx = self._fields.pop(key, None) or FieldContext(name, config)
+        self._fields[key] = ctx  # most recently used last
+        while len(self._fields) > self.KEEP_FIELDS:
+            self._fields.pop(next(iter(self._fields))).close()
+        return ctx
+
+    @property
+    def segmenter(self) -> Any:
+        if self._segmenter is None:
+            self._segmenter = make_segmenter(self.model, self.threads)
+        return self._segmenter
+
+    def close(self) -> None:
+        for ctx in self._fields.values():
+            ctx.close()
+        self._fields.clear()
+
+    def run(self, job: Job) -> RunResult:
+        """One run; never raises (an exception becomes a failure row)."""
+        from segmin.nav_eval.evaluation.rollout import make_env, run_episode
+
+        start = time.perf_counter()
+        result = RunResult(
+            field=field_label(job.field),
+            method=job.method,
+            run=job.run,
+            seed=job.seed,
+            model=self.model,
+            success=False,
+            reason="error",
+        )
+        try:
+            config = self.config if job.config is None else from_dict(NavEvalConfig, job.config)
+            ctx = self.field(job.field, config)
+            result.depth_threshold = config.depth_threshold(ctx.spec.name, ctx.spec.family)
+            env = make_env(ctx, config)
+            result.gap = env.row.gap
+            segmenter = with_dropout(self.segmenter, config.perception, job.seed)
+            follower = make_follower(segmenter, job.method, result.depth_threshold, config)
+            episode = run_episode(env, follower, job.seed, video=bool(job.video_path))
+            metrics = compute_metrics(
+                episode.trajectory,
+                env.row.centreline,
+                success=episode.success,
+                clearance_time=episode.clearance_time,
+                collisions=episode.collisions,
+            )
+            for key in METRIC_KEYS:
+                setattr(result, key, metrics[key])
+            result.success, result.reason = episode.success, episode.reason
+            result.goal_m = episode.goal_m
+            result.sim_time = float(episode.trajectory.t[-1])
+            result.start_x, result.start_y, result.start_yaw = episode.start_pose
+            result.trajectory = episode.trajectory
+            result.commands = episode.commands
+            _record_modes(result, follower.navigator)
+            if job.video_path and episode.video:
+                from segmin.nav_eval.replay.video import write_video
+
+                write_video(job.video_path, episode.video, fps=config.rates.command_hz)
+        except Exception as exc:  # a failed run is a row, never a crash of the evaluation
+            result.success, result.reason = False, "error"
+            result.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
+        result.wall_time = time.perf_counter() - start
+        return result
+
+
+def _record_modes(result: RunResult, navigator: Any) -> None:
+    """SegCorridor's mode shares (how often it steered on one row, or fell back to SegMinD)."""
+    counts = getattr(navigator, "mode_counts", None)
+    total = sum(counts.values()) if counts else 0
+    if total:
+        result.one_side_share = counts["one_side"] / total
+        result.trunk_share = counts["trunks"] / total
+        result.fallback_share = counts["fallback"] / total
+
+
+_WORKER: Worker | None = None
+
+
+def _init_worker(model: str, config_raw: dict, threads: int) -> None:
+    global _WORKER
+    _WORKER = Worker(model, from_dict(NavEvalConfig, config_raw), threads)
+
+
+def _run_in_worker(job: Job) -> RunResult:
+    assert _WORKER is not None, "worker not initialised"
+    return _WORKER.run(job)
+
+
+# ---------------------------------------------------------------------------------------------
+# The matrix
+# ---------------------------------------------------------------------------------------------
+
+
+def run_evaluation(
+    model: str | Path,
+    fields: str | list[str] = "all",
+    methods: str | list[str] = METHODS,
+    runs: int = 3,
+    out_dir: str | Path | None = None,
+    workers: int = 1,
+    config: NavEvalConfig | None = None,
+    *,
+    seed: int = 0,
+    video: bool = False,
+    progress: bool = True,
+    plots: bool = True,
+) -> list[RunResult]:
+    """Evaluate `model` ('oracle' or an .onnx path) on fields x methods x runs.
+
+    With `out_dir`, writes results.csv/json (rewritten atomically after every finished run, so
+    an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
+    workers <= 1 runs in this process; more uses spawned processes.
+    """
+    config = config or load_nav_config()
+    if str(model) != "oracle" and not Path(model).is_file():
+        raise FileNotFoundError(f"--model: {model} not found (give an exported .onnx file or 'oracle')")
+    field_list = resolve_fields(fields)
+    method_list = parse_methods(methods)
+    if runs < 1:
+        raise ValueError(f"--runs must be >= 1, got {runs}")
+    preflight(str(model), field_list, method_list, config)
+    out = check_output_dir(out_dir, "--out") if out_dir is not None else None
+    jobs = []
+    for f in field_list:
+        for r in range(runs):
+            for m in method_list:
+                path = ""
+                if video and out is not None and r == 0:
+                    path = str(out / "videos" / f"{field_label(f)}_{m}.mp4")
+                jobs.append(Job(f, m, r, run_seed(seed, f, r), path))
+    meta = {
+        "model": str(model),
+        "fields": [field_label(f) for f in field_list],
+        "methods": method_list,
+        "runs": runs,
+        "seed": seed,
+        "workers": workers,
+        "config": to_dict(config),
+    }
+    results: list[RunResult] = []
+
+    def done(job: Job, result: RunResult) -> None:
+        results.append(result)
+        if out is not None:
+            from segmin.nav_eval.evaluation.report import write_results
+
+            write_results(out, sorted(results, key=_order(jobs)), meta)
+
+    execute_jobs(jobs, str(model), config, workers, done, progress=progress)
+    results.sort(key=_order(jobs))
+    if out is not None:
+        from segmin.nav_eval.evaluation.report import write_report
+
+        write_report(out, results, meta, field_list, config, plots=plots)
+    return results
+
+
+def execute_jobs(
+    jobs: list[Job],
+    model: str,
+    config: NavEvalConfig,
+    workers: int,
+    done: Callable[[Job, RunResult], None],
+    *,
+    progress: bool = True,
+    desc: str = "nav-eval runs",
+) -> None:
+    """Run `jobs` on `workers` processes (this one when <= 1), calling `done(job, result)` as
+    each finishes (in completion order). A job's own `config` replaces `config` for that run."""
+    bar = _progress(len(jobs), progress, desc)
+    try:
+        if workers <= 1:
+            # One core is left to pybullet: the episode renders the next frame on this thread
+            # while the segmenter runs on its helper thread (see nav_eval.sim).
+            worker = Worker(model, config, threads=max(1, (os.cpu_count() or 1) - 1))
+            try:
+                for job in jobs:
+                    done(job, worker.run(job))
+                    bar.update(1)
+            finally:
+                worker.close()
+        else:
+            _run_pool(jobs, model, config, workers, done, bar)
+    finally:
+        bar.close()
+
+
+def _order(jobs: list[Job]) -> Callable[[RunResult], int]:
+    index = {(field_label(j.field), j.method, j.run): i for i, j in enumerate(jobs)}
+    return lambda r: index.get((r.field, r.method, r.run), len(index))
+
+
+def _run_pool(
+    jobs: list[Job], model: str, config: NavEvalConfig, workers: int, done: Callable[[Job, RunResult], None], bar: Any
+) -> None:
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    ctx = get_context("spawn")
+    pending = {}
+    with ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(model, to_dict(config), threads)
+    ) as pool:
+        for job in jobs:
+            pending[pool.submit(_run_in_worker, job)] = job
+        for future in as_completed(pending):
+            job = pending[future]
+            try:
+                result = future.result()
+            except (BrokenProcessPool, Exception) as exc:  # a dead worker: its job is a failure row
+                result = RunResult(
+                    field=field_label(job.field),
+                    method=job.method,
+                    run=job.run,
+                    seed=job.seed,
+                    model=model,
+                    success=False,
+                    reason="error",
+                    error=f"{type(exc).__name__}: {exc}",
+                )
+            done(job, result)
+            bar.update(1)
+
+
+def _progress(total: int, enabled: bool, desc: str) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="run", disable=not enabled)

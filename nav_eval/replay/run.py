@@ -1,0 +1,328 @@
+"""`segmin replay`: the robot runtime (`RowFollower`) over a recorded sequence, offline.
+
+Input: a folder of RGB frames (any image OpenCV reads, in name order) or a video file, with
+optional aligned depth: a folder of uint16 millimetre PNGs (0 = no reading) or float32 metre
+.npy files, named like the RGB frames (same stem). Timestamps come from `--fps` (frame i at
+i / fps), from `--timestamps` (one number of seconds per line, one per frame) or, for a video,
+from the file's own frame rate.
+
+Output (in `--out`, which must be empty unless `--force`): `commands.csv` (one row per command:
+t, v, omega, target_column, valid), `overlay.mp4` (per command: the frame with the mask and the
+chosen column, the depth cut, the column histogram and the command; GIF without an MP4
+encoder) and `commands.png` (target column and commands over time). The plot needs the [sim]
+extra's matplotlib; on the bare robot install it is skipped and the summary says so, the CSV
+and the video are still written.
+
+Bad input stops the replay with one line naming the frame or the argument (ValueError or
+FileNotFoundError): frames out of time order, depth of another size than the RGB frame, a
+missing or unreadable depth or RGB file, a video OpenCV cannot open, a timestamp count that does
+not match the frames, rates that do not divide evenly. Non-finite pixels in .npy depth are "no
+reading", as the navigator treats them; the frames that had some are counted in the summary.
+Without depth, SegMin and SegZeros run on the mask alone (said in the summary); SegMinD needs
+depth and is refused.
+
+No torch, pybullet or matplotlib at import: this runs on the bare robot install.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from segmin.common.atomic import write_text
+from segmin.nav_eval.replay.video import overlay, write_video
+from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig, to_metres
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced: the command rows, the written files and the summary lines."""
+
+    commands: list[tuple[float, float, float, float | None, bool]]
+    files: list[Path]
+    notes: list[str] = field(default_factory=list)
+    frames: int = 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading the sequence
+# ---------------------------------------------------------------------------------------------
+
+
+def _images(folder: Path, what: str) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES + (".npy",))
+    if not files:
+        raise FileNotFoundError(f"--{what} {folder}: no image files in the folder")
+    return files
+
+
+def _read_rgb(path: Path) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"--rgb: cannot read {path} as an image")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(path: Path) -> tuple[np.ndarray, bool]:
+    """Depth in metres (float32) and whether it had non-finite pixels (set to 0, no reading)."""
+    import cv2
+
+    if path.suffix.lower() == ".npy":
+        try:
+            depth = np.load(path)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"--depth: cannot read {path} ({exc})") from None
+        if depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
+            raise ValueError(f"--depth: {path} must be a 2-D float array of metres, got {depth.dtype} {depth.shape}")
+        bad = ~np.isfinite(depth)
+        if bad.any():
+            depth = np.where(bad, 0.0, depth)
+        return depth.astype(np.float32), bool(bad.any())
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if depth is None:
+        raise ValueError(f"--depth: cannot read {path} as an image")
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise ValueError(
+            f"--depth: {path} must be a single-channel uint16 PNG of millimetres, "
+            f"got {depth.dtype} with shape {depth.shape}"
+        )
+    return to_metres(depth), False
+
+
+def _timestamps(count: int, fps: float | None, timestamps: Path | None, source_fps: float | None) -> np.ndarray:
+    if fps is not None and timestamps is not None:
+        raise ValueError("give --fps or --timestamps, not both")
+    if timestamps is not None:
+        try:
+            values = [float(line) for line in Path(timestamps).read_text().split()]
+        except ValueError as exc:
+            raise ValueError(f"--timestamps {timestamps}: not a list of numbers ({exc})") from None
+        if len(values) != count:
+            raise ValueError(f"--timestamps {timestamps}: {len(values)} timestamps for {count} frames")
+        return np.asarray(values, dtype=float)
+    rate = fps if fps is not None else source_fps
+    if rate is None:
+        raise ValueError("a folder of frames needs --fps or --timestamps")
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"--fps must be a finite number > 0, got {rate!r}")
+    return np.arange(count, dtype=float) / rate
+
+
+def iter_sequence(
+    rgb: Path, depth: Path | None, fps: float | None, timestamps: Path | None
+) -> tuple[int, Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]]:
+    """(frame count, iterator of (name, t, rgb, depth metres or None, had non-finite depth)).
+
+    Every file is checked to exist before the first frame runs, so a missing depth frame stops
+    the replay before any output is written.
+    """
+    rgb = Path(rgb)
+    if not rgb.exists():
+        raise FileNotFoundError(f"--rgb {rgb}: no such file or folder")
+    if rgb.is_dir():
+        frames = [p for p in _images(rgb, "rgb") if p.suffix.lower() != ".npy"]
+        depth_files: list[Path | None] = [None] * len(frames)
+        if depth is not None:
+            depth = Path(depth)
+            if not depth.is_dir():
+                raise FileNotFoundError(f"--depth {depth}: not a folder")
+            by_stem = {p.stem: p for p in _images(depth, "depth")}
+            missing = [p.name for p in frames if p.stem not in by_stem]
+            if missing:
+                raise FileNotFoundError(
+                    f"--depth {depth}: no depth frame for {missing[0]}"
+                    + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else "")
+                )
+            depth_files = [by_stem[p.stem] for p in frames]
+        times = _timestamps(len(frames), fps, timestamps, None)
+
+        def folder_frames() -> Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]:
+            for path, depth_path, t in zip(frames, depth_files, times):
+                image = _read_rgb(path)
+                d, bad = (None, False) if depth_path is None else read_depth(depth_path)
+                if d is not None and d.shape != image.shape[:2]:
+                    raise ValueError(
+                        f"--depth: {depth_path.name} is {d.shape[1]}x{d.shape[0]}, "
+                        f"the RGB frame {path.name} is {image.shape[1]}x{image.shape[0]}"
+                    )
+                yield path.name, float(t), image, d, bad
+
+        return len(frames), folder_frames()
+    if rgb.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"--rgb {rgb}: give a folder of frames or a video ({', '.join(VIDEO_SUFFIXES)})")
+    if depth is not None:
+        raise ValueError("--depth goes with a folder of RGB frames; a video has no aligned depth frames")
+    import cv2
+
+    capture = cv2.VideoCapture(str(rgb))
+    if not capture.isOpened():
+        raise ValueError(f"--rgb {rgb}: OpenCV cannot open this video")
+    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    source_fps = float(capture.get(cv2.CAP_PROP_FPS)) or None
+    if count <= 0:
+        capture.release()
+        raise ValueError(f"--rgb {rgb}: the video has no frames OpenCV can count")
+    times = _timestamps(count, fps, timestamps, source_fps)
+
+    def video_frames() -> Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]:
+        try:
+            for i, t in enumerate(times):
+                ok, image = capture.read()
+                if not ok:
+                    raise ValueError(f"--rgb {rgb}: frame {i} cannot be decoded")
+                yield f"{rgb.name}#{i}", float(t), cv2.cvtColor(image, cv2.COLOR_BGR2RGB), None, False
+        finally:
+            capture.release()
+
+    return count, video_frames()
+
+
+# ---------------------------------------------------------------------------------------------
+# The replay
+# ---------------------------------------------------------------------------------------------
+
+
+def check_out_dir(out: Path, force: bool) -> None:
+    """Refuse a non-empty output folder unless `force` (nothing is overwritten silently)."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise ValueError(f"--out {out}: folder is not empty (use --force to overwrite its replay outputs)")
+
+
+def replay(
+    model: str | Path,
+    rgb: str | Path,
+    out: str | Path,
+    *,
+    method: str,
+    depth_threshold: float,
+    depth: str | Path | None = None,
+    fps: float | None = None,
+    timestamps: str | Path | None = None,
+    force: bool = False,
+    runtime: RuntimeConfig | None = None,
+    threads: int = 2,
+    segmenter: Any = None,
+) -> ReplayResult:
+    """Run the runtime over the sequence and write the outputs (see the module docstring)."""
+    if str(model) == "oracle":
+        raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
+    navigator_config = NavigatorConfig(method=method, depth_threshold=depth_threshold)
+    if depth is None and method == "segmind":
+        raise ValueError("--method segmind needs --depth (depth frames); without depth use segmin (mask alone)")
+    out = Path(out)
+    check_out_dir(out, force)
+    count, frames = iter_sequence(
+        Path(rgb), None if depth is None else Path(depth), fps, None if timestamps is None else Path(timestamps)
+    )
+    if segmenter is None:
+        from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+        if not Path(model).is_file():
+            raise FileNotFoundError(f"--model {model}: not found (give an exported .onnx file)")
+        segmenter = OnnxSegmenter(model, threads=threads)
+    follower = RowFollower(segmenter, Navigator(navigator_config), runtime)
+    result = ReplayResult(commands=[], files=[], frames=count)
+    video: list[np.ndarray] = []
+    non_finite, restarts = 0, 0
+    for name, t, image, d, bad in frames:
+        non_finite += bad
+        try:
+            output = follower.step(image, d, t)
+        except ValueError as exc:
+            raise ValueError(f"frame {name}: {exc}") from None
+        restarts += output.stopped == "frame_timeout"
+        if output.fresh:
+            cmd = output.command
+            result.commands.append((t, cmd.v, cmd.omega, cmd.target_column, cmd.valid))
+            video.append(overlay_panel(image, output, depth_threshold))
+    result.files.append(_write_csv(out / "commands.csv", result.commands))
+    result.files.append(write_video(out / "overlay.mp4", video, fps=follower.config.command_hz))
+    plot = _try_plot(out / "commands.png", result.commands)
+    if plot is None:
+        result.notes.append(
+            "commands.png skipped: the plot needs the [sim] extra's matplotlib "
+            "(pip install 'segmin[sim]'); commands.csv and the video are written"
+        )
+    else:
+        result.files.append(plot)
+    if depth is None:
+        result.notes.append(f"no depth: {method} ran on the mask alone (every vegetation pixel counts as near)")
+    if non_finite:
+        result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")
+    if restarts:
+        result.notes.append(
+            f"{restarts} gap(s) longer than {follower.config.frame_timeout_s} s between frames: "
+            "the runtime stopped and restarted there"
+        )
+    return result
+
+
+def _write_csv(path: Path, rows: list[tuple[float, float, float, float | None, bool]]) -> Path:
+    lines = ["t,v,omega,target_column,valid"]
+    for t, v, omega, column, valid in rows:
+        lines.append(f"{t!r},{v!r},{omega!r},{'' if column is None else repr(column)},{int(valid)}")
+    write_text(path, "\n".join(lines) + "\n")
+    return path
+
+
+def read_commands_csv(path: str | Path) -> list[tuple[float, float, float, float | None, bool]]:
+    """The rows of a commands.csv, exactly as written (floats round-trip through repr)."""
+    rows = []
+    for line in Path(path).read_text().splitlines()[1:]:
+        t, v, omega, column, valid = line.split(",")
+        rows.append((float(t), float(v), float(omega), None if column == "" else float(column), valid == "1"))
+    return rows
+
+
+def overlay_panel(rgb: np.ndarray, output: FollowerOutput, depth_threshold: float) -> np.ndarray:
+    """One video frame: camera + mask + chosen column | depth cut, over the histogram and command."""
+    import cv2
+
+    cmd = output.command
+    height, width = rgb.shape[:2]
+    left = overlay(rgb, output.fused, cmd.target_column)
+    cut = np.zeros((height, width, 3), dtype=np.uint8)
+    if output.depth is not None:
+        near = (output.depth > 0) & (output.depth <= depth_threshold)
+        shade = np.clip(255 * (1 - output.depth / depth_threshold), 60, 255).astype(np.uint8)
+        cut[near] = np.stack([shade[near]] * 3, axis=1)
+        if output.fused is not None:
+            cut[near & output.fused] = (0, 200, 0)
+    bars = np.full((max(height // 2, 24), 2 * width, 3), 255, dtype=np.uint8)
+    hist = np.asarray(cmd.histogram, dtype=float)
+    if hist.size:
+        top = hist.max() if hist.max() > 0 else 1.0
+        xs = np.linspace(0, 2 * width - 1, hist.size).astype(int)
+        for x, value in zip(xs, hist):
+            bars[bars.shape[0] - int(round((bars.shape[0] - 12) * value / top)) :, x : x + 2] = (70, 70, 200)
+    if cmd.target_column is not None:
+        x = int(round(cmd.target_column * (2 * width - 1) / max(width - 1, 1)))
+        bars[:, max(x - 1, 0) : x + 1] = (255, 0, 0)
+    text = f"t {output.t:.2f}s v {cmd.v:.2f} w {cmd.omega:+.2f}" + ("" if cmd.valid else " STOP")
+    cv2.putText(bars, text, (2, 10), cv2.FONT_HERSHEY_PLAIN, 0.7, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([np.concatenate([left, cut], axis=1), bars], axis=0)
+
+
+def _try_plot(path: Path, rows: list[tuple[float, float, float, float | None, bool]]) -> Path | None:
+    """The command plot, or None without matplotlib (the bare robot install)."""
+    try:
+        from segmin.nav_eval.replay.plot import plot_commands
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] == "matplotlib":
+            return None
+        raise
+    plot_commands(path, rows)
+    return path

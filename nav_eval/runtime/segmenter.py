@@ -1,0 +1,166 @@
+"""Segmenters the navigator loads: camera RGB in, vegetation mask out.
+
+`OnnxSegmenter` runs a file written by `segmin export` with onnxruntime only (no torch, no
+training code: this module is what runs on the robot computer). The file's metadata says the
+input size and threshold; the graph itself does the /255 and ImageNet normalisation, so the only
+preprocessing here is a resize to the model size (`data.model_input.resize_to_input`, shared with
+export verification: INTER_AREA when shrinking, INTER_LINEAR when enlarging). The mask is computed at the model size and resized back to the frame size with
+nearest neighbour, so it stays boolean and its edges do not move by more than one model pixel;
+`probabilities` is resized back bilinearly.
+
+The simulator's exact-mask oracle lives in `nav_eval.oracle` (it needs the whole rendered frame,
+see `nav_eval.oracle.segment_frame`).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from segmin.data.model_input import resize_to_input
+from segmin.export import metadata as md
+
+# Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter).
+SPIN_DEFAULT = True
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """What the navigator needs from perception."""
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        """uint8 H x W x 3 RGB frame -> bool H x W vegetation mask."""
+        ...
+
+    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """uint8 H x W x 3 RGB frame -> float32 H x W vegetation probability in [0, 1]."""
+        ...
+
+
+def check_rgb(rgb: np.ndarray) -> np.ndarray:
+    """The frame as a C-contiguous uint8 H x W x 3 array; ValueError naming the problem."""
+    if not isinstance(rgb, np.ndarray):
+        raise ValueError(f"frame must be a numpy array (uint8 H x W x 3 RGB), got {type(rgb).__name__}")
+    if rgb.dtype != np.uint8:
+        raise ValueError(f"frame dtype is {rgb.dtype}, expected uint8 RGB (0..255)")
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"frame shape is {rgb.shape}, expected H x W x 3 (RGB, 3 channels)")
+    if rgb.shape[0] < 1 or rgb.shape[1] < 1:
+        raise ValueError(f"frame shape is {rgb.shape}: empty image")
+    return np.ascontiguousarray(rgb)
+
+
+@dataclass(frozen=True)
+class PreparedFrame:
+    """A checked frame resized to the model input: `batch` is uint8 1 x h x w x 3."""
+
+    batch: np.ndarray
+    frame_shape: tuple[int, int]  # (H, W) of the original frame, for the mask
+
+
+class OnnxSegmenter:
+    """A `segmin export` ONNX file run by onnxruntime on the CPU (or a given provider list).
+
+    `threads`: onnxruntime intra-op threads (the paper's robot computer budget: 2).
+    `threshold`: probability above which a pixel is vegetation; None = the file's metadata value.
+    `spin`: let onnxruntime's worker threads busy-wait between runs (lowest latency on an
+    otherwise idle CPU); False frees the cores for the rest of the control loop between frames.
+    """
+
+    name = "onnx"
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        threads: int = 2,
+        threshold: float | None = None,
+        providers: list[str] | None = None,
+        spin: bool = SPIN_DEFAULT,
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: ONNX model not found")
+        if int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads!r}")
+        from segmin.export.verify import make_session  # torch-free: the export checks use the same session
+
+        try:
+            self.session = make_session(self.path, threads=int(threads), providers=providers, spin=spin)
+        except Exception as exc:  # onnxruntime raises its own types for unparsable files
+            raise ValueError(f"{self.path}: not a loadable ONNX model ({str(exc).splitlines()[0][:300]})") from exc
+
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
+        md.check_metadata(self.metadata, str(self.path))
+        self.input_size = md.parse_input_size(self.metadata[md.KEY_INPUT_SIZE])
+        self.threshold = float(self.metadata[md.KEY_THRESHOLD]) if threshold is None else float(threshold)
+        if not 0.0 < self.threshold < 1.0:
+            raise ValueError(f"threshold must be in (0, 1), got {self.threshold!r}")
+        self._check_graph()
+        self._input_name = self.session.get_inputs()[0].name
+
+    def _check_graph(self) -> None:
+        """The graph's input/output must be what the metadata promises."""
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        if len(inputs) != 1 or len(outputs) != 1:
+            raise ValueError(f"{self.path}: expected one input and one output, got {len(inputs)} and {len(outputs)}")
+        graph_input = inputs[0]
+        if graph_input.type != "tensor(uint8)":
+            raise ValueError(
+                f"{self.path}: model input {graph_input.name!r} is {graph_input.type}, metadata says uint8"
+            )
+        shape = list(graph_input.shape)
+        height, width = self.input_size
+        if len(shape) != 4 or shape[1:] != [height, width, 3]:
+            raise ValueError(
+                f"{self.path}: model input shape {shape} does not match metadata "
+                f"{md.KEY_INPUT_SIZE}={height},{width} (expected [N, {height}, {width}, 3])"
+            )
+        if outputs[0].type != "tensor(float)":
+            raise ValueError(f"{self.path}: model output is {outputs[0].type}, expected float32 probabilities")
+
+    def prepare(self, rgb: np.ndarray) -> PreparedFrame:
+        """Check and resize a frame for the model (the part of `segment` before onnxruntime).
+
+        A caller that overlaps segmentation with other work runs this on its own thread and
+        `segment_prepared` on a helper: the helper then releases the GIL at its first step.
+        """
+        rgb = check_rgb(rgb)
+        frame_shape = (int(rgb.shape[0]), int(rgb.shape[1]))
+        return PreparedFrame(resize_to_input(rgb, self.input_size)[None], frame_shape)
+
+    def _model_probabilities(self, prepared: PreparedFrame) -> np.ndarray:
+        """Probabilities at the model input size (float32 h x w)."""
+        return self.session.run(None, {self._input_name: prepared.batch})[0][0, 0]
+
+    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """float32 H x W vegetation probability at the frame size (bilinear resize back)."""
+        import cv2
+
+        prepared = self.prepare(rgb)
+        probs = self._model_probabilities(prepared)
+        height, width = prepared.frame_shape
+        if probs.shape != (height, width):
+            probs = cv2.resize(probs, (width, height), interpolation=cv2.INTER_LINEAR)
+        return np.clip(probs, 0.0, 1.0).astype(np.float32, copy=False)
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        """bool H x W vegetation mask at the frame size (thresholded at the model size, nearest resize)."""
+        return self.segment_prepared(self.prepare(rgb))
+
+    def segment_prepared(self, prepared: PreparedFrame) -> np.ndarray:
+        """The mask of a frame from `prepare` (onnxruntime, threshold, resize back)."""
+        import cv2
+
+        mask = (self._model_probabilities(prepared) >= self.threshold).astype(np.uint8)
+        height, width = prepared.frame_shape
+        if mask.shape != (height, width):
+            mask = cv2.resize(mask, (width, height), interpolation=cv2.INTER_NEAREST)
+        return mask.astype(bool)
+
+    def __repr__(self) -> str:
+        height, width = self.input_size
+        return f"OnnxSegmenter({str(self.path)!r}, input {height}x{width}, threshold {self.threshold:g})"

@@ -1,0 +1,1 @@
+"""Segmentation scored on labelled photos (`segmin eval-seg`): IoU, precision, recall, contact sheets."""

@@ -1,0 +1,104 @@
+"""Factories for one closed-loop run: a field built in pybullet, its segmenter and its navigator.
+
+They live apart from `evaluate` (the matrix runner) so that figures, benches and the runner can
+all build the same objects without importing one another.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from segmin.nav_eval.sim.config import NavEvalConfig
+
+
+def field_label(field: str) -> str:
+    """Short name of a field for tables and files: the spec name for a path."""
+    p = Path(field)
+    return p.stem if p.suffix in (".yaml", ".yml") else field
+
+
+def nav_camera(config: NavEvalConfig) -> Any:
+    """The robot camera of the evaluation: the CameraModel default at perception.width/height."""
+    from segmin.data.synth.camera import CameraModel
+
+    camera = CameraModel()
+    changes = {k: v for k, v in (("width", config.perception.width), ("height", config.perception.height)) if v}
+    return dataclasses.replace(camera, **changes) if changes else camera
+
+
+class FieldContext:
+    """A field built in its own pybullet DIRECT client, with its renderer."""
+
+    def __init__(self, field: str, config: NavEvalConfig) -> None:
+        import pybullet as p
+
+        from segmin.data.synth.render import Renderer
+        from segmin.data.synth.spec import load_world_spec
+        from segmin.data.synth.world import build_world
+
+        self.spec = load_world_spec(field)
+        self.client = p.connect(p.DIRECT)
+        self.world = build_world(self.spec, self.client)
+        self.camera = nav_camera(config)
+        self.renderer = Renderer(self.world, self.camera)
+        self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
+        self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap
+
+    def close(self) -> None:
+        import pybullet as p
+
+        try:
+            p.disconnect(self.client)
+        except Exception:  # already gone
+            pass
+
+
+def make_segmenter(model: str, threads: int = 1) -> Any:
+    """'oracle' -> OracleSegmenter; otherwise an ONNX file -> nav_eval.segmenter.OnnxSegmenter."""
+    if str(model) == "oracle":
+        from segmin.nav_eval.sim.oracle import OracleSegmenter
+
+        return OracleSegmenter()
+    path = Path(model)
+    if not path.is_file():
+        raise FileNotFoundError(f"--model: {path} not found (give an .onnx file or 'oracle')")
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+    return OnnxSegmenter(str(path), threads=threads)
+
+
+def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
+    """The method's navigator with the evaluation's fusion window (perception.fuse_frames):
+    the paper's `Navigator` (its `navigator` section), or SegCorridor (its `corridor` section,
+    with the evaluation camera's intrinsics and mount)."""
+    if method == "segcorridor":
+        from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
+
+        corridor = CorridorConfig(
+            depth_threshold=depth_threshold, fuse_frames=config.perception.fuse_frames, **config.corridor
+        )
+        return CorridorNavigator(corridor, CameraGeometry.from_camera(nav_camera(config)))
+    from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+
+    return Navigator(
+        NavigatorConfig(
+            method=method,
+            depth_threshold=depth_threshold,
+            fuse_frames=config.perception.fuse_frames,
+            **config.navigator,
+        )
+    )
+
+
+def make_follower(segmenter: Any, method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
+    """The robot runtime at the evaluation's rates: what nav-eval drives in the simulator."""
+    from segmin.nav_eval.runtime.follower import RowFollower, RuntimeConfig
+
+    rates = config.rates
+    return RowFollower(
+        segmenter,
+        make_navigator(method, depth_threshold, config),
+        RuntimeConfig(segment_hz=rates.segment_hz, command_hz=rates.command_hz),
+    )

@@ -1,0 +1,149 @@
+"""Robustness sweeps, the run: every variant x method x seeded run, resumable, then the tables and plots.
+
+`run_sweep(spec, out)` plans and validates the sweep (`nav_eval.sweep_spec`), writes each world
+variant to `out/worlds/`, and runs the jobs on `nav_eval.evaluate`'s runner (the same workers as
+nav-eval; a job carries its variant's nav config). Each finished run is written at once,
+atomically, to `out/runs/<key>.json` (Python's JSON: NaN and Infinity as such), the key a hash of everything the run depends on (world,
+nav config, model file content, method, seed); a later call skips the runs whose file exists,
+so an interrupted sweep resumes where it stopped and a changed spec reruns only what changed.
+Variants that come out equal (a parameter's value that is the base's) share their runs. Runs
+that raised are not stored: they are reported and rerun next time.
+
+Seeds: run k uses the same seed for every variant and method (paired: the same start noise
+across the values of a parameter), from the base field's name and the spec's seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from segmin.common.atomic import write_json, write_text
+from segmin.common.lock import writer_lock
+from segmin.common.outputs import check_output_dir
+from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs, run_seed
+from segmin.nav_eval.sim.factories import make_segmenter
+from segmin.nav_eval.sweeps.report import summarise_sweep, write_sweep_outputs
+from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, digest, load_sweep, plan_sweep, variant_file_name
+
+
+@dataclasses.dataclass
+class SweepOutcome:
+    """What a sweep call did: the summary rows, and how many runs it executed or reused."""
+
+    plan: SweepPlan
+    rows: list[dict[str, Any]]
+    executed: int
+    reused: int
+    errored: list[RunResult]
+
+
+def model_identity(model: str) -> str:
+    """'oracle', or the exported file's content hash (a moved file keeps its runs, a new one does not)."""
+    if model == "oracle":
+        return model
+    return "onnx:" + hashlib.sha256(Path(model).read_bytes()).hexdigest()[:16]
+
+
+def run_sweep(
+    spec_path: str | Path,
+    out_dir: str | Path,
+    *,
+    model: str | None = None,
+    runs: int | None = None,
+    workers: int = 1,
+    overrides: list[str] | tuple[str, ...] = (),
+    force: bool = False,
+    progress: bool = True,
+    plots: bool = True,
+) -> SweepOutcome:
+    """Run (or resume) the sweep `spec_path` into `out_dir`; `model` and `runs` replace the spec's."""
+    spec, path = load_sweep(spec_path)
+    try:
+        spec = dataclasses.replace(spec, **{k: v for k, v in (("model", model), ("runs", runs)) if v is not None})
+    except ValueError as exc:
+        raise ValueError(f"--runs: {exc}") from exc
+    if workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+    plan = plan_sweep(spec, str(path), overrides)
+    if spec.model != "oracle":
+        make_segmenter(spec.model, threads=1)  # loads and checks the file before any run
+    out = check_output_dir(out_dir, "--out")
+    model_id = model_identity(spec.model)
+    with writer_lock(out / ".sweep.lock", f"sweep {out}"):
+        jobs, keys = _jobs(plan, out, model_id)
+        cached = {} if force else _load_cached(out / "runs", keys)
+        todo = [job for key, job in jobs.items() if key not in cached]
+        new: dict[str, RunResult] = {}
+        errored: list[RunResult] = []
+        key_of = {id(job): key for key, job in jobs.items()}
+
+        def done(job: Job, result: RunResult) -> None:
+            if result.reason == "error":
+                errored.append(result)
+                return
+            key = key_of[id(job)]
+            new[key] = result
+            write_json(out / "runs" / f"{key}.json", {"key": key, "result": result.row()})
+
+        execute_jobs(todo, spec.model, plan.base_config, workers, done, progress=progress, desc="sweep runs")
+        results = {**cached, **new}
+        rows = summarise_sweep(plan, keys, results)
+        write_sweep_outputs(out, plan, rows, plots=plots, executed=len(new), reused=len(cached), errored=len(errored))
+    return SweepOutcome(plan, rows, len(new), len(cached), errored)
+
+
+def _jobs(plan: SweepPlan, out: Path, model_id: str) -> tuple[dict[str, Job], list[list[tuple[str, str]]]]:
+    """One job per distinct (setting, method, seed), keyed by its hash; and each variant's
+    (method, key) pairs, in the order of `plan.variants`."""
+    spec = plan.spec
+    jobs: dict[str, Job] = {}
+    keys: list[list[tuple[str, str]]] = []
+    written: set[str] = set()
+    for variant in plan.variants:
+        field = _field(plan, variant, out, written)
+        keys.append([])
+        for run in range(spec.runs):
+            seed = run_seed(spec.seed, plan.base_label, run)
+            for method in spec.methods:
+                key = digest({"setting": variant.setting, "model": model_id, "method": method, "seed": seed})
+                keys[-1].append((method, key))
+                if key not in jobs:
+                    jobs[key] = Job(field, method, run, seed, config=variant.config)
+    return jobs, keys
+
+
+def _field(plan: SweepPlan, variant: Variant, out: Path, written: set[str]) -> str:
+    """The base field itself when the variant's world is the base's, else its written spec file."""
+    if variant.world == plan.base_world:
+        return plan.spec.base
+    path = out / "worlds" / variant_file_name(plan.base_label, variant)
+    if str(path) not in written:
+        write_text(
+            path,
+            f"# {plan.where}: {plan.base_label} with {variant.parameter} = {variant.label}\n"
+            + yaml.safe_dump(variant.world, sort_keys=False),
+        )
+        written.add(str(path))
+    return str(path)
+
+
+def _load_cached(folder: Path, keys: list[list[tuple[str, str]]]) -> dict[str, RunResult]:
+    """The stored results of this sweep's jobs (an unreadable file is run again)."""
+    names = {f.name for f in dataclasses.fields(RunResult)}
+    cached = {}
+    for key in {key for pairs in keys for _, key in pairs}:
+        path = folder / f"{key}.json"
+        if not path.is_file():
+            continue
+        try:
+            row = json.loads(path.read_text())["result"]
+            cached[key] = RunResult(**{k: v for k, v in row.items() if k in names})
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    return cached
