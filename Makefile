@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: test demo install docs
+.PHONY: test demo install docs lint
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,18 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/segmin pipeline --config quick --out runs/demo
+
+# Format, lint and type checks (ruff and mypy; their settings are in pyproject.toml).
+LINT_STAMP := $(VENV)/.lint-installed
+
+$(LINT_STAMP): pyproject.toml | $(STAMP)
+	$(PY) -m pip install --quiet -e ".[all,test,lint]"
+	touch $(LINT_STAMP)
+
+lint: $(LINT_STAMP)
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 
 # The documentation site, built strictly (a broken link, image or API reference fails) into site/.
 # mkdocstrings reads the package as installed (the package-dir mapping applied) from
