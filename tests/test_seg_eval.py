@@ -1,4 +1,4 @@
-"""`segmin eval-seg` and export.seg_eval: metric definitions, a perfect and an empty model, bad input."""
+"""`segmin eval-seg` (nav_eval.seg_eval): a perfect and an empty model, mean vs pooled figures, bad input."""
 
 from __future__ import annotations
 
@@ -14,13 +14,10 @@ from export_helpers import field_image
 from segmin.app.cli import main
 from segmin.data.agriseg_loader import find_frames
 from segmin.data.real_sets import shipped_real_data
-from segmin.nav_eval.seg_eval.score import (
-    PixelCounts,
-    Predictor,
-    confusion,
-    evaluate,
-    write_results,
-)
+from segmin.common.seg_metrics import PixelCounts, confusion
+from segmin.nav_eval.seg_eval.predictor import Predictor
+from segmin.nav_eval.seg_eval.results import write_results
+from segmin.nav_eval.seg_eval.score import evaluate
 
 CROP = (0, 255, 0)
 
