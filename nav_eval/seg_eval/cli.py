@@ -39,7 +39,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "--size",
         type=int,
         default=None,
-        help="square input size for a checkpoint (default: its training size; an ONNX input is fixed)",
+        help="square input size for a checkpoint, a multiple of 32 (default: its training size; an ONNX input is fixed)",
     )
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime / torch threads (default 2)")
     parser.add_argument("--force", action="store_true", help="overwrite results already in --out")

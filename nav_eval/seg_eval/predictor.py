@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from segmin.data.model_input import resize_to_input
+from segmin.data.model_input import check_input_side, resize_to_input
 from segmin.export import metadata as md
 
 ONNX_SUFFIXES = (".onnx",)
@@ -62,8 +62,8 @@ def load_predictor(
         raise ValueError(f"{path}: model is not a file (expected an exported .onnx or a checkpoint .pt)")
     if threshold is not None and not 0.0 < float(threshold) < 1.0:
         raise ValueError(f"--threshold {threshold}: must be in (0, 1)")
-    if size is not None and int(size) < 32:
-        raise ValueError(f"--size {size}: must be at least 32 px")
+    if size is not None:
+        check_input_side(int(size), "--size")
     suffix = path.suffix.lower()
     if suffix in ONNX_SUFFIXES:
         predictor = _onnx_predictor(path, threads, size)
