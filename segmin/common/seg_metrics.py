@@ -80,7 +80,7 @@ class PixelCounts:
     def pixel_accuracy(self) -> float:
         return (self.tp + self.tn) / self.pixels if self.pixels else math.nan
 
-    def metrics(self) -> dict[Metric, float]:
+    def metrics(self) -> dict[str, float]:
         """Every figure of these counts, in the order eval-seg writes its columns."""
         return {
             "iou": self.iou,
