@@ -12,6 +12,15 @@ import numpy as np
 # The backbone's ImageNet statistics (RGB, on 0..1 values); the ONNX graph folds them in.
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
+# MobileNetV3's overall stride. Training takes only input sides that are multiples of it, so a model
+# is never known to work at any other side.
+INPUT_STRIDE = 32
+
+
+def check_input_side(side: int, name: str) -> None:
+    """Refuse, in one line naming `name`, a side no model trains at (training's image_size, eval-seg's --size)."""
+    if side < INPUT_STRIDE or side % INPUT_STRIDE:
+        raise ValueError(f"{name}={side}: must be a positive multiple of {INPUT_STRIDE} (MobileNetV3 stride)")
 
 
 def resize_to_input(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""`segmin export` (its benchmark, `segmin bench export`, is wired in segmin/bench_export.py)."""
+"""`segmin export` (its benchmark, `segmin bench export`, is wired in segmin.app.bench_export: it needs the runtime layer)."""
 
 from __future__ import annotations
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from segmin.common.seg_metrics import confusion
 from segmin.data.agriseg_loader import find_frames
 from segmin.data.model_input import resize_to_input
 from segmin.data.readers import read_image
@@ -39,8 +40,8 @@ class Agreement:
     frames: int
     max_abs_diff: float
     mean_abs_diff: float
-    mask_agreement: float  # fraction of pixels whose thresholded value is the same
-    mask_iou: float  # IoU of the two vegetation masks (1.0 when both are empty)
+    mask_agreement: float  # fraction of pixels whose thresholded value is the same (pixel accuracy)
+    mask_iou: float  # IoU of the two vegetation masks, pooled over the frames (1.0 when both are empty)
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
@@ -109,16 +110,13 @@ def compare(probs: np.ndarray, reference: np.ndarray, threshold: float) -> Agree
     if not np.all(np.isfinite(probs)):
         raise VerificationError("output contains NaN or inf")
     diff = np.abs(probs.astype(np.float64) - reference.astype(np.float64))
-    mask = probs >= threshold
-    ref_mask = reference >= threshold
-    union = np.logical_or(mask, ref_mask).sum()
-    inter = np.logical_and(mask, ref_mask).sum()
+    counts = confusion(probs >= threshold, reference >= threshold)  # the reference plays the ground truth
     return Agreement(
         frames=int(probs.shape[0]),
         max_abs_diff=float(diff.max()),
         mean_abs_diff=float(diff.mean()),
-        mask_agreement=float((mask == ref_mask).mean()),
-        mask_iou=float(inter / union) if union else 1.0,
+        mask_agreement=counts.pixel_accuracy,
+        mask_iou=counts.iou,
     )
 
 

@@ -213,6 +213,20 @@ def test_bad_options_and_frame_sources(workdir, checkpoint, frames_dir) -> None:
     assert not out.exists()
 
 
+def test_mask_iou_and_agreement_are_exact_and_threshold_inclusive() -> None:
+    reference = np.zeros((1, 1, 2, 4), np.float32)
+    reference[0, 0, 0] = 0.9  # the reference's crop: the 4 pixels of row 0
+    probs = reference.copy()
+    probs[0, 0, 0, 0] = 0.1  # one reference crop pixel missed (FN)
+    probs[0, 0, 1, 0] = 0.5  # exactly at the threshold: crop (>=, as the robot's segmenter decides), a FP
+    agreement = compare(probs, reference, 0.5)
+    assert agreement.mask_iou == 0.6  # TP 3 / (TP 3 + FP 1 + FN 1)
+    assert agreement.mask_agreement == 0.75  # (TP 3 + TN 3) / 8 pixels
+    nothing = np.zeros_like(reference)
+    empty = compare(nothing, nothing, 0.5)
+    assert (empty.mask_iou, empty.mask_agreement) == (1.0, 1.0)  # both masks empty: perfect agreement
+
+
 def test_verification_bounds_reject_disagreement() -> None:
     rng = np.random.default_rng(0)
     reference = rng.random((2, 1, 8, 8)).astype(np.float32)

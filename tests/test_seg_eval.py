@@ -1,7 +1,8 @@
-"""`segmin eval-seg` and export.seg_eval: metric definitions, a perfect and an empty model, bad input."""
+"""`segmin eval-seg` (nav_eval.seg_eval): a perfect and an empty model, mean vs pooled figures, bad input."""
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 from pathlib import Path
@@ -12,15 +13,12 @@ import pytest
 from export_helpers import field_image
 
 from segmin.app.cli import main
+from segmin.common.seg_metrics import PixelCounts
 from segmin.data.agriseg_loader import find_frames
 from segmin.data.real_sets import shipped_real_data
-from segmin.nav_eval.seg_eval.score import (
-    PixelCounts,
-    Predictor,
-    confusion,
-    evaluate,
-    write_results,
-)
+from segmin.nav_eval.seg_eval.predictor import Predictor
+from segmin.nav_eval.seg_eval.results import write_results
+from segmin.nav_eval.seg_eval.score import evaluate
 
 CROP = (0, 255, 0)
 
@@ -65,24 +63,7 @@ def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
     return err
 
 
-# ----------------------------------------------------------------------------- definitions
-
-
-def test_metric_definitions() -> None:
-    truth = np.zeros((4, 4), bool)
-    truth[:2] = True
-    perfect = confusion(truth, truth)
-    assert (perfect.iou, perfect.precision, perfect.recall, perfect.pixel_accuracy) == (1.0, 1.0, 1.0, 1.0)
-    empty = confusion(np.zeros_like(truth), np.zeros_like(truth))
-    assert empty.iou == 1.0 and math.isnan(empty.precision) and math.isnan(empty.recall)
-    missed = confusion(np.zeros_like(truth), truth)
-    assert missed.iou == 0.0 and math.isnan(missed.precision) and missed.recall == 0.0
-    assert missed.pixel_accuracy == 0.5
-    half = confusion(np.ones_like(truth), truth)
-    assert (half.iou, half.precision, half.recall) == (0.5, 0.5, 1.0)
-    assert (missed + half) == PixelCounts(tp=8, fp=8, fn=8, tn=8)
-    with pytest.raises(ValueError, match="differs from the ground truth"):
-        confusion(truth[:3], truth)
+# ----------------------------------------------------------------------------- figures
 
 
 def test_a_model_that_returns_the_ground_truth_scores_one(tmp_path: Path) -> None:
@@ -123,6 +104,61 @@ def test_the_real_photos_ship_with_the_package() -> None:
     frames = find_frames(root)
     assert len(frames) == 8 and (root / "README.md").is_file()
     assert "CC BY 4.0" in (root / "README.md").read_text()
+
+
+def write_pairs(folder: Path, pairs: list[tuple[np.ndarray, np.ndarray]]) -> Path:
+    """A flat set whose photos show the prediction (green) and whose masks are the truth, for `fake_predictor`."""
+    (folder / "images").mkdir(parents=True)
+    (folder / "masks").mkdir(parents=True)
+    for i, (prediction, truth) in enumerate(pairs):
+        image = np.zeros((*prediction.shape, 3), np.uint8)
+        image[prediction] = CROP
+        cv2.imwrite(str(folder / "images" / f"photo_{i}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(folder / "masks" / f"photo_{i}.png"), truth.astype(np.uint8) * 255)
+    return folder
+
+
+def crop_rows(*rows: int) -> np.ndarray:
+    mask = np.zeros((8, 8), bool)
+    mask[list(rows)] = True
+    return mask
+
+
+def test_mean_iou_over_photos_differs_from_the_pooled_iou(tmp_path: Path) -> None:
+    data = write_pairs(
+        tmp_path / "set",
+        [
+            (crop_rows(0, 1), crop_rows(0)),  # photo_0: TP 8, FP 8, FN 0, TN 48 -> IoU 0.5, P 0.5, R 1
+            (crop_rows(0), crop_rows(0, 1, 2, 3)),  # photo_1: TP 8, FP 0, FN 24, TN 32 -> IoU 0.25, P 1, R 0.25
+            (crop_rows(), crop_rows()),  # photo_2: TN 64 -> IoU 1.0, P and R n/a
+        ],
+    )
+    summary, _ = evaluate(fake_predictor((8, 8)), find_frames(data), data)  # model size = photo size: no resizing
+    assert [r.counts for r in summary.images] == [
+        PixelCounts(tp=8, fp=8, fn=0, tn=48),
+        PixelCounts(tp=8, fp=0, fn=24, tn=32),
+        PixelCounts(tn=64),
+    ]
+    figures = summary.figures()
+    assert figures["mean_iou"] == 7 / 12  # (0.5 + 0.25 + 1.0) / 3
+    # pooled: TP 16, FP 8, FN 24, TN 144
+    assert figures["pooled_iou"] == 1 / 3  # 16 / 48
+    assert (figures["precision"], figures["recall"], figures["pixel_accuracy"]) == (2 / 3, 0.4, 5 / 6)
+    assert (figures["mean_precision"], figures["mean_recall"]) == (0.75, 0.625)  # photo_2 left out of both
+    assert figures["images_without_prediction"] == 1 and figures["images_without_crop"] == 1
+    lines = summary.summary_lines()
+    assert "  mean IoU over images  0.583" in lines and "  pooled IoU            0.333" in lines
+
+    paths = write_results(summary, None, tmp_path / "out")
+    saved = json.loads(Path(paths["json"]).read_text())
+    assert saved["summary"]["mean_iou"] == 7 / 12 and saved["summary"]["pooled_iou"] == 1 / 3
+    assert [row["iou"] for row in saved["rows"]] == [0.5, 0.25, 1.0] and saved["rows"][2]["precision"] is None
+    table = list(csv.DictReader(Path(paths["csv"]).read_text().splitlines()))
+    assert [(r["iou"], r["precision"], r["recall"]) for r in table] == [
+        ("0.5", "0.5", "1"),
+        ("0.25", "1", "0.25"),
+        ("1", "n/a", "n/a"),
+    ]
 
 
 # ----------------------------------------------------------------------------- command
@@ -219,3 +255,8 @@ def test_bad_models_fail_with_one_line(tmp_path: Path, capsys) -> None:
         == 2
     )
     assert "evaluation data folder not found" in one_error_line(capsys)
+    # training takes only multiples of 32 (train.config), so eval-seg refuses any other side, naming --size
+    for size in ("33", "16"):
+        out = str(tmp_path / "out")
+        assert main(["eval-seg", "--model", str(garbage), "--data", str(data), "--out", out, "--size", size]) == 2
+        assert f"--size={size}: must be a positive multiple of 32" in one_error_line(capsys)

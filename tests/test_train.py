@@ -14,7 +14,7 @@ from segmin.common.config import ConfigError
 from segmin.models.checkpoint import load_model
 from segmin.train.config import TrainConfig, load_train_config
 from segmin.train.loop import SegLoss, StepContext, train_step
-from segmin.train.metrics import SegMetrics
+from segmin.train.metrics import SegMetrics, count_pixels
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "train"
 
@@ -93,6 +93,25 @@ def test_iou_is_summed_over_the_whole_set_not_averaged_over_batches():
     empty = SegMetrics()
     empty.update(torch.full((1, 1, 2, 2), -big), torch.zeros(1, 1, 2, 2))
     assert empty.compute()["iou"] == 1.0
+
+
+def test_count_pixels_gives_tp_fp_fn_tn_in_the_order_the_core_reads():
+    pred = torch.tensor([[True, True, False, False], [True, False, False, False]])
+    truth = torch.tensor([[True, False, True, False], [True, True, False, False]])
+    # TP at (0,0), (1,0); FP at (0,1); FN at (0,2), (1,1); TN at (0,3), (1,2), (1,3)
+    assert count_pixels(pred, truth).tolist() == [2, 1, 2, 3]
+    assert count_pixels(pred[:0], truth[:0]).tolist() == [0, 0, 0, 0]
+
+
+def test_training_predicts_crop_strictly_above_the_threshold():
+    metrics = SegMetrics(threshold=0.5)
+    # sigmoid(0) = 0.5 is not above 0.5: background (eval-seg and export verification use >= instead)
+    metrics.update(
+        torch.tensor([0.0, 0.0, 10.0, -10.0]).view(1, 1, 2, 2), torch.tensor([1.0, 0, 1, 0]).view(1, 1, 2, 2)
+    )
+    result = metrics.compute()
+    assert result["iou"] == 0.5  # TP 1 / (TP 1 + FN 1)
+    assert result["pixel_acc"] == 0.75  # 3 of 4 pixels right
 
 
 def test_dice_term_adds_to_bce():
@@ -272,7 +291,7 @@ def test_config_is_strict_and_takes_overrides():
     assert config.epochs == 3 and config.data.val_fraction == 0.2 and config.augment.gray_p == 0
     with pytest.raises(ConfigError, match="epochz"):
         load_train_config(CONFIGS / "trees.yaml", ["epochz=3"])
-    with pytest.raises(ConfigError, match="image_size"):
+    with pytest.raises(ConfigError, match="image_size=100: must be a positive multiple of 32"):
         load_train_config(CONFIGS / "trees.yaml", ["image_size=100"])
 
 

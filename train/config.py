@@ -15,6 +15,7 @@ from typing import Literal
 from segmin.common.config import load_config
 from segmin.data.augment import AugmentConfig
 from segmin.data.canopy_region import check_closing_radius
+from segmin.data.model_input import check_input_side
 from segmin.data.real_sets import check_not_real_data
 
 _DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
@@ -110,8 +111,7 @@ class TrainConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
-        if self.image_size % 32:
-            raise ValueError(f"image_size={self.image_size}: must be a multiple of 32 (MobileNetV3 stride)")
+        check_input_side(self.image_size, "image_size")
         if self.lr <= 0:
             raise ValueError(f"lr={self.lr}: must be > 0")
         if self.dice_weight < 0:

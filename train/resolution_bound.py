@@ -3,7 +3,7 @@
 torchvision's LR-ASPP predicts one logit per 8 x 8 input pixels and upsamples the logits
 bilinearly to the input size. Holes between leaves, thin branches and ragged canopy edges that
 are narrower than that grid cannot be represented, whatever the weights. This module measures
-the ceiling this puts on the crop IoU of a dataset (summed over frames, as train.metrics does), with two
+the ceiling this puts on the crop IoU of a dataset (pooled over frames, as train.metrics reports it), with two
 predictors that any LR-ASPP could in principle reproduce:
 
 - `area`: the ground truth averaged over each 8 x 8 cell, turned into logits, upsampled and
@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from segmin.common.seg_metrics import PixelCounts
 
 OUTPUT_STRIDE_CONVS = 3  # stride-2 convolutions before LR-ASPP's low-level features, each ceil-halving the side
 
@@ -74,12 +76,13 @@ def resize_masks(masks: Sequence[np.ndarray], size: int) -> np.ndarray:
 
 
 def _iou(logits, masks) -> float:
+    """Pooled IoU over all frames of the upsampled logits thresholded at 0 (p > 0.5, as training predicts)."""
     import torch.nn.functional as F
 
+    from segmin.train.metrics import count_pixels
+
     predicted = F.interpolate(logits, size=masks.shape[-2:], mode="bilinear", align_corners=False) > 0
-    truth = masks > 0.5
-    union = (predicted | truth).sum().item()
-    return float((predicted & truth).sum().item() / union) if union else 1.0
+    return PixelCounts.from_values(count_pixels(predicted, masks > 0.5).tolist()).iou
 
 
 def iou_bound(masks: np.ndarray, steps: int = 150, lr: float = 0.3, seed: int = 0) -> Bound:

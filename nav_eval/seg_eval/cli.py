@@ -14,10 +14,11 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         description=(
             "Segment every labelled image under --data (any layout the AgriSeg loader reads, e.g. a flat "
             "images/ + masks/ folder) and compare with the masks at their own resolution. Prints mean IoU over "
-            "images, pooled IoU, precision, recall and pixel accuracy; writes results.csv, results.json and "
+            "images, and the pooled (all pixels of the set) IoU, precision, recall and pixel accuracy; writes results.csv, results.json and "
             "contact_sheet.png (photo | errors: green found, red false crop, blue missed | ground truth). "
-            "IoU of an image with empty truth and empty prediction is 1.0; precision is n/a when nothing is "
-            "predicted, recall when nothing is labelled (pooled figures stay defined)."
+            "IoU of an image with empty truth and empty prediction is 1.0; precision is n/a on an image where "
+            "nothing is predicted, recall where nothing is labelled (the pooled figures stay defined as long as "
+            "any image has some)."
         ),
     )
     parser.add_argument(
@@ -38,7 +39,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "--size",
         type=int,
         default=None,
-        help="square input size for a checkpoint (default: its training size; an ONNX input is fixed)",
+        help="square input size for a checkpoint, a multiple of 32 (default: its training size; an ONNX input is fixed)",
     )
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime / torch threads (default 2)")
     parser.add_argument("--force", action="store_true", help="overwrite results already in --out")
@@ -48,7 +49,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 def run_eval_seg(args: argparse.Namespace) -> int:
     from segmin.data.real_sets import shipped_real_data
-    from segmin.nav_eval.seg_eval.score import check_out_dir, evaluate_model, write_results
+    from segmin.nav_eval.seg_eval.results import check_out_dir, write_results
+    from segmin.nav_eval.seg_eval.score import evaluate_model
 
     if args.threads < 1:
         raise ValueError(f"--threads {args.threads}: must be >= 1")

@@ -1,7 +1,7 @@
 """`segmin bench export`: export-side latencies plus the robot-side perception + control step.
 
 This glue lives in the application layer because it joins two packages: `export.bench` times
-PyTorch eager against the exported onnxruntime graphs, and `nav_eval.runtime_bench` supplies the
+PyTorch eager against the exported onnxruntime graphs, and `nav_eval.bench.runtime` supplies the
 full OnnxSegmenter + Navigator step, which export itself must not import (nav_eval is downstream).
 """
 

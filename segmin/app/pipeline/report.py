@@ -180,7 +180,7 @@ def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str])
         "| family | synthetic val IoU | real mean IoU | real pooled IoU | precision | recall | pixel acc |",
         "|---|---|---|---|---|---|---|",
     ]
-    from segmin.nav_eval.seg_eval.score import fmt  # undefined figures read "n/a", as eval-seg prints them
+    from segmin.nav_eval.seg_eval.summary import fmt  # undefined figures read "n/a", as eval-seg prints them
 
     for family, record in records.items():
         o = record.outputs

@@ -271,14 +271,15 @@ def dataset_fingerprint(root: Path) -> list[tuple[str, int]]:
 
 def real_eval_stage(config: PipelineConfig, model: Path, folder: Path, log) -> dict[str, Any]:
     """Score one family's ONNX on the real photos; results and contact sheet go in the stage folder."""
-    from segmin.nav_eval.seg_eval.score import evaluate_model, write_results
+    from segmin.nav_eval.seg_eval.results import write_results
+    from segmin.nav_eval.seg_eval.score import evaluate_model
+    from segmin.nav_eval.seg_eval.summary import json_safe
 
     data = config.real_eval.resolved_data()
     log(f"real-eval: {model} on {data}")
     summary, sheet = evaluate_model(model, data)
     paths = write_results(summary, sheet, folder, force=True)  # the stage folder is the cache's own
-    figures = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in summary.figures().items()}
-    return {"data": str(data), "threshold": summary.threshold, **figures, **paths}
+    return {"data": str(data), "threshold": summary.threshold, **json_safe(summary.figures()), **paths}
 
 
 # ---------------------------------------------------------------------------------- nav-eval

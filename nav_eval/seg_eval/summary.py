@@ -1,0 +1,132 @@
+"""What `segmin eval-seg` found: per-image counts, the set's figures, and how they read.
+
+Every figure derives from the pixel counts of `segmin.common.seg_metrics` (definitions there):
+per image, pooled over the set (`pooled_iou`, `precision`, `recall`, `pixel_accuracy`), and
+`mean_iou`, the mean of the per-image IoUs (every photo weighs the same). The pooled figures
+stay defined whenever any pixel is predicted (precision) or labelled (recall), however many
+single images are undefined; undefined figures print "n/a" and are null in JSON.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from segmin.common.seg_metrics import ConfusionMatrix, PixelCounts
+
+
+@dataclass
+class ImageResult:
+    """One photo's counts and where it came from."""
+
+    name: str
+    image: str
+    mask: str
+    width: int
+    height: int
+    counts: PixelCounts
+
+    def row(self) -> dict[str, Any]:
+        c = self.counts
+        return {
+            "name": self.name,
+            "image": self.image,
+            "mask": self.mask,
+            "width": self.width,
+            "height": self.height,
+            "gt_pixels": c.tp + c.fn,
+            "pred_pixels": c.tp + c.fp,
+            "tp": c.tp,
+            "fp": c.fp,
+            "fn": c.fn,
+            "tn": c.tn,
+            **c.metrics(),
+        }
+
+
+@dataclass
+class EvalSummary:
+    """The whole set: per-image results and the summary figures."""
+
+    model: str
+    data: str
+    kind: str  # "onnx" or "checkpoint"
+    threshold: float
+    input_size: tuple[int, int]
+    images: list[ImageResult] = field(default_factory=list)
+
+    @property
+    def matrix(self) -> ConfusionMatrix:
+        """The per-image counts, from which both the pooled figures and the means over images derive."""
+        return ConfusionMatrix(tuple(result.counts for result in self.images))
+
+    def figures(self) -> dict[str, Any]:
+        """The summary numbers (pooled precision/recall stay defined when single images are not)."""
+        matrix = self.matrix
+        pooled = matrix.pooled
+        return {
+            "images": len(self.images),
+            "mean_iou": matrix.mean_iou,
+            "pooled_iou": pooled.iou,
+            "precision": pooled.precision,
+            "recall": pooled.recall,
+            "pixel_accuracy": pooled.pixel_accuracy,
+            "mean_precision": matrix.mean("precision"),
+            "mean_recall": matrix.mean("recall"),
+            "images_without_prediction": matrix.undefined("precision"),
+            "images_without_crop": matrix.undefined("recall"),
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "format": "segmin-seg-eval-v1",
+            "model": self.model,
+            "data": self.data,
+            "kind": self.kind,
+            "threshold": self.threshold,
+            "input_size": list(self.input_size),
+            "summary": json_safe(self.figures()),
+            "definitions": DEFINITIONS,
+            "rows": [json_safe(r.row()) for r in self.images],
+        }
+
+    def summary_lines(self) -> list[str]:
+        """What the command prints: one line per figure."""
+        f = self.figures()
+        h, w = self.input_size
+        lines = [
+            f"{self.model} ({self.kind}, input {h}x{w}, threshold {self.threshold:g}) on {self.data}: "
+            f"{f['images']} images",
+            f"  mean IoU over images  {fmt(f['mean_iou'])}",
+            f"  pooled IoU            {fmt(f['pooled_iou'])}",
+            f"  precision (pooled)    {fmt(f['precision'])}",
+            f"  recall (pooled)       {fmt(f['recall'])}",
+            f"  pixel accuracy        {fmt(f['pixel_accuracy'])}",
+        ]
+        if f["images_without_prediction"]:
+            lines.append(f"  {f['images_without_prediction']} image(s) with no crop predicted: precision n/a there")
+        if f["images_without_crop"]:
+            lines.append(f"  {f['images_without_crop']} image(s) with no crop in the ground truth: recall n/a there")
+        return lines
+
+
+DEFINITIONS = {
+    "iou": "TP / (TP + FP + FN); 1.0 when the ground truth and the prediction are both empty",
+    "precision": "TP / (TP + FP); null (n/a) when nothing is predicted",
+    "recall": "TP / (TP + FN); null (n/a) when the ground truth is empty",
+    "pixel_accuracy": "(TP + TN) / pixels",
+    "mean_iou": "mean of the per-image IoUs",
+    "pooled": "pooled_iou, precision, recall, pixel_accuracy: the same formulas on counts summed over all images",
+    "resolution": "prediction resized (bilinear probability) to the ground-truth mask size, then thresholded",
+}
+
+
+def fmt(value: float | None) -> str:
+    """A figure for people: three decimals, or n/a when undefined."""
+    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3f}"
+
+
+def json_safe(values: dict[str, Any]) -> dict[str, Any]:
+    """NaN is not JSON: undefined figures become null (results.json, the pipeline's stage record)."""
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in values.items()}
