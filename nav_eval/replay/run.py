@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from segmin.common.atomic import write_text
+from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.replay.sequence import read_sequence
 from segmin.nav_eval.replay.video import overlay, write_video
 from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
@@ -53,9 +54,9 @@ class ReplayResult:
 
 
 def check_out_dir(out: Path, force: bool) -> None:
-    """Refuse a non-empty output folder unless `force` (nothing is overwritten silently)."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
+    """Refuse a file in the way, and a non-empty output folder unless `force` (nothing is
+    overwritten silently); before the model runs."""
+    check_output_dir(out, "--out")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise ValueError(f"--out {out}: folder is not empty (use --force to overwrite its replay outputs)")
 
