@@ -62,7 +62,7 @@ def _by_stem(files: list[Path], flag: str, folder: Path) -> dict[str, Path]:
     return found
 
 
-def in_natural_order(files: list[Path], flag: str, folder: Path) -> list[Path]:
+def _in_natural_order(files: list[Path], flag: str, folder: Path) -> list[Path]:
     """`files` (distinct stems) in natural name order; names that tie are refused, naming two."""
     ordered = sorted(files, key=lambda p: natural_key(p.stem))
     for before, after in itertools.pairwise(ordered):
@@ -146,7 +146,7 @@ def _size(image: np.ndarray) -> str:
 
 
 def _folder_sequence(rgb: Path, depth: Path | None, fps: float | None, timestamps: Path | None) -> RecordedSequence:
-    frames = in_natural_order(list(_files(rgb, "rgb", IMAGE_SUFFIXES).values()), "rgb", rgb)
+    frames = _in_natural_order(list(_files(rgb, "rgb", IMAGE_SUFFIXES).values()), "rgb", rgb)
     depth_files: list[Path | None] = [None] * len(frames)
     if depth is not None:
         if not depth.is_dir():
