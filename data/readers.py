@@ -16,6 +16,10 @@ import numpy as np
 from segmin.data.frames import DatasetError, Frame
 
 _PNG_END = b"IEND\xaeB`\x82"
+# Float depth is metres. No camera used for row following reads beyond a few hundred metres, while a
+# millimetre map of any scene deeper than one metre holds values above 1000: such a file is refused
+# instead of being read as kilometres of empty view (SegMinD would then see no near vegetation).
+MAX_DEPTH_M = 1000.0
 
 
 def _read_bytes_checked(path: Path) -> bytes:
@@ -61,8 +65,21 @@ def read_mask(path: str | Path) -> np.ndarray:
     return (mask > 0).astype(np.uint8)
 
 
+def check_depth_metres(depth: np.ndarray, source: str) -> None:
+    """Float depth must be metres: DatasetError naming `source` and the finite range when it reaches
+    above `MAX_DEPTH_M` (a millimetre map saved as float). Non-finite pixels are not looked at."""
+    finite = depth[np.isfinite(depth)]
+    if finite.size and float(finite.max()) > MAX_DEPTH_M:
+        raise DatasetError(
+            f"{source}: float depth must be metres, but its values range from {float(finite.min()):g} to "
+            f"{float(finite.max()):g} (above {MAX_DEPTH_M:g} m: millimetres? divide by 1000, or save uint16 "
+            "millimetre PNGs)"
+        )
+
+
 def read_depth(path: str | Path) -> np.ndarray:
-    """Depth in metres, float32 H x W (0 = invalid). PNG/TIFF hold millimetres; EXR holds metres."""
+    """Depth in metres, float32 H x W (0 = invalid). Integer PNG/TIFF hold millimetres; EXR and float
+    TIFF hold metres (checked: `check_depth_metres`)."""
     import cv2
 
     path = Path(path)
@@ -75,10 +92,12 @@ def read_depth(path: str | Path) -> np.ndarray:
                 "OPENCV_IO_ENABLE_OPENEXR=1 before starting Python, or convert to uint16 mm PNG)"
             )
         depth = depth[..., 0] if depth.ndim == 3 else depth
+        check_depth_metres(depth, str(path))
         return np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
     depth = _decode(path, cv2.IMREAD_UNCHANGED, "depth image")
     depth = depth[..., 0] if depth.ndim == 3 else depth
     if depth.dtype.kind == "f":
+        check_depth_metres(depth, str(path))
         return depth.astype(np.float32)
     return depth.astype(np.float32) / 1000.0
 

@@ -3,16 +3,19 @@
 They are package data of `segmin.data`, found with `importlib.resources`, so `segmin eval-seg`
 and the pipeline's real-eval stage work from any install. A model tuned or trained on its own
 test photos would report a figure that means nothing, so every place that chooses training or
-validation data (training configs, pipeline profiles) asks `check_not_real_data` first.
+validation data (training configs, pipeline profiles) asks `check_not_real_data` first, and the
+frames training selects are checked once more (`check_frames_not_real`): a config field assigned
+after the config was built escapes the first check, never the second.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from importlib.resources import files
 from pathlib import Path
 
 from segmin.common.config import ConfigError
+from segmin.data.frames import Frame
 
 REAL_SETS: tuple[str, ...] = ("vineyard_rows",)
 DEFAULT_REAL_SET = "vineyard_rows"
@@ -82,3 +85,25 @@ def check_not_real_data(
                 f"{source}: {name}={value} points at the real test photos (data/real or real_eval.data); "
                 "they are a test set only, never training or validation data"
             )
+
+
+def check_frames_not_real(frames_by_use: Mapping[str, Sequence[Frame]]) -> None:
+    """ConfigError naming the first frame (image or mask) that lies in the shipped real sets, and
+    what it was selected for ({"training": [...], "validation": [...]}).
+
+    This checks what will actually be read, however it was chosen: a config field set after
+    `DataConfig` checked its fields, a split file, a folder holding the photos. Each folder is
+    resolved once, so a large dataset costs one lookup per folder, not per file.
+    """
+    real = real_data_root()
+    inside: dict[Path, bool] = {}
+    for use, frames in frames_by_use.items():
+        for frame in frames:
+            for path in (frame.image_path, frame.mask_path):
+                if path.parent not in inside:
+                    inside[path.parent] = _inside(path.parent, real)
+                if inside[path.parent]:
+                    raise ConfigError(
+                        f"{use} frame {path} is one of the real test photos (data/real); they are a test set "
+                        "only, never training or validation data"
+                    )

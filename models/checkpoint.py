@@ -20,6 +20,7 @@ import torch
 
 from segmin.common.atomic import atomic_path
 from segmin.models.lraspp import ARCHITECTURE, SegmentationNet, build_model
+from segmin.models.safe_load import load_tensors
 
 FORMAT = "segmin-checkpoint-v1"
 
@@ -36,10 +37,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # truncated zip, foreign pickle, random bytes: all unreadable
-        raise ValueError(f"{path}: not a readable segmin checkpoint ({exc})") from exc
+    payload = load_tensors(path, "segmin checkpoint")
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path}: not a segmin checkpoint (missing format tag {FORMAT!r})")
     for key in ("model", "model_info"):

@@ -17,6 +17,9 @@ from torch import nn
 from torchvision.models import MobileNet_V3_Large_Weights
 from torchvision.models.segmentation import lraspp_mobilenet_v3_large
 
+from segmin.common.outputs import make_dirs
+from segmin.models.safe_load import load_failure_reason, load_tensors
+
 ARCHITECTURE = "lraspp_mobilenet_v3_large"
 IMAGENET_WEIGHTS = MobileNet_V3_Large_Weights.IMAGENET1K_V1
 
@@ -105,25 +108,38 @@ def _missing_imagenet() -> NoReturn:
 
 
 def _with_imagenet_backbone(allow_download: bool) -> nn.Module:
+    """torchvision's LR-ASPP with the ImageNet backbone, its file read with `weights_only=True`.
+
+    torchvision's own `weights_backbone=` loads the cached file through torch.hub, which unpickles
+    with `weights_only=False`: any code pickled into a file placed there would run. Building the
+    net without weights and then loading the backbone's tensors gives the same network (the same
+    modules built in the same order draw the same random numbers; loading draws none).
+    """
     cached = imagenet_weights_path()
     digest = IMAGENET_WEIGHTS.url.rsplit("-", 1)[-1].split(".")[0]
     if not cached.is_file() and not allow_download:
         _missing_imagenet()
+    net = lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1)
     try:
-        return lraspp_mobilenet_v3_large(weights=None, weights_backbone=IMAGENET_WEIGHTS, num_classes=1)
-    except Exception as exc:  # URLError (OSError); corrupt files raise RuntimeError or UnpicklingError
+        if not cached.is_file():  # what torch.hub does for torchvision: download, check the hash prefix
+            make_dirs(cached.parent)
+            torch.hub.download_url_to_file(IMAGENET_WEIGHTS.url, str(cached), hash_prefix=digest)
+        state = torch.load(cached, map_location="cpu", weights_only=True)
+        # The classification file's `features.N...` are the backbone's `N...`; its classifier is not used.
+        net.backbone.load_state_dict(
+            {k.removeprefix("features."): v for k, v in state.items() if k.startswith("features.")}
+        )
+    except Exception as exc:  # URLError (OSError), hash mismatch, corrupt or pickled file, tensors that do not fit
         raise WeightsUnavailableError(
-            f"could not load ImageNet backbone weights ({exc}). Place the file at {cached} "
+            f"could not load ImageNet backbone weights ({load_failure_reason(exc)}). Place the file at {cached} "
             f"(sha256 starts with {digest}) or use backbone_weights=none."
         ) from exc
+    return net
 
 
 def _load_partial_state_dict(model: SegmentationNet, path: Path) -> None:
     """Load a whole-model or backbone-only state dict; refuse files that match nothing."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for corrupt or foreign files
-        raise ValueError(f"{path}: not a readable PyTorch state dict ({exc})") from exc
+    state = load_tensors(path, "PyTorch state dict")
     if isinstance(state, dict) and "model" in state and isinstance(state["model"], dict):
         state = state["model"]
     if not isinstance(state, dict):

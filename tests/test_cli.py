@@ -85,6 +85,13 @@ def test_configs_copy_writes_an_editable_file_that_works_as_a_path(tmp_path, cap
     assert main(["configs", "copy", "pipeline/quick", str(tmp_path)]) == 0
 
 
+def test_configs_copy_into_a_file_says_it_is_a_file(tmp_path, capsys) -> None:
+    blocker = tmp_path / "A"
+    blocker.write_text("")
+    assert main(["configs", "copy", "straight_vineyard", str(blocker)]) == 2
+    assert capsys.readouterr().err == f"segmin: error: {blocker} is a file, not a folder\n"
+
+
 def test_unknown_names_list_the_shipped_ones(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["synth", "preview", "--world", "no_such_world", "--out", "x.png"]) == 2
     err = capsys.readouterr().err

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import pytest
 import torch
 from torchvision.models import mobilenet_v3_large
@@ -51,6 +53,25 @@ def test_imagenet_weights_read_from_the_cache_without_network(torch_home):
     assert torch.equal(own["net.backbone.0.0.weight"], state["features.0.0.weight"])
     assert torch.equal(own["net.backbone.16.0.weight"], state["features.16.0.weight"])
     assert own["net.classifier.low_classifier.weight"].shape[0] == 1
+
+
+def test_imagenet_backbone_is_the_one_torchvision_builds_from_the_same_file(torch_home):
+    """segmin reads the ImageNet file itself (weights_only=True) instead of torchvision (which
+    unpickles it with weights_only=False): the same network, the same random draws after it."""
+    from torchvision.models.segmentation import lraspp_mobilenet_v3_large
+
+    from segmin.models.lraspp import IMAGENET_WEIGHTS
+
+    path = torch_home / "hub" / "checkpoints" / WEIGHTS_FILE
+    path.parent.mkdir(parents=True)
+    torch.save(_random_classifier_state(), path)
+    torch.manual_seed(7)
+    theirs = lraspp_mobilenet_v3_large(weights=None, weights_backbone=IMAGENET_WEIGHTS, num_classes=1).state_dict()
+    their_next = torch.rand(3)
+    torch.manual_seed(7)
+    ours = build_model("imagenet").net.state_dict()
+    assert torch.equal(torch.rand(3), their_next)
+    assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours)
 
 
 def test_imagenet_weights_missing_names_the_file(torch_home):
@@ -144,13 +165,44 @@ def test_corrupt_or_foreign_checkpoints_give_clear_errors(tmp_path):
         load_model(wrong_shape)
 
 
-def test_pickled_code_is_refused(tmp_path):
-    """A checkpoint that needs arbitrary unpickling is refused (weights_only=True)."""
+def _never_advises_unsafe_loading(message: str) -> None:
+    for advice in ("weights_only", "add_safe_globals", "safe_globals", "trust"):
+        assert advice not in message, message
 
+
+@pytest.mark.filterwarnings("ignore:Detected pickle protocol")  # torch, on the plain pickle file
+def test_pickled_code_is_refused_without_torchs_advice_to_load_it_unsafely(tmp_path, torch_home, capsys):
+    """A file that needs arbitrary unpickling is refused (weights_only=True), and the refusal never
+    repeats torch's advice to retry with weights_only=False or to allow-list the class."""
     path = tmp_path / "evil.pt"
     torch.save({"format": FORMAT, "model": {}, "model_info": {"x": _Opaque()}}, path)
-    with pytest.raises(ValueError, match="evil.pt: not a readable"):
+    with pytest.raises(
+        ValueError,
+        match=r"evil.pt: not a readable segmin checkpoint \(it holds pickled Python "
+        r"objects \(test_models._Opaque\); segmin loads only tensors",
+    ) as info:
         read_checkpoint(path)
+    _never_advises_unsafe_loading(str(info.value))
+    with pytest.raises(ValueError, match="evil.pt: not a readable PyTorch state dict") as info:
+        build_model(str(path))  # backbone_weights=<path>
+    _never_advises_unsafe_loading(str(info.value))
+    raw_pickle = tmp_path / "raw.pt"
+    raw_pickle.write_bytes(pickle.dumps({"x": _Opaque()}))
+    with pytest.raises(ValueError, match="raw.pt: not a readable segmin checkpoint") as info:
+        read_checkpoint(raw_pickle)
+    _never_advises_unsafe_loading(str(info.value))
+    cached = torch_home / "hub" / "checkpoints" / WEIGHTS_FILE  # torchvision's own torch.load
+    cached.parent.mkdir(parents=True)
+    cached.write_bytes(path.read_bytes())
+    with pytest.raises(WeightsUnavailableError, match="pickled Python objects") as info:
+        build_model("imagenet")
+    _never_advises_unsafe_loading(str(info.value))
+    from segmin.app.cli import main
+
+    assert main(["export", "--checkpoint", str(path), "--out", str(tmp_path / "m.onnx")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "evil.pt" in err
+    _never_advises_unsafe_loading(err)
 
 
 class _Opaque:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from segmin.common.outputs import check_output_dir, check_output_file
+from segmin.common.atomic import write_text
+from segmin.common.outputs import check_output_dir, check_output_file, make_dirs
 
 
 @pytest.fixture()
@@ -23,6 +24,17 @@ def _run(argv: list[str]) -> int:
 
     args = build_parser().parse_args(argv)
     return args.func(args)
+
+
+def test_make_dirs_names_the_file_in_the_way(somefile, tmp_path):
+    """mkdir -p says "File exists" / "Not a directory"; make_dirs says which file is in the way."""
+    with pytest.raises(FileExistsError, match=f"^{somefile} is a file, not a folder$"):
+        make_dirs(somefile)
+    with pytest.raises(NotADirectoryError, match=f"^--out {somefile}/x: {somefile} is a file, not a folder$"):
+        make_dirs(somefile / "x", "--out")
+    with pytest.raises(FileExistsError, match=f"^{somefile} is a file, not a folder$"):
+        write_text(somefile / "a.txt", "")  # every atomic write makes its folder through it
+    assert make_dirs(tmp_path / "a" / "b").is_dir() and make_dirs(tmp_path / "a").is_dir()
 
 
 def test_the_helpers_name_the_path_and_the_file(somefile, tmp_path):
@@ -47,10 +59,37 @@ def test_the_helpers_name_the_path_and_the_file(somefile, tmp_path):
         ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--out", "{f}/eval"],
         ["train", "--config", "quick", "--out", "{f}/run", "data.root=/nonexistent"],
         ["pipeline", "--config", "micro", "--out", "{f}/run"],
+        [
+            "replay",
+            "--model",
+            "m.onnx",
+            "--rgb",
+            "{f}",
+            "--method",
+            "segmin",
+            "--depth-threshold",
+            "5",
+            "--out",
+            "{f}/r",
+        ],
+        ["navigate-demo", "--out", "{f}/demo"],
+        ["eval-seg", "--model", "m.onnx", "--out", "{f}/eval"],
+        ["configs", "copy", "straight_vineyard", "{f}/configs"],
     ],
-    ids=["preview", "render", "export", "nav-eval", "train", "pipeline"],
+    ids=[
+        "preview",
+        "render",
+        "export",
+        "nav-eval",
+        "train",
+        "pipeline",
+        "replay",
+        "navigate-demo",
+        "eval-seg",
+        "configs-copy",
+    ],
 )
 def test_every_command_refuses_an_output_below_a_file_before_working(somefile, argv):
     argv = [a.replace("{f}", str(somefile)) for a in argv]
-    with pytest.raises(NotADirectoryError, match=str(somefile)):
+    with pytest.raises(NotADirectoryError, match=f"{somefile} is a file, not a folder"):
         _run(argv)

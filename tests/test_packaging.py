@@ -65,7 +65,8 @@ mask = segmenter.segment(np.load("rgb.npy"))
 command = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(
     mask, np.full(mask.shape, 3.0, np.float32))
 from segmin.nav_eval.runtime.follower import RowFollower
-from segmin.nav_eval.replay.run import replay, iter_sequence
+from segmin.nav_eval.replay.run import replay
+from segmin.nav_eval.replay.sequence import read_sequence
 follower = RowFollower(segmenter, Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)))
 out = [follower.step(np.load("rgb.npy"), np.full(mask.shape, 3.0, np.float32), i / 30) for i in range(7)]
 assert sum(o.fresh for o in out) == 2 and np.isfinite(out[-1].command.v)

@@ -16,7 +16,13 @@ from segmin.app.pipeline.config import PipelineConfig, check_training_sources, l
 from segmin.app.pipeline.stages import train_config_for
 from segmin.common.config import ConfigError
 from segmin.common.shipped import shipped_dir, shipped_names
-from segmin.data.real_sets import check_not_real_data, points_to_real_data, real_data_root, shipped_real_data
+from segmin.data.real_sets import (
+    check_frames_not_real,
+    check_not_real_data,
+    points_to_real_data,
+    real_data_root,
+    shipped_real_data,
+)
 from segmin.train.config import load_train_config
 
 REAL = shipped_real_data()
@@ -108,3 +114,37 @@ def test_a_custom_real_set_is_guarded_too(tmp_path: Path) -> None:
     plan = config.families["trees"]
     with pytest.raises(ConfigError, match="real test photos"):
         train_config_for(config, "trees", plan, photos / "render", {"train": ["a"], "val": ["b"]}, "none")
+
+
+# ----------------------------------------------------------------------------- the frames training selects
+
+
+def test_the_frames_training_selects_are_checked_whatever_the_config_says_now(tmp_path: Path) -> None:
+    """DataConfig checks its fields when it is built; a field assigned afterwards is caught where
+    the frames are selected, by the frames themselves."""
+    from test_train import tiny_config, write_blob_dataset
+
+    from segmin.train.run import select_frames
+
+    config = tiny_config(write_blob_dataset(tmp_path / "synth", frames=6))
+    train, val = select_frames(config)  # the normal path: rendered frames train and validate
+    assert len(train) + len(val) == 6
+    config.data.val_root, config.data.val_domains = REAL, ["vineyard_rows"]
+    with pytest.raises(ConfigError, match=r"validation frame .*vineyard_row_0\.png is one of the real test photos"):
+        select_frames(config)
+    config.data.val_root, config.data.val_domains = None, None
+    config.data.root, config.data.domains = REAL, None
+    with pytest.raises(ConfigError, match=r"training frame .*vineyard_rows.* is one of the real test photos"):
+        select_frames(config)
+
+
+def test_real_photos_are_recognised_through_a_link(tmp_path: Path) -> None:
+    from segmin.data.frames import Frame
+
+    link = tmp_path / "innocent_looking"
+    link.symlink_to(REAL)
+    photo = Frame("d", "s", 0, link / "images" / "vineyard_row_0.png", link / "masks" / "vineyard_row_0.png")
+    rendered = Frame("d", "s", 1, tmp_path / "Image1.png", tmp_path / "Segmentation1.png")
+    check_frames_not_real({"training": [rendered]})
+    with pytest.raises(ConfigError, match="validation frame .*innocent_looking/images/vineyard_row_0.png"):
+        check_frames_not_real({"training": [rendered], "validation": [photo]})

@@ -14,7 +14,11 @@ import pytest
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 
 from segmin.app.cli import main
+from segmin.data.frames import DatasetError
+from segmin.data.readers import read_depth as read_dataset_depth
 from segmin.nav_eval.replay.run import read_commands_csv, replay
+from segmin.nav_eval.replay.sequence import natural_key, read_sequence
+from segmin.nav_eval.replay.video import write_video
 from segmin.nav_eval.runtime.follower import RowFollower
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
@@ -229,3 +233,78 @@ def test_non_finite_npy_depth_is_no_reading_and_counted(sequence, model, tmp_pat
     result = _run(model, rgb, depth, fps=30, out=tmp_path / "out")
     assert any("1 depth frame(s) had non-finite pixels" in n for n in result.notes)
     assert all(np.isfinite(r[1]) and np.isfinite(r[2]) for r in result.commands)
+
+
+# ----------------------------------------------------------------------------- frame order and names
+
+
+def _frames_named(folder: Path, names: list[str], size: int = 16) -> Path:
+    folder.mkdir()
+    for i, name in enumerate(names):
+        cv2.imwrite(str(folder / name), np.full((size, size, 3), i, np.uint8))
+    return folder
+
+
+def _played(rgb: Path, depth: Path | None = None) -> list[str]:
+    return [name for name, *_ in read_sequence(rgb, depth, 30.0, None).frames]
+
+
+def test_unpadded_frame_numbers_play_in_natural_order_and_the_order_is_said(sequence, model, tmp_path) -> None:
+    names = [f"f_{i}.png" for i in range(12)]
+    rgb = _frames_named(tmp_path / "unpadded", names[::-1])
+    assert _played(rgb) == names  # not f_0, f_1, f_10, f_11, f_2 ... (plain text order)
+    assert natural_key("f_2") < natural_key("f_10") and natural_key("b0") > natural_key("a10")
+    # Padded names keep their order; the note names the order used.
+    padded, _ = _copy(sequence, tmp_path)
+    assert _played(padded) == sorted(p.name for p in padded.iterdir())
+    result = _run(model, padded, fps=30, out=tmp_path / "out")
+    assert "24 frames in natural name order (numbers by value): 0000.png, 0001.png, 0002.png, ..., 0023.png" in (
+        result.notes
+    )
+
+
+def test_names_that_leave_the_order_open_are_refused(tmp_path) -> None:
+    rgb = _frames_named(tmp_path / "rgb", ["f_001.png", "f_002.png", "f_002.jpg"])
+    with pytest.raises(ValueError, match=r"--rgb .*: f_002.jpg and f_002.png are the same frame \('f_002'\) twice"):
+        read_sequence(rgb, None, 30.0, None)
+    rgb = _frames_named(tmp_path / "rgb2", ["f_01.png", "f_1.png", "f_2.png"])
+    with pytest.raises(ValueError, match="f_01.png and f_1.png carry the same number"):
+        read_sequence(rgb, None, 30.0, None)
+    rgb = _frames_named(tmp_path / "rgb3", ["f_1.png", "f_2.png"])
+    depth = tmp_path / "depth"
+    depth.mkdir()
+    for stem in ("f_1", "f_2"):
+        cv2.imwrite(str(depth / f"{stem}.png"), np.full((16, 16), 2000, np.uint16))
+    np.save(depth / "f_2.npy", np.full((16, 16), 2.0, np.float32))
+    with pytest.raises(ValueError, match=r"--depth .*: f_2.npy and f_2.png are the same frame"):
+        read_sequence(rgb, depth, 30.0, None)
+
+
+def test_a_frame_of_another_size_is_refused_without_depth(sequence, model, tmp_path) -> None:
+    rgb, _ = _copy(sequence, tmp_path)
+    image = cv2.imread(str(rgb / "0005.png"))
+    cv2.imwrite(str(rgb / "0005.png"), cv2.resize(image, (40, 40)))
+    with pytest.raises(ValueError, match=r"--rgb: 0005.png is 40x40, the frames before it are 48x48"):
+        _run(model, rgb, fps=30, out=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(ValueError, match=r"video frames of 2 sizes"):  # the writer never drops frames silently
+        write_video(tmp_path / "v.mp4", [np.zeros((8, 8, 3), np.uint8), np.zeros((8, 6, 3), np.uint8)])
+
+
+def test_float_depth_in_millimetres_is_refused_naming_the_file_and_range(sequence, model, tmp_path) -> None:
+    rgb, _ = _copy(sequence, tmp_path)
+    depth = tmp_path / "depth_mm"
+    depth.mkdir()
+    for i, (_, mm) in enumerate(sequence[2]):
+        np.save(depth / f"{i:04d}.npy", mm.astype(np.float32))  # millimetres, saved as float
+    with pytest.raises(ValueError, match=r"0000.npy: float depth must be metres, but its values range from .* to "):
+        _run(model, rgb, depth, fps=30, out=tmp_path / "out")
+    args = ["--rgb", str(rgb), "--depth", str(depth), "--fps", "30", "--depth-threshold", "5"]
+    assert main(["replay", "--model", str(model), *args, "--out", str(tmp_path / "out")]) == 2
+    # The same check guards the float formats of datasets (EXR, float TIFF).
+    tiff = tmp_path / "d.tiff"
+    cv2.imwrite(str(tiff), np.full((4, 4), 17407.0, np.float32))
+    with pytest.raises(DatasetError, match=r"d.tiff: float depth must be metres, but its values range from 17407"):
+        read_dataset_depth(tiff)
+    cv2.imwrite(str(tiff), np.full((4, 4), 17.4, np.float32))
+    assert read_dataset_depth(tiff).max() == pytest.approx(17.4)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.common.cli_args import CommandParser, add_overrides, overrides_of
 
 
 def _add_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -123,7 +123,7 @@ def _bench_iou_bound(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry for `python -m segmin.train.cli` (what torchrun launches): the same arguments as `segmin train`."""
-    parser = argparse.ArgumentParser(prog="segmin.train.cli", description="segmin training (torchrun entry)")
+    parser = CommandParser(prog="segmin.train.cli", description="segmin training (torchrun entry)")
     _add_train_arguments(parser)
     args = parser.parse_args(argv)
     return _train(args)

@@ -43,6 +43,7 @@ from segmin.data.agriseg_loader import (
 )
 from segmin.data.augment import eval_transform, train_transform
 from segmin.data.frame_check import require_sound_frames, worker_error_line
+from segmin.data.real_sets import check_frames_not_real
 from segmin.models import build_model
 from segmin.models.lraspp import check_backbone_weights
 from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
@@ -99,6 +100,7 @@ def select_frames(config: TrainConfig) -> tuple[list[Frame], list[Frame]]:
         frames = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
         splits = load_split(d.split_file, frames) if d.split_file else make_splits(frames, d.val_fraction, d.split_seed)
         train, val = splits["train"], splits["val"]
+    check_frames_not_real({"training": train, "validation": val})  # whatever the config says now
     train = _subsample(train, d.max_train_frames, d.split_seed)
     val = _subsample(val, d.max_val_frames, d.split_seed + 1)
     if not train:

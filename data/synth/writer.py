@@ -34,7 +34,7 @@ import numpy as np
 from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
 from segmin.common.lock import writer_lock
-from segmin.common.outputs import check_output_dir
+from segmin.common.outputs import check_output_dir, make_dirs
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import WorldSpec
 
@@ -209,7 +209,7 @@ def write_frame(paths: dict[str, Path], data: dict[str, bytes]) -> None:
         if folder.is_dir():  # a previous run (or --overwrite): replace the file in place
             write_bytes(final, data[kind])
             continue
-        folder.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(folder.parent)
         staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".staging", dir=folder.parent))
         try:
             with open(staging / final.name, "wb") as handle:

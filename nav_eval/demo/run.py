@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from segmin.common.atomic import atomic_path, write_text
+from segmin.common.outputs import make_dirs
 from segmin.nav_eval.demo.scenes import DEMO_SCENES, DemoScene, render_scene
 from segmin.nav_eval.runtime.methods import PAPER_METHODS as METHODS
 from segmin.nav_eval.runtime.navigator import (
@@ -44,7 +45,7 @@ def run_demo(
     runtime install can run the demo with `figure=False`.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(out_dir, "--out")
     frames = [(scene, *render_scene(scene, size=size)) for scene in DEMO_SCENES]
     results = [
         _settled_command(scene, mask, depth, method, settle_steps)

@@ -16,8 +16,19 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "[sim] extra). Without depth SegMin runs on the mask alone; SegMinD needs depth.",
     )
     replay.add_argument("--model", required=True, help="exported .onnx file")
-    replay.add_argument("--rgb", type=Path, required=True, help="folder of RGB frames (name order) or a video file")
-    replay.add_argument("--depth", type=Path, default=None, help="folder of depth frames named like the RGB frames")
+    replay.add_argument(
+        "--rgb",
+        type=Path,
+        required=True,
+        help="folder of RGB frames (natural name order: f_2 before f_10) or a video file",
+    )
+    replay.add_argument(
+        "--depth",
+        type=Path,
+        default=None,
+        help="folder of depth frames named like the RGB frames: uint16 PNG in millimetres (0 = no reading) "
+        "or float .npy in metres (NaN = no reading; values above 1000 are refused as millimetres)",
+    )
     timing = replay.add_mutually_exclusive_group()
     timing.add_argument("--fps", type=float, default=None, help="frame rate: frame i at i / fps seconds")
     timing.add_argument("--timestamps", type=Path, default=None, help="file of one timestamp (s) per frame")

@@ -1,10 +1,12 @@
 """`segmin replay`: the robot runtime (`RowFollower`) over a recorded sequence, offline.
 
-Input: a folder of RGB frames (any image OpenCV reads, in name order) or a video file, with
-optional aligned depth: a folder of uint16 millimetre PNGs (0 = no reading) or float32 metre
-.npy files, named like the RGB frames (same stem). Timestamps come from `--fps` (frame i at
-i / fps), from `--timestamps` (one number of seconds per line, one per frame) or, for a video,
-from the file's own frame rate.
+Input: a folder of RGB frames (any image OpenCV reads) or a video file, with optional aligned
+depth named like the RGB frames (same stem). Depth units by format: uint16 PNG = millimetres
+(0 = no reading), float32 .npy = metres (values above 1000 are refused: millimetres saved as
+float). A folder plays in natural name order (f_2 before f_10), said in a note; names that
+leave the order open (two files of one stem, f_01 beside f_1) are refused. Timestamps come from
+`--fps` (frame i at i / fps), from `--timestamps` (one number of seconds per line, one per
+frame) or, for a video, from the file's own frame rate. Reading the sequence is `sequence.py`.
 
 Output (in `--out`, which must be empty unless `--force`): `commands.csv` (one row per command:
 t, v, omega, target_column, valid), `overlay.mp4` (per command: the frame with the mask and the
@@ -14,7 +16,8 @@ extra's matplotlib; on the bare robot install it is skipped and the summary says
 and the video are still written.
 
 Bad input stops the replay with one line naming the frame or the argument (ValueError or
-FileNotFoundError): frames out of time order, depth of another size than the RGB frame, a
+FileNotFoundError): frames out of time order, a frame of another size than the first one,
+depth of another size than the RGB frame, implausible float depth (see above), a
 missing or unreadable depth or RGB file, a video OpenCV cannot open, a timestamp count that does
 not match the frames, rates that do not divide evenly. Non-finite pixels in .npy depth are "no
 reading", as the navigator treats them; the frames that had some are counted in the summary.
@@ -26,8 +29,6 @@ No torch, pybullet or matplotlib at import: this runs on the bare robot install.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,12 +36,11 @@ from typing import Any
 import numpy as np
 
 from segmin.common.atomic import write_text
+from segmin.common.outputs import check_output_dir
+from segmin.nav_eval.replay.sequence import read_sequence
 from segmin.nav_eval.replay.video import overlay, write_video
 from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
-from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig, to_metres
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 
 
 @dataclass
@@ -53,150 +53,10 @@ class ReplayResult:
     frames: int = 0
 
 
-# ---------------------------------------------------------------------------------------------
-# Reading the sequence
-# ---------------------------------------------------------------------------------------------
-
-
-def _images(folder: Path, what: str) -> list[Path]:
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES + (".npy",))
-    if not files:
-        raise FileNotFoundError(f"--{what} {folder}: no image files in the folder")
-    return files
-
-
-def _read_rgb(path: Path) -> np.ndarray:
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise ValueError(f"--rgb: cannot read {path} as an image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-
-
-def read_depth(path: Path) -> tuple[np.ndarray, bool]:
-    """Depth in metres (float32) and whether it had non-finite pixels (set to 0, no reading)."""
-    import cv2
-
-    if path.suffix.lower() == ".npy":
-        try:
-            depth = np.load(path)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"--depth: cannot read {path} ({exc})") from None
-        if depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
-            raise ValueError(f"--depth: {path} must be a 2-D float array of metres, got {depth.dtype} {depth.shape}")
-        bad = ~np.isfinite(depth)
-        if bad.any():
-            depth = np.where(bad, 0.0, depth)
-        return depth.astype(np.float32), bool(bad.any())
-    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if depth is None:
-        raise ValueError(f"--depth: cannot read {path} as an image")
-    if depth.dtype != np.uint16 or depth.ndim != 2:
-        raise ValueError(
-            f"--depth: {path} must be a single-channel uint16 PNG of millimetres, "
-            f"got {depth.dtype} with shape {depth.shape}"
-        )
-    return to_metres(depth), False
-
-
-def _timestamps(count: int, fps: float | None, timestamps: Path | None, source_fps: float | None) -> np.ndarray:
-    if fps is not None and timestamps is not None:
-        raise ValueError("give --fps or --timestamps, not both")
-    if timestamps is not None:
-        try:
-            values = [float(line) for line in Path(timestamps).read_text().split()]
-        except ValueError as exc:
-            raise ValueError(f"--timestamps {timestamps}: not a list of numbers ({exc})") from None
-        if len(values) != count:
-            raise ValueError(f"--timestamps {timestamps}: {len(values)} timestamps for {count} frames")
-        return np.asarray(values, dtype=float)
-    rate = fps if fps is not None else source_fps
-    if rate is None:
-        raise ValueError("a folder of frames needs --fps or --timestamps")
-    if not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"--fps must be a finite number > 0, got {rate!r}")
-    return np.arange(count, dtype=float) / rate
-
-
-def iter_sequence(
-    rgb: Path, depth: Path | None, fps: float | None, timestamps: Path | None
-) -> tuple[int, Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]]:
-    """(frame count, iterator of (name, t, rgb, depth metres or None, had non-finite depth)).
-
-    Every file is checked to exist before the first frame runs, so a missing depth frame stops
-    the replay before any output is written.
-    """
-    rgb = Path(rgb)
-    if not rgb.exists():
-        raise FileNotFoundError(f"--rgb {rgb}: no such file or folder")
-    if rgb.is_dir():
-        frames = [p for p in _images(rgb, "rgb") if p.suffix.lower() != ".npy"]
-        depth_files: list[Path | None] = [None] * len(frames)
-        if depth is not None:
-            depth = Path(depth)
-            if not depth.is_dir():
-                raise FileNotFoundError(f"--depth {depth}: not a folder")
-            by_stem = {p.stem: p for p in _images(depth, "depth")}
-            missing = [p.name for p in frames if p.stem not in by_stem]
-            if missing:
-                raise FileNotFoundError(
-                    f"--depth {depth}: no depth frame for {missing[0]}"
-                    + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else "")
-                )
-            depth_files = [by_stem[p.stem] for p in frames]
-        times = _timestamps(len(frames), fps, timestamps, None)
-
-        def folder_frames() -> Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]:
-            for path, depth_path, t in zip(frames, depth_files, times):
-                image = _read_rgb(path)
-                d, bad = (None, False) if depth_path is None else read_depth(depth_path)
-                if d is not None and d.shape != image.shape[:2]:
-                    raise ValueError(
-                        f"--depth: {depth_path.name} is {d.shape[1]}x{d.shape[0]}, "
-                        f"the RGB frame {path.name} is {image.shape[1]}x{image.shape[0]}"
-                    )
-                yield path.name, float(t), image, d, bad
-
-        return len(frames), folder_frames()
-    if rgb.suffix.lower() not in VIDEO_SUFFIXES:
-        raise ValueError(f"--rgb {rgb}: give a folder of frames or a video ({', '.join(VIDEO_SUFFIXES)})")
-    if depth is not None:
-        raise ValueError("--depth goes with a folder of RGB frames; a video has no aligned depth frames")
-    import cv2
-
-    capture = cv2.VideoCapture(str(rgb))
-    if not capture.isOpened():
-        raise ValueError(f"--rgb {rgb}: OpenCV cannot open this video")
-    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-    source_fps = float(capture.get(cv2.CAP_PROP_FPS)) or None
-    if count <= 0:
-        capture.release()
-        raise ValueError(f"--rgb {rgb}: the video has no frames OpenCV can count")
-    times = _timestamps(count, fps, timestamps, source_fps)
-
-    def video_frames() -> Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]:
-        try:
-            for i, t in enumerate(times):
-                ok, image = capture.read()
-                if not ok:
-                    raise ValueError(f"--rgb {rgb}: frame {i} cannot be decoded")
-                yield f"{rgb.name}#{i}", float(t), cv2.cvtColor(image, cv2.COLOR_BGR2RGB), None, False
-        finally:
-            capture.release()
-
-    return count, video_frames()
-
-
-# ---------------------------------------------------------------------------------------------
-# The replay
-# ---------------------------------------------------------------------------------------------
-
-
 def check_out_dir(out: Path, force: bool) -> None:
-    """Refuse a non-empty output folder unless `force` (nothing is overwritten silently)."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
+    """Refuse a file in the way, and a non-empty output folder unless `force` (nothing is
+    overwritten silently); before the model runs."""
+    check_output_dir(out, "--out")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise ValueError(f"--out {out}: folder is not empty (use --force to overwrite its replay outputs)")
 
@@ -224,7 +84,7 @@ def replay(
         raise ValueError("--method segmind needs --depth (depth frames); without depth use segmin (mask alone)")
     out = Path(out)
     check_out_dir(out, force)
-    count, frames = iter_sequence(
+    sequence = read_sequence(
         Path(rgb), None if depth is None else Path(depth), fps, None if timestamps is None else Path(timestamps)
     )
     if segmenter is None:
@@ -234,10 +94,12 @@ def replay(
             raise FileNotFoundError(f"--model {model}: not found (give an exported .onnx file)")
         segmenter = OnnxSegmenter(model, threads=threads)
     follower = RowFollower(segmenter, Navigator(navigator_config), runtime)
-    result = ReplayResult(commands=[], files=[], frames=count)
+    result = ReplayResult(commands=[], files=[], frames=sequence.count)
+    if sequence.order is not None:
+        result.notes.append(sequence.order)
     video: list[np.ndarray] = []
     non_finite, restarts = 0, 0
-    for name, t, image, d, bad in frames:
+    for name, t, image, d, bad in sequence.frames:
         non_finite += bad
         try:
             output = follower.step(image, d, t)

@@ -51,6 +51,9 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: float = 5.0) ->
     path = Path(path)
     if not frames:
         return path
+    sizes = sorted({np.asarray(f).shape[:2] for f in frames})
+    if len(sizes) > 1:  # OpenCV's VideoWriter silently drops every frame not of the first one's size
+        raise ValueError(f"{path}: video frames of {len(sizes)} sizes {sizes}; a video needs one frame size")
     if path.suffix.lower() == ".mp4":
         try:
             _write_mp4(path, frames, fps)

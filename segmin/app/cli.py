@@ -16,6 +16,7 @@ import sys
 import traceback
 
 from segmin import __version__
+from segmin.common.cli_args import CommandParser
 from segmin.common.config import ConfigError
 from segmin.common.extras import missing_extra_message
 
@@ -41,7 +42,7 @@ USER_ERRORS: tuple[type[BaseException], ...] = (ConfigError, ValueError, OSError
 
 def build_parser() -> argparse.ArgumentParser:
     """The full parser tree (used by `main` and by tests that check every `--help`)."""
-    parser = argparse.ArgumentParser(
+    parser = CommandParser(  # its class goes to every subcommand parser: overrides anywhere on the line
         prog="segmin",
         description="Train, export and validate crop-segmentation navigation (SegMin / SegMinD).",
     )

@@ -4,12 +4,19 @@
 `segmin synth render --world w rows.length=10` all read the same way. Positional tokens and
 `--set` values land in one list, `args.overrides`, in command-line order, so a later value for
 the same key wins whichever spelling was used.
+
+Overrides may stand anywhere on the line (`nav-eval ... run.length_m=1 --runs 1 run.time_limit_s=15`):
+argparse hands a positional only the first run of plain tokens, so a parser that takes overrides
+is a `CommandParser`, which parses options and positionals intermixed and then puts the overrides
+back in the order they were typed.
 """
 
 from __future__ import annotations
 
 import argparse
 import re
+import sys
+from collections import Counter
 from collections.abc import Sequence
 from typing import Any
 
@@ -60,18 +67,66 @@ class NamesThenOverrides(argparse.Action):
         if not names:
             parser.error(f"{option_string}: expected at least one name before the KEY=VALUE overrides")
         setattr(namespace, self.dest, names)
-        _append(namespace, [v for v in values if is_override(v)])
+        overrides = [v for v in values if is_override(v)]
+        if overrides:  # an empty list here would make intermixed parsing warn and drop the attribute
+            _append(namespace, overrides)
+
+
+def in_line_order(overrides: list[str], argv: Sequence[str]) -> list[str]:
+    """`overrides` in the order their tokens stand in `argv` (`--set=K=V` counts where it stands).
+
+    Intermixed parsing collects option values (`--set`) before positional tokens; this restores
+    the typed order, so the later of two values for one key still wins.
+    """
+    pending = Counter(overrides)
+    ordered = []
+    for token in argv:
+        value = token.partition("=")[2] if token.startswith("-") else token
+        if pending[value] > 0:
+            pending[value] -= 1
+            ordered.append(value)
+    return ordered + list(pending.elements())  # nothing left: every override is a token or follows "="
+
+
+class CommandParser(argparse.ArgumentParser):
+    """The parser class of the `segmin` command tree (subcommand parsers inherit it from the root).
+
+    One that takes overrides (`add_overrides`) parses intermixed, so they work wherever they stand
+    on the line; every other parser parses as argparse always does.
+    """
+
+    takes_overrides = False
+    _intermixing = False  # parse_known_intermixed_args calls parse_known_args itself (Python < 3.13)
+
+    def parse_known_args(  # type: ignore[override]  # one signature for typeshed's three overloads
+        self, args: Sequence[str] | None = None, namespace: Any = None
+    ) -> tuple[Any, list[str]]:
+        if not self.takes_overrides or self._intermixing:
+            return super().parse_known_args(args, namespace)
+        argv = list(sys.argv[1:] if args is None else args)
+        self._intermixing = True
+        try:
+            namespace, extras = self.parse_known_intermixed_args(argv, namespace)
+        finally:
+            self._intermixing = False
+        overrides = getattr(namespace, OVERRIDES_DEST, None)
+        if overrides:
+            setattr(namespace, OVERRIDES_DEST, in_line_order(overrides, argv))
+        return namespace, extras
 
 
 def add_overrides(parser: argparse.ArgumentParser, alias: bool = True, example: str = "section.key=value") -> None:
-    """Positional `KEY=VALUE` overrides (nargs="*"), plus `--set KEY=VALUE` when `alias`."""
+    """Positional `KEY=VALUE` overrides (nargs="*", anywhere on the line), plus `--set KEY=VALUE` when `alias`."""
+    if not isinstance(parser, CommandParser):  # a plain parser would take overrides only before the first option
+        raise TypeError(f"add_overrides needs a CommandParser, got {type(parser).__name__}")
+    parser.takes_overrides = True
     parser.add_argument(
         OVERRIDES_DEST,
         nargs="*",
         action=_AppendOverrides,
         default=None,
         metavar="KEY=VALUE",
-        help=f"config overrides (dotted keys, YAML values), e.g. {example}",
+        help=f"config overrides (dotted keys, YAML values), anywhere on the line, e.g. {example}",
     )
     if alias:
         parser.add_argument(

@@ -23,6 +23,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from segmin.common.outputs import make_dirs
+
 _HELD: set[int] = set()  # descriptors this process holds locks on, closed in forked children
 
 
@@ -85,7 +87,7 @@ def writer_lock(path: str | Path, what: str) -> Iterator[dict]:
     still locked; a process that opened it meanwhile notices the swap and retries).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs(path.parent)
     fd = _open_locked(path, what)
     _HELD.add(fd)
     try:

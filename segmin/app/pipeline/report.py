@@ -258,8 +258,7 @@ def _training_curves(run_dir: Path, families: list[str], path: Path) -> None:
     loss_ax.legend(fontsize=8)
     iou_ax.legend(fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
+    with atomic_path(path) as tmp:  # makes the folder
         fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
 

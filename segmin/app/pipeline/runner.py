@@ -18,7 +18,7 @@ from segmin.app.pipeline.cache import StageCache, Timer, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig
 from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.common.config import to_dict
-from segmin.common.outputs import check_output_dir
+from segmin.common.outputs import check_output_dir, make_dirs
 
 
 class PipelineRunner:
@@ -45,7 +45,7 @@ class PipelineRunner:
     def run(self) -> Path:
         """Run every stage; returns the path of report.md."""
         check_output_dir(self.run_dir, "--out")
-        self.run_dir.mkdir(parents=True, exist_ok=True)
+        make_dirs(self.run_dir, "--out")
         config = self.config
         self.preflight()
         backbone = stages.resolve_backbone(config, self.log)

@@ -16,6 +16,7 @@ import numpy as np
 
 from segmin.app.pipeline.config import FamilyPlan, PipelineConfig
 from segmin.common.config import to_dict
+from segmin.common.outputs import make_dirs
 
 
 def resolve_backbone(config: PipelineConfig, log) -> str:
@@ -186,7 +187,7 @@ def train_stage_logged(train_config, folder: Path, resume: bool) -> dict[str, An
     included, goes to `folder/train.log` instead of a terminal the processes would share."""
     import contextlib
 
-    folder.mkdir(parents=True, exist_ok=True)
+    make_dirs(folder)
     with (
         open(folder / "train.log", "a" if resume else "w", buffering=1) as handle,
         contextlib.redirect_stdout(handle),
