@@ -200,6 +200,8 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
         ("nav.methods=[segmax]", "nav.methods"),
         ("nav.oracle_methods=[segmax]", "nav.oracle_methods: unknown"),
         ("nav.oracle_methods=[]", "nav.oracle_methods: name at least one method"),
+        ("export.verify_frames=0", "export.verify_frames must be >= 1"),
+        ("export.latency_frames=0", "export.latency_frames must be >= 1"),
     ],
 )
 def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:
@@ -214,6 +216,8 @@ def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, mes
         ("nav.overrides=[run.lenght_m=3]", "lenght_m"),
         ("families.trees.train_overrides=[epochz=1]", "families.trees: .*epochz"),
         ("families.trees.fields=[no_such_field]", "no_such_field"),
+        # The navigator sections' values, not only their keys: the nav-eval stage runs last.
+        ("nav.overrides=[corridor.min_points=1000]", r"corridor.min_points \(1000\)"),
     ],
 )
 def test_nested_configs_are_checked_before_the_first_stage(tmp_path, override, message) -> None:
