@@ -190,7 +190,7 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
     missing = load_pipeline_config("micro", [f"real_eval.data={tmp_path / 'nowhere'}"])
     with pytest.raises(FileNotFoundError, match="real_eval.data folder not found"):
         PipelineRunner(missing, tmp_path / "run", log=messages.append).run()
-    assert not (tmp_path / "run" / "render").exists()  # refused before any stage ran
+    assert not (tmp_path / "run").exists()  # refused before any stage ran, and no empty --out left
 
 
 @pytest.mark.parametrize(
@@ -221,10 +221,10 @@ def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, mes
     ],
 )
 def test_nested_configs_are_checked_before_the_first_stage(tmp_path, override, message) -> None:
-    runner = PipelineRunner(load_pipeline_config("micro", [override]), tmp_path, log=lambda m: None)
+    runner = PipelineRunner(load_pipeline_config("micro", [override]), tmp_path / "run", log=lambda m: None)
     with pytest.raises(ValueError, match=message):
         runner.run()
-    assert not (tmp_path / "render").exists()  # nothing ran
+    assert not (tmp_path / "run").exists()  # nothing ran, and the refused run left no empty --out
 
 
 def test_a_family_can_render_its_own_number_of_frames_per_world(tmp_path: Path) -> None:

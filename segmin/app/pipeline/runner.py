@@ -45,7 +45,6 @@ class PipelineRunner:
     def run(self) -> Path:
         """Run every stage; returns the path of report.md."""
         check_output_dir(self.run_dir, "--out")
-        self.run_dir.mkdir(parents=True, exist_ok=True)
         config = self.config
         self.preflight()
         backbone = stages.resolve_backbone(config, self.log)
@@ -54,6 +53,7 @@ class PipelineRunner:
         real_fingerprint = (
             stages.dataset_fingerprint(config.real_eval.resolved_data()) if config.real_eval.enabled else None
         )
+        self.run_dir.mkdir(parents=True, exist_ok=True)  # only now: a refused run leaves no empty folder
         render_hash = hash_inputs("render", *stages.render_inputs(config))
         render = self._stage(
             "render",
