@@ -56,6 +56,8 @@ class AugmentConfig:
         lo, hi = self.crop_scale
         if not 0 < lo <= hi <= 1:
             raise ValueError(f"crop_scale={self.crop_scale}: need 0 < low <= high <= 1")
+        if not 0 < self.crop_ratio[0] <= self.crop_ratio[1]:
+            raise ValueError(f"crop_ratio={self.crop_ratio}: need 0 < low <= high (width / height)")
         for name in (
             "hflip_p",
             "gray_p",

@@ -163,7 +163,9 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
         limit=max(options.verify_frames, options.calib_frames if options.int8 else 1),
         domains=domains,
     )
-    verify_set = frames[np.linspace(0, len(frames) - 1, min(len(frames), options.verify_frames)).round().astype(int)]
+    if options.int8:
+        _check_calibration_frames(len(frames), options.calib_frames, source)
+    verify_set = spread(frames, options.verify_frames)
     opset = int(options.opset if options.opset is not None else DEFAULT_OPSET[options.exporter])
     meta = build_metadata(
         info, input_size=input_size, exporter=options.exporter, opset=opset, checkpoint=options.checkpoint
@@ -214,9 +216,26 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     if options.fp16:
         report["fp16"] = _export_fp16(out, meta, fp32_probs, verify_set, threshold)
     if options.int8:
-        report["int8"] = _export_int8(out, meta, fp32_probs, frames, verify_set, threshold, options.threads)
+        calib_set = spread(frames, options.calib_frames)
+        report["int8"] = _export_int8(out, meta, fp32_probs, calib_set, verify_set, threshold, options.threads)
     write_json(report_path(out), report)
     return report
+
+
+def spread(frames: np.ndarray, count: int) -> np.ndarray:
+    """At most `count` of `frames`, evenly spaced (all of them when there are not more)."""
+    return frames[np.linspace(0, len(frames) - 1, min(len(frames), count)).round().astype(int)]
+
+
+def _check_calibration_frames(found: int, wanted: int, source: Path) -> None:
+    """INT8 ranges come from the calibration frames alone: on a fraction of the frames asked for,
+    the activation ranges miss what the others hold, and the mask IoU measured on the same few
+    frames cannot show it. Refused before any file is written; asking for fewer is the user's call."""
+    if found < wanted:
+        raise ValueError(
+            f"--calib-frames {wanted}: only {found} frame(s) found in {source} for INT8 calibration; "
+            f"add frames there (or pick another --calib-data), or pass --calib-frames {found} to calibrate on them"
+        )
 
 
 def _summary(agreement) -> str:
@@ -248,6 +267,7 @@ def _export_int8(
     speedup = latency["fp32"].median_ms / latency["int8"].median_ms
     recommended = speedup >= INT8_MIN_SPEEDUP and agreement.mask_iou >= INT8_MIN_IOU
     reason = (
+        f"calibrated on {len(calib)} frames, "
         f"INT8 median {latency['int8'].median_ms:.2f} ms vs fp32 {latency['fp32'].median_ms:.2f} ms "
         f"({speedup:.2f}x), mask IoU vs fp32 {agreement.mask_iou:.4f}: "
         + ("recommended" if recommended else "not recommended, deploy the fp32 file")
@@ -256,6 +276,7 @@ def _export_int8(
         "path": str(path),
         "vs_fp32": agreement.as_dict(),
         "latency_ms": {name: lat.as_dict() for name, lat in latency.items()},
+        "calibration_frames": len(calib),
         "speedup_vs_fp32": speedup,
         "recommended": recommended,
         "recommendation": reason,

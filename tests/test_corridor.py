@@ -342,6 +342,27 @@ def test_bad_settings_name_the_field(changes, field):
         CorridorConfig(depth_threshold=5.0, **changes)
 
 
+@pytest.mark.parametrize(
+    "refused, accepted, message",
+    [
+        # Both rows need min_points each of the at most max_points kept points.
+        ({"min_points": 301}, {"min_points": 300}, r"corridor.min_points \(301\).*corridor.max_points \(600\)"),
+        ({"max_points": 59}, {"max_points": 60}, r"corridor.min_points \(30\).*corridor.max_points \(59\)"),
+        # A row's points span at most x_max - x_min (0.5..8.0 m by default).
+        ({"min_span": 7.6}, {"min_span": 7.5}, r"corridor.min_span \(7.6\).*0.5..8.0"),
+        ({"x_max": 1.4}, {"x_max": 1.5}, r"corridor.min_span \(1.0\).*0.5..1.4"),
+        # At or below h_min every kept point is roof: no row fit, ever.
+        ({"roof_min_height": 0.1}, {"roof_min_height": 0.11}, r"corridor.roof_min_height \(0.1\).*h_min \(0.1\)"),
+    ],
+)
+def test_limits_that_leave_no_row_ever_seen_are_refused(refused, accepted, message):
+    """Each limit is valid alone; together they would turn every frame into the fallback, so a
+    SegCorridor run would silently be a SegMinD run."""
+    with pytest.raises(ValueError, match=message):
+        CorridorConfig(depth_threshold=5.0, **refused)
+    CorridorConfig(depth_threshold=5.0, **accepted)
+
+
 def test_bad_camera_and_frames_are_refused():
     with pytest.raises(ValueError, match="fx"):
         dataclasses.replace(scene_camera(), fx=-1.0)

@@ -118,8 +118,32 @@ def test_fp16_and_int8_variants_run_and_are_reported(exported, frames_dir) -> No
     assert 0.0 <= report["int8"]["vs_fp32"]["mask_iou"] <= 1.0
     assert report["int8"]["latency_ms"]["int8"]["median_ms"] > 0
     assert isinstance(report["int8"]["recommended"], bool)
+    assert report["int8"]["calibration_frames"] == 6  # all of frames_dir, as asked
+    assert report["int8"]["recommendation"].startswith("calibrated on 6 frames, ")
     on_disk = json.loads(report_path(out).read_text())
     assert on_disk["int8"]["recommendation"] == report["int8"]["recommendation"]
+
+
+def test_int8_with_fewer_calibration_frames_than_asked_is_refused(workdir, checkpoint, frames_dir, capsys) -> None:
+    """One photo for 32 calibration frames used to calibrate on that one and still print
+    "recommended": the ranges of one frame miss what the others hold. Refused before any file
+    is written; --calib-frames N accepts the N frames there are."""
+    one = write_frames(workdir / "one_frame", count=1)
+    out = workdir / "calib" / "model.onnx"
+    args = ["export", "--checkpoint", str(checkpoint), "--out", str(out), "--calib-data", str(one), "--int8"]
+    assert segmin_main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith("segmin: error: --calib-frames 32: only 1 frame(s) found in ") and str(one) in err
+    assert "--calib-frames 1" in err
+    assert not out.parent.exists() or not any(out.parent.iterdir())
+    with pytest.raises(ValueError, match="--calib-frames 7: only 6 frame"):
+        export_checkpoint(
+            ExportOptions(checkpoint=checkpoint, out=out, calib_data=frames_dir, int8=True, calib_frames=7)
+        )
+    # Without --int8 the calibration count is not asked for: one frame verifies the export.
+    report = export_checkpoint(ExportOptions(checkpoint=checkpoint, out=out, calib_data=one, exporter="legacy"))
+    assert report["fp32"]["verification_vs_torch"]["frames"] == 1 and "int8" not in report
 
 
 def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> None:

@@ -94,3 +94,29 @@ def test_preview_zero_frames_is_refused(tmp_path):
         main(["synth", "preview", "--world", "straight_vineyard", "--frames", "0", "--out", str(tmp_path / "p.png")])
         == 2
     )
+
+
+@pytest.mark.parametrize(
+    "family, refused, accepted, message",
+    [
+        # straight_vineyard's plants are 1.85-2.1 m tall: a trunk must split below that.
+        ("world", "plants.trunk_height=[0.6, 1.85]", "plants.trunk_height=[0.6, 1.84]", "plants.trunk_height"),
+        ("train", "augment.crop_ratio=[1.5, 0.75]", "augment.crop_ratio=[0.75, 1.5]", "crop_ratio"),
+        ("train", "augment.crop_ratio=[0.0, 1.0]", "augment.crop_ratio=[0.5, 1.0]", "crop_ratio"),
+        # A negative margin puts the "left_row" line ahead of the start: every run fails at t = 0.
+        ("nav", "run.back_margin_m=-0.5", "run.back_margin_m=0.0", "run.back_margin_m must be >= 0"),
+    ],
+)
+def test_lower_and_upper_limits_are_checked_together(family, refused, accepted, message):
+    from segmin.data.synth.spec import load_world_spec
+    from segmin.nav_eval.sim.config import load_nav_config
+    from segmin.train.config import load_train_config
+
+    load = {
+        "world": lambda o: load_world_spec("straight_vineyard", o),
+        "train": lambda o: load_train_config("quick", o),
+        "nav": lambda o: load_nav_config(overrides=o),
+    }[family]
+    with pytest.raises(ConfigError, match=message):
+        load([refused])
+    load([accepted])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -59,6 +60,36 @@ def test_bad_navigator_settings_fail_before_any_run(tmp_path, capsys, setting, m
     assert main(["nav-eval", "--model", "oracle", "--out", str(out), "--set", setting, *FAST]) == 2
     assert message in capsys.readouterr().err
     assert not (out / "results.json").exists()
+
+
+def test_corridor_limits_that_leave_no_row_seen_fail_before_any_run(tmp_path, capsys):
+    """min_points above half of max_points: each is valid, together no row is ever seen (every
+    SegCorridor run would be SegMinD's fallback, reported as SegCorridor)."""
+    out = tmp_path / "out"
+    fast = [*FAST[:2], "--methods", "segcorridor", *FAST[4:]]
+    assert main(["nav-eval", "--model", "oracle", "--out", str(out), "--set", "corridor.min_points=1000", *fast]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("segmin: error: ") and len(err.splitlines()) == 1
+    assert "corridor.min_points (1000)" in err and "corridor.max_points (600)" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        ("navigator.smooth_window=4", "navigator.smooth_window must be an odd integer"),
+        ("corridor.min_points=1000", "corridor.min_points (1000)"),
+        ("corridor.h_min=5.0", "corridor.h_min (5.0) must be below corridor.h_max"),
+    ],
+)
+def test_navigator_sections_are_checked_when_the_config_loads(setting, message):
+    """Not only when a run builds the navigator: a pipeline loads its nav config before render
+    and training, and a section that only fails in the nav-eval stage fails hours in."""
+    from segmin.common.config import ConfigError
+    from segmin.nav_eval.sim.config import load_nav_config
+
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_nav_config(overrides=[setting])
 
 
 def test_a_non_finite_depth_threshold_is_refused_by_name():

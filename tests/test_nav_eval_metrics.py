@@ -75,6 +75,27 @@ def test_compute_metrics_row() -> None:
     assert mean_std([1.0, 3.0, float("nan")]) == (2.0, pytest.approx(math.sqrt(2)), 2)
 
 
+def test_heading_error_wraps_across_plus_minus_pi() -> None:
+    """Driving along -x the tangent is pi and the yaw flips between about +pi and -pi: the error
+    is 0.05 rad either way, not 2 pi - 0.05 for every yaw on the other side of the cut."""
+    centreline = _straight()[::-1]  # from (20, 0) to (0, 0): tangent pi
+    t = np.arange(0, 10, 0.1)
+    x = 19.5 - 0.5 * t
+    yaw = np.where(np.arange(t.size) % 2, math.pi - 0.05, -math.pi + 0.05)
+    assert heading_average(x, np.zeros_like(x), yaw, centreline) == pytest.approx(0.05, abs=1e-12)
+    traj = Trajectory(
+        t=t,
+        x=x,
+        y=np.zeros_like(t),
+        yaw=yaw,
+        v=np.full_like(t, 0.5),
+        omega=np.zeros_like(t),
+        plant_distance=np.ones_like(t),
+    )
+    row = compute_metrics(traj, centreline, success=True, clearance_time=9.9, collisions=0)
+    assert row["heading_avg"] == pytest.approx(0.05, abs=1e-12)
+
+
 def test_footprint_distance_and_collision() -> None:
     circles = np.array([[1.0, 0.0, 0.1], [0.0, 0.5, 0.05], [0.2, 0.0, 0.05]])
     d = footprint_distances(0.0, 0.0, 0.0, circles, 0.51, 0.43)

@@ -14,6 +14,7 @@ from segmin.nav_eval.runtime.methods import PAPER_METHODS as METHODS
 from segmin.nav_eval.runtime.navigator import (
     Navigator,
     NavigatorConfig,
+    column_histogram,
     control_law,
     moving_average,
     target_column,
@@ -124,6 +125,68 @@ def test_uint16_millimetres_equal_float_metres() -> None:
         a = target_column(mask, millimetres, method=method, depth_threshold=5.0)
         b = target_column(mask, metres, method=method, depth_threshold=5.0)
         assert a == b or (a is not None and b is not None and a == pytest.approx(b))
+
+
+def _columns(*columns: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """A mask and float32 depth whose column k holds vegetation at the depths `columns[k]` (NaN
+    for a pixel without a reading) and bare ground 1 m away below it (never counted)."""
+    height = max(len(c) for c in columns) + 2
+    mask = np.zeros((height, len(columns)), bool)
+    depth = np.ones((height, len(columns)), np.float32)
+    for k, column in enumerate(columns):
+        mask[: len(column), k] = True
+        depth[: len(column), k] = column
+    return mask, depth
+
+
+def test_column_histogram_weights_and_counts_exact_numbers() -> None:
+    """d_th 5 m: SegMinD weighs a pixel 1 - d/d_th (2.5 m: 0.5, so 4 pixels give 2.0; 5.0 m: 0),
+    SegMin counts it; beyond the threshold (5.01 m) and without a reading nothing counts. At
+    d_th 10 m the same pixels weigh more (2.5 m: 0.75)."""
+    mask, depth = _columns(
+        [2.5] * 4,
+        [5.0] * 3,
+        [5.01] * 2,
+        [1.0, 4.0, 0.0, np.nan, np.inf, -1.0],
+        [],
+    )
+    segmind = column_histogram(mask, depth, method="segmind", depth_threshold=5.0)
+    segmin = column_histogram(mask, depth, method="segmin", depth_threshold=5.0)
+    assert segmind.dtype == np.float64 and segmind.tolist() == pytest.approx([2.0, 0.0, 0.0, 1.0, 0.0], abs=1e-6)
+    assert segmin.tolist() == [4.0, 3.0, 0.0, 2.0, 0.0]
+    wide = column_histogram(mask, depth, method="segmind", depth_threshold=10.0)
+    assert wide.tolist() == pytest.approx([3.0, 1.5, 0.998, 1.5, 0.0], abs=1e-6)
+
+
+def _free_columns(*runs: tuple[int, int], width: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Vegetation 1 m away in every column but the [start, stop) runs (a SegZeros frame)."""
+    mask = np.ones((8, width), bool)
+    for start, stop in runs:
+        mask[:, start:stop] = False
+    return mask, np.ones((8, width), np.float32)
+
+
+def test_segzeros_ignores_border_runs_at_start_up_then_tracks_its_run() -> None:
+    """Aghi et al.'s rules (40 columns: border 0.2 x 40 = 8 columns, tolerance 0.02 x 40 = 0.8).
+    At start-up the widest run would be the one along the image border; the rule takes the run
+    inside. Then the run nearest the last target is kept even when another one is wider."""
+    navigator = Navigator(NavigatorConfig(method="segzeros", depth_threshold=5.0, fuse_frames=1))
+    start = navigator.step(*_free_columns((0, 12), (18, 24)))  # 12 columns at the border, 6 inside
+    assert start.valid and start.target_column == 20.5
+    tracked = navigator.step(*_free_columns((19, 25), (28, 40)))  # its run moved by 1; a wider one
+    assert tracked.valid and tracked.target_column == 21.5
+    lost = navigator.step(*_free_columns((8, 14), (28, 40)))  # the nearest run starts 6.5 columns away: lost
+    assert not lost.valid and lost.target_column is None and lost.v == 0.0
+    again = navigator.step(*_free_columns((10, 16), (30, 40)))  # start-up rule again: not the border run
+    assert again.valid and again.target_column == 12.5
+    navigator.reset()
+    assert navigator.step(*_free_columns((0, 12), (18, 24))).target_column == 20.5
+    border_only = Navigator(NavigatorConfig(method="segzeros", depth_threshold=5.0, fuse_frames=1))
+    assert not border_only.step(*_free_columns((0, 12), (34, 40))).valid  # only border runs: no target yet
+    no_border = Navigator(
+        NavigatorConfig(method="segzeros", depth_threshold=5.0, fuse_frames=1, zeros_startup_border=0.0)
+    )
+    assert no_border.step(*_free_columns((0, 12), (18, 24))).target_column == 5.5
 
 
 def test_empty_mask_drives_straight_at_full_speed() -> None:

@@ -93,3 +93,25 @@ def test_every_command_refuses_an_output_below_a_file_before_working(somefile, a
     argv = [a.replace("{f}", str(somefile)) for a in argv]
     with pytest.raises(NotADirectoryError, match=f"{somefile} is a file, not a folder"):
         _run(argv)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["synth", "render", "--world", "straight_vineyard", "--frames", "1", "rows.count=1"], "rows.count"),
+        (["synth", "render", "--world", "straight_vineyard", "--frames", "0"], "--frames"),
+        (["pipeline", "--config", "micro", "nav.overrides=[run.lenght_m=3]"], "lenght_m"),
+        (["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "run.lenght_m=3"], "lenght_m"),
+        (["train", "--config", "quick", "data.root=/nonexistent"], "/nonexistent"),
+    ],
+    ids=["render-spec", "render-frames", "pipeline", "nav-eval", "train"],
+)
+def test_a_refused_command_leaves_no_empty_output_folder(tmp_path, capsys, argv, message):
+    """The checks run before --out is created: a typo must not leave a folder behind that the
+    next, corrected run then finds (or refuses)."""
+    from segmin.app.cli import main
+
+    out = tmp_path / "out"
+    assert main([*argv, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()

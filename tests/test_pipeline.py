@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -132,6 +133,32 @@ def test_an_interrupted_stage_resumes_and_later_stages_stay_cached(run_dir: Path
     assert cache.record("render").finished and cache.record("train/trees").finished
 
 
+def test_a_truncated_model_reruns_its_export_and_what_read_it(run_dir: Path) -> None:
+    """stage.json said "finished", so an empty trees.onnx used to be skipped by every stage (and
+    exit 0). The export reruns from scratch, the trees stages after it rerun when the new files
+    differ from what they read, and nothing of the vineyards family runs."""
+    model = run_dir / "export" / "trees" / "trees.onnx"
+    size = model.stat().st_size
+    model.write_bytes(b"")
+    messages: list[str] = []
+    runner = runner_for(run_dir, messages)
+    runner.run()
+    assert runner.ran[0] == "export/trees"
+    assert (
+        f"export/trees: finished before, but export/trees/trees.onnx is 0 bytes, {size} when its stage finished: "
+        "running it again from scratch" in messages
+    )
+    assert not [key for key in runner.ran if "vineyards" in key or key in ("render", "nav-eval/oracle")]
+    assert model.stat().st_size == size
+    cache = StageCache(run_dir)
+    for key in ("export/trees", "real-eval/trees", "nav-eval/trees", "report"):
+        record = cache.record(key)
+        assert record.finished and cache.stale(record) is None, key
+    again = runner_for(run_dir, [])
+    again.run()
+    assert again.ran == []
+
+
 def test_the_oracle_s_methods_rerun_the_oracle_stage_only(run_dir: Path) -> None:
     """Each nav-eval stage hashes its own methods: other oracle methods do not redo the models'
     loops, and going back reruns the oracle alone again (which leaves the shared run as it was)."""
@@ -153,6 +180,63 @@ def test_from_reruns_that_stage_and_later_ones(run_dir: Path) -> None:
     assert runner.ran == ["report"]
     with pytest.raises(ValueError, match="unknown stage 'bake'"):
         runner_for(run_dir, [], from_stage="bake")
+
+
+def _writer(contents: dict[str, bytes], name: str):
+    """A stage's work: write contents[name] to out.bin in its folder; outputs say whether it was fresh."""
+
+    def work(folder: Path, fresh: bool) -> dict[str, bool]:
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "out.bin").write_bytes(contents[name])
+        return {"fresh": fresh}
+
+    return work
+
+
+def test_a_stage_is_done_only_while_its_files_and_what_it_read_are_as_recorded(tmp_path: Path) -> None:
+    contents = {"model": b"model", "results": b"rows"}
+    messages: list[str] = []
+
+    def run() -> PipelineRunner:
+        messages.clear()
+        runner = PipelineRunner(micro_config(), tmp_path, log=messages.append)
+        runner._stage("export", "export/a", "h1", _writer(contents, "model"))
+        runner._stage("nav-eval", "nav-eval/a", "h2", _writer(contents, "results"), reads=("export/a",))
+        return runner
+
+    run()
+    record = StageCache(tmp_path).record("nav-eval/a")
+    assert record.files == {"nav-eval/a/out.bin": [4, hashlib.sha256(b"rows").hexdigest()]}
+    assert run().skipped == ["export/a", "nav-eval/a"]
+
+    # Deleted, and rebuilt the same: what the later stage read is unchanged, it stays done.
+    (tmp_path / "export" / "a" / "out.bin").unlink()
+    runner = run()
+    assert runner.ran == ["export/a"] and runner.skipped == ["nav-eval/a"]
+    assert "export/a: finished before, but export/a/out.bin is missing: running it again from scratch" in messages
+    assert StageCache(tmp_path).record("export/a").outputs == {"fresh": True}  # no resume over a damaged folder
+
+    # Truncated, and rebuilt otherwise: the stage that read the old file runs again.
+    (tmp_path / "export" / "a" / "out.bin").write_bytes(b"")
+    contents["model"] = b"model v2"
+    runner = run()
+    assert runner.ran == ["export/a", "nav-eval/a"]
+    assert "export/a: finished before, but export/a/out.bin is 0 bytes, 5 when its stage finished" in messages[0]
+    assert messages[2].startswith("nav-eval/a: finished before, but export/a changed since it ran")
+
+    # Same size, other content.
+    (tmp_path / "nav-eval" / "a" / "out.bin").write_bytes(b"ROWS")
+    runner = run()
+    assert runner.ran == ["nav-eval/a"]
+    assert "nav-eval/a/out.bin changed since its stage finished (same size, other content)" in messages[1]
+    assert (tmp_path / "nav-eval" / "a" / "out.bin").read_bytes() == b"rows"
+
+    # A record without a file list (an older segmin) proves nothing about the files.
+    legacy = json.loads((tmp_path / "nav-eval" / "a" / "stage.json").read_text())
+    del legacy["files"], legacy["reads"]
+    (tmp_path / "nav-eval" / "a" / "stage.json").write_text(json.dumps(legacy))
+    runner = run()
+    assert runner.ran == ["nav-eval/a"] and "lists no output files (written by an older segmin)" in messages[1]
 
 
 def test_profiles_are_validated() -> None:
@@ -190,7 +274,7 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
     missing = load_pipeline_config("micro", [f"real_eval.data={tmp_path / 'nowhere'}"])
     with pytest.raises(FileNotFoundError, match="real_eval.data folder not found"):
         PipelineRunner(missing, tmp_path / "run", log=messages.append).run()
-    assert not (tmp_path / "run" / "render").exists()  # refused before any stage ran
+    assert not (tmp_path / "run").exists()  # refused before any stage ran, and no empty --out left
 
 
 @pytest.mark.parametrize(
@@ -200,6 +284,8 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
         ("nav.methods=[segmax]", "nav.methods"),
         ("nav.oracle_methods=[segmax]", "nav.oracle_methods: unknown"),
         ("nav.oracle_methods=[]", "nav.oracle_methods: name at least one method"),
+        ("export.verify_frames=0", "export.verify_frames must be >= 1"),
+        ("export.latency_frames=0", "export.latency_frames must be >= 1"),
     ],
 )
 def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:
@@ -214,13 +300,15 @@ def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, mes
         ("nav.overrides=[run.lenght_m=3]", "lenght_m"),
         ("families.trees.train_overrides=[epochz=1]", "families.trees: .*epochz"),
         ("families.trees.fields=[no_such_field]", "no_such_field"),
+        # The navigator sections' values, not only their keys: the nav-eval stage runs last.
+        ("nav.overrides=[corridor.min_points=1000]", r"corridor.min_points \(1000\)"),
     ],
 )
 def test_nested_configs_are_checked_before_the_first_stage(tmp_path, override, message) -> None:
-    runner = PipelineRunner(load_pipeline_config("micro", [override]), tmp_path, log=lambda m: None)
+    runner = PipelineRunner(load_pipeline_config("micro", [override]), tmp_path / "run", log=lambda m: None)
     with pytest.raises(ValueError, match=message):
         runner.run()
-    assert not (tmp_path / "render").exists()  # nothing ran
+    assert not (tmp_path / "run").exists()  # nothing ran, and the refused run left no empty --out
 
 
 def test_a_family_can_render_its_own_number_of_frames_per_world(tmp_path: Path) -> None:

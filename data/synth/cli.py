@@ -69,9 +69,10 @@ def _camera(size: str):
 
 def _render(args) -> int:
     from segmin.data.synth.spec import load_world_spec
-    from segmin.data.synth.writer import RenderJob, check_writable, parse_shard, render_dataset
+    from segmin.data.synth.writer import RenderJob, parse_shard, render_dataset
 
-    check_writable(args.out)  # before loading anything heavy
+    # --out is checked (and created) by render_dataset, first thing: after the spec and the
+    # arguments, so a refused command leaves no empty folder behind.
     spec = load_world_spec(args.world, overrides_of(args))
     job = RenderJob(
         spec=spec,

@@ -181,10 +181,11 @@ class PlantsSpec:
             raise ValueError(f"plants.low_branch_reach: must be >= 0, got {self.low_branch_reach}")
         _check_fraction("plants.leaf_density", self.leaf_density)
         _check_fraction("plants.sparse_probability", self.sparse_probability)
-        if self.canopy_bottom[1] >= self.height[0]:
-            raise ValueError(
-                f"plants.canopy_bottom: {list(self.canopy_bottom)} must lie below plants.height {list(self.height)}"
-            )
+        for name in ("canopy_bottom", "trunk_height"):  # a plant's height is its top: both lie below it
+            if getattr(self, name)[1] >= self.height[0]:
+                raise ValueError(
+                    f"plants.{name}: {list(getattr(self, name))} must lie below plants.height {list(self.height)}"
+                )
 
 
 @dataclass

@@ -301,9 +301,29 @@ class CorridorConfig:
             raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.x_max ({self.x_max})")
         if self.h_min >= self.h_max:
             raise ValueError(f"corridor.h_min ({self.h_min}) must be below corridor.h_max ({self.h_max})")
+        self._check_rows_can_be_seen()
         for name in ("ema_lambda", "width_memory", "centre_memory", "roof_share"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
+
+    def _check_rows_can_be_seen(self) -> None:
+        """Limits that each pass alone but together leave no row ever seen: every frame would
+        end in the fallback, and SegCorridor would silently drive as SegMinD."""
+        if 2 * self.min_points > self.max_points:
+            raise ValueError(
+                f"corridor.min_points ({self.min_points}) is more than half of corridor.max_points "
+                f"({self.max_points}): both rows need min_points each of the at most max_points points kept"
+            )
+        if self.min_span > self.x_max - self.x_min:
+            raise ValueError(
+                f"corridor.min_span ({self.min_span}) is longer than the range corridor.x_min..x_max "
+                f"({self.x_min}..{self.x_max}) that a row's points span at most"
+            )
+        if self.roof_min_height <= self.h_min:
+            raise ValueError(
+                f"corridor.roof_min_height ({self.roof_min_height}) must be above corridor.h_min ({self.h_min}): "
+                "every kept point would be roof, and no row would be fitted"
+            )
 
 
 @dataclass(frozen=True)

@@ -94,6 +94,8 @@ class RunSettings:
             raise ValueError("run.start_lateral_max and run.start_heading_max_deg must be >= 0")
         if self.stall_time_s <= 0 or self.stall_distance_m < 0:
             raise ValueError("run.stall_time_s must be > 0 and run.stall_distance_m >= 0")
+        if self.back_margin_m < 0:  # the "left_row" line would lie ahead of the start: every run fails at t = 0
+            raise ValueError(f"run.back_margin_m must be >= 0, got {self.back_margin_m}")
 
 
 @dataclasses.dataclass
@@ -127,7 +129,7 @@ class NavEvalConfig:
                 if not isinstance(v, (int, float)) or v <= 0:
                     raise ValueError(f"depth threshold for {k!r} must be > 0, got {v!r}")
         for section in ("navigator", "corridor"):
-            _check_section(section, getattr(self, section))
+            _check_section(section, getattr(self, section), self.perception.fuse_frames)
 
     def depth_threshold(self, name: str, family: str) -> float:
         """The depth cut for a field: by name, else by crop family."""
@@ -138,8 +140,14 @@ class NavEvalConfig:
         raise ValueError(f"no depth threshold for field {name!r} (family {family!r}); add it to depth_thresholds")
 
 
-def _check_section(section: str, values: dict[str, Any]) -> None:
-    """Keys of the `navigator` / `corridor` overrides against NavigatorConfig / CorridorConfig."""
+def _check_section(section: str, values: dict[str, Any], fuse_frames: int) -> None:
+    """The `navigator` / `corridor` overrides, built into NavigatorConfig / CorridorConfig.
+
+    Building them checks the values too (ranges and limits that only fail together), when the
+    config loads: the evaluation builds them per field, after a pipeline's render and training.
+    The depth threshold is the evaluation's, per field; no other check depends on it, so any
+    valid one stands in for it here.
+    """
     forbidden = {"method", "depth_threshold", "fuse_frames"} & set(values)
     if forbidden:
         raise ValueError(f"{section}: {sorted(forbidden)} are set by the evaluation, not the config")
@@ -154,6 +162,12 @@ def _check_section(section: str, values: dict[str, Any]) -> None:
     unknown = sorted(set(values) - allowed)
     if unknown:
         raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    method = {"method": "segmind"} if section == "navigator" else {}
+    try:
+        Target(**method, depth_threshold=1.0, fuse_frames=fuse_frames, **values)
+    except ValueError as exc:
+        message = str(exc)
+        raise ValueError(message if message.startswith(f"{section}.") else f"{section}.{message}") from exc
 
 
 def load_nav_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> NavEvalConfig:

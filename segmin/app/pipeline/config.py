@@ -71,6 +71,11 @@ class ExportPlan:
     int8: bool = False
     latency_frames: int = 50
 
+    def __post_init__(self) -> None:  # checked at load: the export stage runs after render and training
+        for name in ("verify_frames", "latency_frames"):
+            if isinstance(getattr(self, name), bool) or getattr(self, name) < 1:
+                raise ValueError(f"export.{name} must be >= 1, got {getattr(self, name)!r}")
+
 
 @dataclass
 class RealEvalPlan:

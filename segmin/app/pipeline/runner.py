@@ -4,6 +4,11 @@ Stage keys and folders: `render`, `train/<family>`, `export/<family>`, `real-eva
 `nav-eval/<family>`, `nav-eval/oracle`, `report`. A stage's input hash chains the hashes of the stages it reads, so
 changing a training config reruns that family's training, export and evaluation, and nothing
 else. `--from STAGE` reruns that stage and every later one from scratch.
+
+A finished stage is skipped only while its recorded output files are as it left them and the
+stages it read still hold what it read (`StageCache.stale`): a deleted or truncated output
+reruns its stage from scratch, and a stage after it whose input files then differ reruns too.
+The log says why.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from segmin.app.pipeline import stages
-from segmin.app.pipeline.cache import StageCache, Timer, hash_inputs
+from segmin.app.pipeline.cache import StageCache, Timer, file_manifest, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig
 from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.common.config import to_dict
@@ -45,7 +50,6 @@ class PipelineRunner:
     def run(self) -> Path:
         """Run every stage; returns the path of report.md."""
         check_output_dir(self.run_dir, "--out")
-        make_dirs(self.run_dir, "--out")
         config = self.config
         self.preflight()
         backbone = stages.resolve_backbone(config, self.log)
@@ -54,6 +58,7 @@ class PipelineRunner:
         real_fingerprint = (
             stages.dataset_fingerprint(config.real_eval.resolved_data()) if config.real_eval.enabled else None
         )
+        make_dirs(self.run_dir, "--out")  # only now: a refused run leaves no empty folder
         render_hash = hash_inputs("render", *stages.render_inputs(config))
         render = self._stage(
             "render",
@@ -82,6 +87,7 @@ class PipelineRunner:
                 lambda folder, fresh, ckpt=trained["checkpoint"], fam=family: stages.export_stage(
                     config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log
                 ),
+                reads=("render", f"train/{family}"),  # the checkpoint, its training frames, the val frames
             )
             models[family] = (exported["onnx"], export_hash)
             upstream.update({f"train/{family}": train_hash, f"export/{family}": export_hash})
@@ -97,6 +103,7 @@ class PipelineRunner:
                     key,
                     upstream[key],
                     lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log),
+                    reads=(f"export/{family}",),
                 )
 
         for family, plan in config.families.items():
@@ -110,6 +117,7 @@ class PipelineRunner:
                 key,
                 upstream[key],
                 lambda folder, fresh, m=onnx_path, f=plan.fields: stages.nav_stage(config, m, f, folder, self.log),
+                reads=(f"export/{family}",),
             )
         if config.nav.oracle:
             fields = [f for plan in config.families.values() for f in plan.fields]
@@ -131,6 +139,7 @@ class PipelineRunner:
             "report",
             report_hash,
             lambda folder, fresh: write_pipeline_report(config, self.run_dir, self.cache, self.log),
+            reads=tuple(upstream),
         )
         return Path(report["markdown"])
 
@@ -153,37 +162,53 @@ class PipelineRunner:
                 raise type(exc)(f"families.{family}: {exc}") from exc
 
     def _stage(
-        self, stage: str, key: str, input_hash: str, work: Callable[[Path, bool], dict[str, Any]]
+        self,
+        stage: str,
+        key: str,
+        input_hash: str,
+        work: Callable[[Path, bool], dict[str, Any]],
+        reads: tuple[str, ...] = (),
     ) -> dict[str, Any]:
         """Skip a finished stage with the same inputs; otherwise run it (resuming where possible).
 
         `work(folder, fresh)`: `fresh` is true when earlier work in the folder must not be reused
-        (forced with --from, or done with other inputs).
+        (forced with --from, done with other inputs, or its outputs changed since). `reads`: the
+        stages whose files it reads.
         """
         done, fresh = self._begin(stage, key, input_hash)
         if done is not None:
             return done
         timer = Timer()
         outputs = work(self.cache.folder(key), fresh)
-        self._finish(key, input_hash, timer, outputs)
+        self._finish(stage, key, input_hash, timer, outputs, reads)
         return outputs
 
     def _begin(self, stage: str, key: str, input_hash: str) -> tuple[dict[str, Any] | None, bool]:
         """(outputs, False) for a stage that is up to date; else (None, fresh) with the stage marked started."""
         record = self.cache.record(key)
         forced = stage in self.forced
+        stale = None
         if record is not None and record.finished and record.input_hash == input_hash and not forced:
-            self.log(f"{key}: up to date, skipped")
-            self.skipped.append(key)
-            return record.outputs or {}, False
-        fresh = forced or (record is not None and record.input_hash != input_hash)
+            stale = self.cache.stale(record)
+            if stale is None:
+                self.log(f"{key}: up to date, skipped")
+                self.skipped.append(key)
+                return record.outputs or {}, False
+            # Resuming would keep what is there: a truncated frame counts as rendered, a damaged
+            # checkpoint would be trained on. The stage starts over.
+            self.log(f"{key}: finished before, but {stale}: running it again from scratch")
+        fresh = forced or stale is not None or (record is not None and record.input_hash != input_hash)
         if record is not None and not record.finished and not fresh:
             self.log(f"{key}: resuming an interrupted run")
         self.cache.started(key, input_hash)
         return None, fresh
 
-    def _finish(self, key: str, input_hash: str, timer: Timer, outputs: dict[str, Any]) -> None:
-        self.cache.finished(key, input_hash, timer.seconds, outputs)
+    def _finish(
+        self, stage: str, key: str, input_hash: str, timer: Timer, outputs: dict[str, Any], reads: tuple[str, ...]
+    ) -> None:
+        """Record the stage as finished, with its output files and what it read (see cache.py)."""
+        files = file_manifest(self.run_dir, stages.output_paths(stage, self.cache.folder(key), outputs))
+        self.cache.finished(key, input_hash, timer.seconds, outputs, files, self.cache.digests(reads))
         self.log(f"{key}: done in {timer.seconds:.1f} s")
         self.ran.append(key)
 
@@ -202,6 +227,7 @@ class PipelineRunner:
                     lambda folder, fresh, tc=train_config: stages.train_stage(
                         tc, folder, resume=_resumable(folder, fresh), log=self.log
                     ),
+                    reads=("render",),
                 )
                 continue
             done, fresh = self._begin("train", key, train_hash)
@@ -216,7 +242,7 @@ class PipelineRunner:
             failures = [error for error in outcomes.values() if isinstance(error, BaseException)]
             for family, outputs in outcomes.items():
                 if not isinstance(outputs, BaseException):  # a finished family is kept when another failed
-                    self._finish(f"train/{family}", jobs[family][1], timer, outputs)
+                    self._finish("train", f"train/{family}", jobs[family][1], timer, outputs, ("render",))
                     results[family] = outputs
             if failures:
                 raise failures[0]

@@ -32,6 +32,22 @@ def resolve_backbone(config: PipelineConfig, log) -> str:
     return "none"
 
 
+def output_paths(stage: str, folder: Path, outputs: dict[str, Any]) -> list[Path]:
+    """The files and folders a finished stage leaves for the stages after it and the report:
+    what its record fingerprints, and what must be unchanged for a rerun to skip it.
+
+    The whole stage folder, except for training: its folder also holds what only training reads
+    back (last.pt to resume, logs, previews), and a log appended by a resumed run changes no
+    model. There the kept checkpoint and metrics.csv (the report's curves) count. The report
+    writes report.md and report.html beside the stage folders.
+    """
+    if stage == "train":
+        return [Path(outputs["checkpoint"]), folder / "metrics.csv"]
+    if stage == "report":
+        return [folder, Path(outputs["markdown"]), Path(outputs["html"])]
+    return [folder]
+
+
 # ------------------------------------------------------------------------------------ render
 
 
