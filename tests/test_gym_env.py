@@ -13,6 +13,7 @@ from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 import segmin.nav_eval.sim.gym_env  # noqa: F401  (registers segmin/RowFollow-v0)
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.protocols import NavigatorInputs
 from segmin.nav_eval.sim.factories import make_follower
 from segmin.nav_eval.sim.gym_env import RowFollowEnv
 from segmin.nav_eval.sim.oracle import OracleSegmenter
@@ -112,15 +113,16 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
 
 
 class _AttitudeSpy(Navigator):
-    """SegMin that records the attitude each command receives."""
+    """SegMin that declares it reads the IMU and records the attitude each command receives."""
 
     def __init__(self) -> None:
         super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
+        self.inputs = NavigatorInputs(attitude=True)
         self.seen: list = []
 
-    def command(self, fused, depth, attitude=None):
+    def command(self, fused, depth, attitude=None, rgb=None):
         self.seen.append(attitude)
-        return super().command(fused, depth, attitude)
+        return super().command(fused, depth, attitude, rgb)
 
 
 @pytest.mark.parametrize("imu", [True, False])

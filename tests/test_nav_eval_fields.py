@@ -45,7 +45,7 @@ class _Fixed(Navigator):
         super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
         self.v = v
 
-    def command(self, fused, depth, attitude=None) -> Command:
+    def command(self, fused, depth, attitude=None, rgb=None) -> Command:
         return Command(v=self.v, omega=0.0, target_column=None, histogram=np.zeros(0), valid=True)
 
 

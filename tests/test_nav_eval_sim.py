@@ -152,7 +152,7 @@ class _Straight(Navigator):
         super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
         self.v, self.omega = v, omega
 
-    def command(self, fused, depth, attitude=None) -> Command:
+    def command(self, fused, depth, attitude=None, rgb=None) -> Command:
         return Command(v=self.v, omega=self.omega, target_column=None, histogram=np.zeros(0), valid=True)
 
 

@@ -13,7 +13,8 @@ from export_helpers import SIZE, field_image
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper
 from segmin.models.checkpoint import load_model
-from segmin.nav_eval.runtime.segmenter import OnnxSegmenter, Segmenter
+from segmin.nav_eval.runtime.protocols import Segmenter
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
 
 @pytest.fixture(scope="module")
