@@ -5,23 +5,22 @@ workers, config) -> list[RunResult]`.
 
 Each run is one job. A `Worker` builds its own pybullet DIRECT client per field, its own
 segmenter and navigators, and returns a `RunResult`; with several workers each lives in its own
-spawned process. An exception inside a run becomes a failure row (reason "error", with the
-exception text); a crashed worker process marks its unfinished jobs the same way. Seeds: the start noise and the depth noise of run k in a field depend on (seed, field, k)
+spawned process (`nav_eval.evaluation.processes`). An exception inside a run becomes a failure
+row (reason "error", with the exception text); a crashed worker process fails its run the same
+way. Seeds: the start noise and the depth noise of run k in a field depend on (seed, field, k)
 only, so every method starts from the same pose with the same noise (a paired comparison).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import time
 import traceback
 import zlib
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ import numpy as np
 from segmin.common.config import from_dict, to_dict
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.metrics import compute_metrics
+from segmin.nav_eval.evaluation.processes import run_in_processes
 from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.sim.factories import (
@@ -313,19 +313,6 @@ class Worker:
         return result
 
 
-_WORKER: Worker | None = None
-
-
-def _init_worker(model: str, config_raw: dict, threads: int) -> None:
-    global _WORKER
-    _WORKER = Worker.from_plain(model, config_raw, threads)
-
-
-def _run_in_worker(job: Job) -> RunResult:
-    assert _WORKER is not None, "worker not initialised"
-    return _WORKER.run(job)
-
-
 # ---------------------------------------------------------------------------------------------
 # The matrix
 # ---------------------------------------------------------------------------------------------
@@ -433,31 +420,28 @@ def _order(jobs: list[Job]) -> Callable[[RunResult], int]:
 def _run_pool(
     jobs: list[Job], model: str, config: NavEvalConfig, workers: int, done: Callable[[Job, RunResult], None], bar: Any
 ) -> None:
+    """`jobs` on `workers` processes, each with its own `Worker` (fields and segmenter kept
+    between its runs) sharing the cores."""
     threads = max(1, (os.cpu_count() or 1) // workers)
-    ctx = get_context("spawn")
-    pending = {}
-    with ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(model, to_dict(config), threads)
-    ) as pool:
-        for job in jobs:
-            pending[pool.submit(_run_in_worker, job)] = job
-        for future in as_completed(pending):
-            job = pending[future]
-            try:
-                result = future.result()
-            except (BrokenProcessPool, Exception) as exc:  # a dead worker: its job is a failure row
-                result = RunResult(
-                    field=field_label(job.field),
-                    method=job.method,
-                    run=job.run,
-                    seed=job.seed,
-                    model=model,
-                    success=False,
-                    reason="error",
-                    error=f"{type(exc).__name__}: {exc}",
-                )
-            done(job, result)
-            bar.update(1)
+
+    def finished(job: Job, result: RunResult) -> None:
+        done(job, result)
+        bar.update(1)
+
+    def failed(job: Job, why: str) -> RunResult:  # its process died: a failure row
+        return RunResult(
+            field=field_label(job.field),
+            method=job.method,
+            run=job.run,
+            seed=job.seed,
+            model=model,
+            success=False,
+            reason="error",
+            error=why,
+        )
+
+    make_worker = functools.partial(Worker.from_plain, model, to_dict(config), threads)
+    run_in_processes(jobs, make_worker, workers, finished, failed)
 
 
 def _progress(total: int, enabled: bool, desc: str) -> Any:
