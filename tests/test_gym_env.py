@@ -244,3 +244,17 @@ except (ValueError, FileNotFoundError) as exc:
 """
     done = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and done.stdout.startswith("built:"), done.stdout + done.stderr[-2000:]
+
+
+def test_on_the_bare_install_segmin_envs_names_the_missing_extra() -> None:
+    script = """
+import sys
+sys.modules["gymnasium"] = None  # as if not installed
+import segmin
+try:
+    import segmin.envs
+except ModuleNotFoundError as exc:
+    print(exc)
+"""
+    done = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
+    assert "needs gymnasium, part of the [sim] extra" in done.stdout, done.stdout + done.stderr[-2000:]
