@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from segmin.nav_eval.demo.scenes import DemoScene, render_scene
 from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_parallel_rows
 from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.runtime.methods import METHOD_STATISTICS
 from segmin.nav_eval.sim.config import load_nav_config
 from segmin.nav_eval.sim.factories import make_navigator
 
@@ -241,7 +242,7 @@ def test_a_bend_must_be_seen_in_both_rows():
     rng = np.random.default_rng(2)
     xl, xr = rng.uniform(0.5, 8, 400), rng.uniform(0.5, 8, 400)
     noise = lambda x: rng.normal(0, 0.03, x.shape)  # noqa: E731
-    kwargs = dict(trim=2.5, iterations=2, degree=2, significance=3.0)
+    kwargs = {"trim": 2.5, "iterations": 2, "degree": 2, "significance": 3.0}
     one = fit_parallel_rows([(xl, 1.2 + 0.02 * xl * xl + noise(xl)), (xr, -1.2 + noise(xr))], **kwargs)
     assert one.shape[1] == 0.0
     both = fit_parallel_rows(
@@ -259,7 +260,7 @@ def test_the_quadratic_term_is_kept_only_when_significant():
     x = rng.uniform(0.5, 8, 600)
     straight = 1.0 + rng.normal(0, 0.05, x.shape)
     bent = 1.0 + x * x / (2 * 35.0) + rng.normal(0, 0.05, x.shape)  # a 35 m bend
-    kwargs = dict(trim=2.5, iterations=2, degree=2)
+    kwargs = {"trim": 2.5, "iterations": 2, "degree": 2}
     free = fit_parallel_rows([(x, straight)], **kwargs)
     gated = fit_parallel_rows([(x, straight)], significance=1e6, **kwargs)
     assert free.shape[1] != 0.0 and gated.shape[1] == 0.0 and len(gated.shape) == 2
@@ -373,6 +374,25 @@ def test_bad_camera_and_frames_are_refused():
         nav.step(np.zeros((SIZE, SIZE + 8), bool), np.ones((SIZE, SIZE + 8), np.float32))
     with pytest.raises(ValueError, match="same shape"):
         nav.step(np.zeros((SIZE, SIZE), bool), np.ones((SIZE, SIZE - 1), np.float32))
+
+
+def test_the_runtime_refuses_frames_that_do_not_fit_the_declared_camera():
+    """Refused when the frame arrives, not frames later at the next command."""
+    follower = RowFollower(None, navigator())
+    with pytest.raises(ValueError, match=f"depth is 64x{SIZE} but the navigator's camera is {SIZE}x{SIZE}"):
+        follower.step(None, np.ones((SIZE, 64), np.float32), 0.0, mask=np.zeros((SIZE, 64), bool))
+
+
+def test_the_mode_shares_are_its_statistics():
+    nav = navigator()
+    assert nav.statistics() == {}  # no command yet
+    settle(nav, vine_scene(0.2))  # three commands on both rows
+    nav.step(np.zeros((SIZE, SIZE), bool), np.full((SIZE, SIZE), 3.0, np.float32))  # no rows: fallback
+    stats = nav.statistics()
+    assert tuple(stats) == METHOD_STATISTICS["segcorridor"]
+    assert stats == {"one_side_share": 0.0, "trunk_share": 0.0, "fallback_share": 0.25}
+    nav.reset()
+    assert nav.statistics() == {}
 
 
 def test_the_runtime_refuses_segcorridor_without_depth():

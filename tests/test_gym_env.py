@@ -1,8 +1,11 @@
-"""`segmin/RowFollow-v0`: a real Gymnasium env, and nav-eval as a rollout of the runtime in it."""
+"""`segmin/RowFollow-v0`: a real Gymnasium env over the simulator, and nav-eval as a rollout of the
+runtime in the simulator."""
 
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import gymnasium
 import numpy as np
@@ -10,9 +13,10 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 
-import segmin.nav_eval.sim.gym_env  # noqa: F401  (registers segmin/RowFollow-v0)
+import segmin.envs  # noqa: F401  (registers segmin/RowFollow-v0)
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.protocols import NavigatorInputs
 from segmin.nav_eval.sim.factories import make_follower
 from segmin.nav_eval.sim.gym_env import RowFollowEnv
 from segmin.nav_eval.sim.oracle import OracleSegmenter
@@ -90,7 +94,7 @@ def test_the_runtime_in_the_env_reproduces_the_old_loop(method: str) -> None:
     old = _old_loop(FakeWorld(), config, method, seed=7)
     world = FakeWorld()
     env = RowFollowEnv(None, config=config, world=world, renderer=FakeRenderer(world))
-    new = run_episode(env, make_follower(OracleSegmenter(), method, 5.0, config), seed=7).trajectory
+    new = run_episode(env.simulator, make_follower(method, 5.0, config), OracleSegmenter(), seed=7).trajectory
     for key in ("t", "x", "y", "yaw", "v", "omega"):
         assert np.array_equal(getattr(old, key), getattr(new, key)), key
 
@@ -104,7 +108,7 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
         assert float(obs["t"]) == pytest.approx(1 / 30) and not (terminated or truncated)
         # The IMU: the robot's roll and pitch on this field's rough ground.
         assert obs["attitude"].shape == (2,) and env.observation_space["attitude"].contains(obs["attitude"])
-        assert np.allclose(obs["attitude"], imu_attitude(env.unwrapped.row.robot.state))
+        assert np.allclose(obs["attitude"], imu_attitude(env.unwrapped.simulator.robot.state))
         assert np.abs(obs["attitude"]).max() > 1e-3
     finally:
         env.close()
@@ -112,15 +116,16 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
 
 
 class _AttitudeSpy(Navigator):
-    """SegMin that records the attitude each command receives."""
+    """SegMin that declares it reads the IMU and records the attitude each command receives."""
 
     def __init__(self) -> None:
         super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
+        self.inputs = NavigatorInputs(attitude=True)
         self.seen: list = []
 
-    def command(self, fused, depth, attitude=None):
+    def command(self, fused, depth, attitude=None, rgb=None):
         self.seen.append(attitude)
-        return super().command(fused, depth, attitude)
+        return super().command(fused, depth, attitude, rgb)
 
 
 @pytest.mark.parametrize("imu", [True, False])
@@ -130,9 +135,126 @@ def test_the_rollout_gives_the_imu_to_the_navigator_unless_switched_off(imu: boo
     env = _fake_env(length_m=0.5)
     env.config.perception.imu = imu
     spy = _AttitudeSpy()
-    run_episode(env, RowFollower(OracleSegmenter(), spy), seed=0)
+    run_episode(env.simulator, RowFollower(None, spy), OracleSegmenter(), seed=0)
     assert spy.seen
     if imu:
         assert all(a == pytest.approx((0.0, 0.0)) for a in spy.seen)  # flat stand-in ground
     else:
         assert all(a is None for a in spy.seen)
+
+
+def test_the_env_observes_what_the_simulator_renders() -> None:
+    """The env is a thin adapter: its observations are the simulator's frames, step for step."""
+    env = _fake_env(time_limit_s=1.0)
+    world = FakeWorld()
+    simulator = RowEnv(world, FakeRenderer(world, size=32), env.config)
+    obs, _ = env.reset(seed=4)
+    info = simulator.reset(4)
+    for _ in range(5):
+        frame = simulator.frame()
+        assert np.array_equal(obs["rgb"], frame.rgb) and np.array_equal(obs["depth"], frame.depth)
+        assert float(obs["t"]) == simulator.t and tuple(obs["attitude"]) == simulator.attitude
+        obs, reward, *_ = env.step(np.array([0.4, 0.1]))
+        s = info["s"]
+        _, info = simulator.step((0.4, 0.1))
+        assert reward == info["s"] - s
+
+
+@pytest.mark.parametrize(
+    ("pose", "message"),
+    [
+        ((math.nan, 0.0, 0.0), "three finite numbers"),
+        ((1.0, 0.0, math.inf), "three finite numbers"),
+        ("abc", "three finite numbers"),
+        (("a", 0.0, 0.0), "three finite numbers"),
+        ((1.0, 0.0), "three finite numbers"),
+        ((1000.0, 1000.0, 0.0), "outside row gap 0"),  # it used to report success at reset
+        ((9.0, 0.0, 0.0), "outside row gap 0"),  # past the goal (8 m)
+        ((2.0, 0.85, 0.0), "outside row gap 0"),  # in the vine row (free half-width 0.8 m)
+        ((-1.5, 0.0, 0.0), "outside row gap 0"),  # further behind the start than run.back_margin_m
+    ],
+)
+def test_a_start_pose_must_be_finite_and_inside_the_row_gap(pose, message: str) -> None:
+    env = _fake_env()
+    env.reset(seed=0)
+    start = env.simulator.start_pose
+    with pytest.raises(ValueError, match=r"options\['pose'\]") as raised:
+        env.reset(seed=1, options={"pose": pose})
+    assert message in str(raised.value)
+    assert env.simulator.start_pose == start  # the refused reset changed nothing
+    obs, info = env.reset(seed=1, options={"pose": (0.5, 0.3, 0.2)})  # inside: a run that can start
+    assert info["reason"] is None and np.isfinite(obs["depth"]).all() and obs["depth"].any()
+
+
+@pytest.mark.parametrize("action", ["go", None, [0.1], [0.1, math.nan], [[0.1, 0.2], [0.3]]])
+def test_a_bad_action_is_refused_by_name(action) -> None:
+    env = _fake_env()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be two finite numbers \(v, omega\), got"):
+        env.step(action)
+
+
+def test_a_closed_env_says_so() -> None:
+    env = _fake_env()
+    env.reset(seed=0)
+    env.close()
+    for call in (lambda: env.step(np.array([0.1, 0.0])), lambda: env.reset(seed=0)):
+        with pytest.raises(RuntimeError, match="closed RowFollowEnv"):
+            call()
+
+
+def test_the_simulator_refuses_a_step_before_its_first_reset() -> None:
+    world = FakeWorld()
+    with pytest.raises(RuntimeError, match="before the first reset"):
+        RowEnv(world, FakeRenderer(world), _config()).step((0.1, 0.0))
+
+
+def test_a_fresh_interpreter_makes_the_env_after_importing_segmin_envs() -> None:
+    """`import segmin` needs no gymnasium; `import segmin.envs` registers without pybullet or the
+    simulator; `gymnasium.make` then builds the field."""
+    script = f"""
+import sys
+import segmin
+assert "gymnasium" not in sys.modules, "import segmin loaded gymnasium"
+import gymnasium
+import segmin.envs
+loaded = [m for m in ("pybullet", "segmin.nav_eval.sim.gym_env", "segmin.nav_eval.sim.row_env") if m in sys.modules]
+assert not loaded, f"registering loaded {{loaded}}"
+env = gymnasium.make("segmin/RowFollow-v0", field="straight_vineyard", overrides={TINY!r})
+obs, info = env.reset(seed=0)
+assert obs["rgb"].shape == (32, 32, 3) and info["mask"].any()
+env.close()
+print("made")
+"""
+    done = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "made", done.stderr[-2000:]
+
+
+def test_gymnasium_finds_the_env_by_module_with_no_import() -> None:
+    """gymnasium.make("segmin.envs:segmin/RowFollow-v0") imports the registering module itself: the
+    env's own error for an unknown field shows that it was found and built."""
+    script = """
+import gymnasium
+try:
+    gymnasium.make("segmin.envs:segmin/RowFollow-v0", field="no_such_field")
+except gymnasium.error.Error as exc:
+    raise SystemExit(f"not registered: {exc}")
+except (ValueError, FileNotFoundError) as exc:
+    print("built:", exc)
+"""
+    done = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.startswith("built:"), done.stdout + done.stderr[-2000:]
+
+
+def test_on_the_bare_install_segmin_envs_names_the_missing_extra() -> None:
+    script = """
+import sys
+sys.modules["gymnasium"] = None  # as if not installed
+import segmin
+try:
+    import segmin.envs
+except ModuleNotFoundError as exc:
+    print(exc)
+"""
+    done = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
+    assert "needs gymnasium, part of the [sim] extra" in done.stdout, done.stdout + done.stderr[-2000:]

@@ -11,11 +11,11 @@ import pytest
 
 from segmin.data.synth.spec import TEST_FIELDS
 from segmin.nav_eval.evaluation.evaluate import Job, Worker, run_evaluation, run_seed
-from segmin.nav_eval.evaluation.rollout import make_env, run_episode
+from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.runtime.follower import RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig
 from segmin.nav_eval.sim.config import load_nav_config
-from segmin.nav_eval.sim.factories import FieldContext
+from segmin.nav_eval.sim.factories import FieldContext, make_simulator
 from segmin.nav_eval.sim.oracle import OracleSegmenter
 
 TINY = ["perception.width=64", "perception.height=64", "run.length_m=2.0", "run.time_limit_s=12"]
@@ -45,22 +45,22 @@ class _Fixed(Navigator):
         super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
         self.v = v
 
-    def command(self, fused, depth, attitude=None) -> Command:
+    def command(self, fused, depth, attitude=None, rgb=None) -> Command:
         return Command(v=self.v, omega=0.0, target_column=None, histogram=np.zeros(0), valid=True)
 
 
 def test_run_aimed_into_a_plant_row_is_a_collision(worker) -> None:
     ctx: FieldContext = worker.field("straight_vineyard")
     config = dataclasses.replace(worker.config, run=dataclasses.replace(worker.config.run, length_m=20.0))
-    env = make_env(ctx, config)
-    env.row.half_width = math.inf  # the hedge line would end it as "left_row" first
-    x0, y0 = env.row.centreline[4]
+    simulator = make_simulator(ctx, config)
+    simulator.half_width = math.inf  # the hedge line would end it as "left_row" first
+    x0, y0 = simulator.centreline[4]
     # Aim at the nearest trunk at least 1.5 m ahead along the row.
-    plants = env.row.plants
+    plants = simulator.plants
     ahead = plants[(plants[:, 0] - x0 > 1.5)]
     target = ahead[np.argmin(np.hypot(ahead[:, 0] - x0, ahead[:, 1] - y0))]
     yaw = math.atan2(target[1] - y0, target[0] - x0)
-    episode = run_episode(env, RowFollower(OracleSegmenter(), _Fixed(0.4)), seed=0, pose=(x0, y0, yaw))
+    episode = run_episode(simulator, RowFollower(None, _Fixed(0.4)), OracleSegmenter(), seed=0, pose=(x0, y0, yaw))
     assert episode.reason == "collision", episode.reason
     assert episode.collisions == 1 and not episode.success
     last = episode.trajectory

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from segmin.data.synth.camera import CameraModel
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.runtime.follower import RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig
 from segmin.nav_eval.sim.config import NavEvalConfig, Perception, Rates, RunSettings
 from segmin.nav_eval.sim.factories import make_follower
-from segmin.nav_eval.sim.gym_env import RowFollowEnv
 from segmin.nav_eval.sim.oracle import OracleSegmenter
 from segmin.nav_eval.sim.row_env import RowEnv
 
@@ -44,7 +45,7 @@ class FakeWorld:
         cx = np.arange(0.0, length + 0.01, 0.25)
         self.centrelines = [np.stack([cx, np.zeros_like(cx)], 1)]
         self.gap_half_widths = [spacing / 2 - 0.1]
-        self.spec = type("Spec", (), {"name": "fake", "family": "vineyards"})()
+        self.spec = SimpleNamespace(name="fake", family="vineyards", terrain=SimpleNamespace(roughness=0.0))
 
     def terrain_height(self, x, y):
         return 0.0 * np.asarray(x, dtype=float)
@@ -59,6 +60,8 @@ class FakeRenderer:
     def __init__(self, world: FakeWorld, size: int = 48, hfov_deg: float = 69.0) -> None:
         self.world, self.size = world, size
         self.f = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
+        # Its size for the simulator; noise-free depth (the stand-in has no sensor model).
+        self.camera = CameraModel(width=size, height=size, hfov_deg=hfov_deg, depth_noise_enabled=False)
         self.calls = 0
 
     def render(self, x, y, yaw, *, rng=None, noisy_depth=False, pose_offset=None) -> Frame:
@@ -104,9 +107,8 @@ def _run(method: str = "segmin", seed: int = 3, **run):
     world = FakeWorld()
     config = _config(**run)
     renderer = FakeRenderer(world)
-    env = RowFollowEnv(None, config=config, world=world, renderer=renderer)
-    follower = make_follower(OracleSegmenter(), method, 5.0, config)
-    return run_episode(env, follower, seed), renderer, env
+    simulator = RowEnv(world, renderer, config)
+    return run_episode(simulator, make_follower(method, 5.0, config), OracleSegmenter(), seed), renderer, simulator
 
 
 def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
@@ -152,14 +154,14 @@ class _Straight(Navigator):
         super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0))
         self.v, self.omega = v, omega
 
-    def command(self, fused, depth, attitude=None) -> Command:
+    def command(self, fused, depth, attitude=None, rgb=None) -> Command:
         return Command(v=self.v, omega=self.omega, target_column=None, histogram=np.zeros(0), valid=True)
 
 
 def _drive(config: NavEvalConfig, navigator: Navigator):
     world = FakeWorld()
-    env = RowFollowEnv(None, config=config, world=world, renderer=FakeRenderer(world))
-    return run_episode(env, RowFollower(OracleSegmenter(), navigator), seed=0)
+    simulator = RowEnv(world, FakeRenderer(world), config)
+    return run_episode(simulator, RowFollower(None, navigator), OracleSegmenter(), seed=0)
 
 
 def test_driving_into_the_row_is_a_collision_and_standing_still_stalls() -> None:

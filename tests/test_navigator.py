@@ -19,6 +19,7 @@ from segmin.nav_eval.runtime.navigator import (
     moving_average,
     target_column,
 )
+from segmin.nav_eval.runtime.protocols import NavigatorInputs
 
 H, W = 48, 64
 
@@ -217,6 +218,14 @@ def test_fusion_is_the_or_of_the_last_n_masks() -> None:
     assert navigator.step(empty, depth).target_column == pytest.approx(36.5)
     assert navigator.step(empty, depth).target_column == pytest.approx(36.5)
     assert navigator.step(empty, depth).target_column == pytest.approx((W - 1) / 2)  # the bush has left the window
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_the_paper_navigators_declare_depth_for_segmind_only_and_keep_no_statistics(method: str) -> None:
+    navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0))
+    assert navigator.inputs == NavigatorInputs(depth=method == "segmind")
+    navigator.step(two_rows(), depth_frame())
+    assert navigator.statistics() == {}
 
 
 def test_control_law_matches_hand_computed_values() -> None:

@@ -7,6 +7,7 @@ import pytest
 
 from segmin.nav_eval.runtime.follower import RowFollower, RuntimeConfig
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.protocols import NavigatorInputs
 
 H, W = 8, 64
 
@@ -65,7 +66,7 @@ def test_30_hz_frames_give_20_hz_masks_and_5_hz_commands_fusing_the_last_3() -> 
     assert len(segmenter.calls) == 1 + 10 * 3
     for out in outputs:
         if out.fresh and out.command_t > 0:
-            k = int(round(out.command_t * 20))
+            k = round(out.command_t * 20)
             frames = {int(np.floor(30 * j / 20 + 1e-9)) for j in (k - 2, k - 1, k)}
             assert set(np.flatnonzero(out.fused[0])) == frames, out.command_t
     # Between commands the command in force is returned unchanged.
@@ -120,6 +121,54 @@ def test_bad_timestamps_are_clear_errors() -> None:
         follower.step(_rgb(1), DEPTH, float("nan"))
     with pytest.raises(ValueError, match="depth is 3x8"):
         follower.step(_rgb(1), np.ones((8, 3), np.float32), 1.1)
+
+
+def test_the_control_loop_time_must_be_a_finite_number_too() -> None:
+    """A NaN clock never times out: command_at would keep the last command in force for ever."""
+    follower, _ = _follower()
+    _drive(follower, 10)
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="command time must be finite"):
+            follower.command_at(bad)
+    with pytest.raises(ValueError, match="command time must be a number of seconds, got 'soon'"):
+        follower.command_at("soon")
+
+
+class _Recorder(Navigator):
+    """SegMin with declared `inputs` that records what each command was given."""
+
+    def __init__(self, inputs: NavigatorInputs) -> None:
+        super().__init__(NavigatorConfig(method="segmin", depth_threshold=5.0, fuse_frames=1, smooth_window=1))
+        self.inputs = inputs
+        self.given: list[tuple] = []
+
+    def command(self, fused, depth, attitude=None, rgb=None):
+        self.given.append((attitude, rgb))
+        return super().command(fused, depth, attitude, rgb)
+
+
+@pytest.mark.parametrize("declared", [NavigatorInputs(), NavigatorInputs(rgb=True, attitude=True)])
+def test_a_navigator_is_given_what_it_declares_and_nothing_more(declared: NavigatorInputs) -> None:
+    navigator = _Recorder(declared)
+    follower = RowFollower(FrameIndexSegmenter(), navigator)
+    for i in range(7):
+        follower.step(_rgb(i), DEPTH, i / 30, attitude=(0.01, -0.02))
+    assert navigator.given
+    for attitude, rgb in navigator.given:
+        assert (attitude == (0.01, -0.02)) if declared.attitude else attitude is None
+        assert (rgb is not None and rgb.shape == (H, W, 3)) if declared.rgb else rgb is None
+
+
+def test_declared_depth_is_required_whatever_the_method() -> None:
+    follower = RowFollower(FrameIndexSegmenter(), _Recorder(NavigatorInputs(depth=True)))
+    with pytest.raises(ValueError, match="segmin needs depth"):
+        follower.step(_rgb(0), None, 0.0)
+
+
+def test_a_follower_without_a_segmenter_needs_the_masks() -> None:
+    follower = RowFollower(None, Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0)))
+    with pytest.raises(ValueError, match="came without a mask, and this follower has no segmenter"):
+        follower.step(_rgb(0), DEPTH, 0.0)
 
 
 def test_depth_is_optional_for_segmin_and_required_for_segmind() -> None:

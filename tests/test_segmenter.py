@@ -13,7 +13,8 @@ from export_helpers import SIZE, field_image
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper
 from segmin.models.checkpoint import load_model
-from segmin.nav_eval.runtime.segmenter import OnnxSegmenter, Segmenter
+from segmin.nav_eval.runtime.protocols import Segmenter
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
 
 @pytest.fixture(scope="module")
@@ -145,11 +146,11 @@ def test_background_segmentation_gives_the_masks_of_segment(model_path) -> None:
     """The closed loop segments on a helper thread (prepare here, onnxruntime there): same masks."""
     from types import SimpleNamespace
 
-    from segmin.nav_eval.sim.row_env import BackgroundSegmenter
+    from segmin.nav_eval.sim.segmentation import BackgroundSegmenter, OnnxFrameSegmenter
 
     segmenter = OnnxSegmenter(model_path, threads=1)
     frames = [_frame(SIZE + 8 * k, SIZE, seed=20 + k) for k in range(4)]
-    with BackgroundSegmenter(segmenter) as background:
+    with BackgroundSegmenter(OnnxFrameSegmenter(segmenter)) as background:
         futures = [background.submit(SimpleNamespace(rgb=rgb)) for rgb in frames]
         masks = [future.result() for future in futures]
     for rgb, mask in zip(frames, masks):

@@ -147,8 +147,8 @@ def test_the_closed_loop_drives_a_row_with_the_skid_steer_robot_reproducibly() -
     from segmin.nav_eval.evaluation.rollout import run_episode
     from segmin.nav_eval.sim.config import NavEvalConfig, Perception, RunSettings
     from segmin.nav_eval.sim.factories import make_follower
-    from segmin.nav_eval.sim.gym_env import RowFollowEnv
     from segmin.nav_eval.sim.oracle import OracleSegmenter
+    from segmin.nav_eval.sim.row_env import RowEnv
 
     def run(model: str, seed: int):
         config = NavEvalConfig(
@@ -157,8 +157,8 @@ def test_the_closed_loop_drives_a_row_with_the_skid_steer_robot_reproducibly() -
             run=RunSettings(length_m=6.0, time_limit_s=30.0),
         )
         world = FakeWorld()
-        env = RowFollowEnv(None, config=config, world=world, renderer=FakeRenderer(world))
-        return run_episode(env, make_follower(OracleSegmenter(), "segmin", 5.0, config), seed)
+        simulator = RowEnv(world, FakeRenderer(world), config)
+        return run_episode(simulator, make_follower("segmin", 5.0, config), OracleSegmenter(), seed)
 
     a, b, kinematic = run("skid_steer", 1), run("skid_steer", 1), run("kinematic", 1)
     assert a.reason == "success", a.reason

@@ -66,8 +66,8 @@ def bench_one_run(
     model: str, field: str, method: str, seconds: float, config: Any, threads: int = 1, seed: int = 0
 ) -> dict[str, Any]:
     """Drive `seconds` of simulated time and return the timing breakdown."""
-    from segmin.nav_eval.evaluation.rollout import make_env, run_episode
-    from segmin.nav_eval.sim.factories import FieldContext, make_follower, make_segmenter
+    from segmin.nav_eval.evaluation.rollout import run_episode
+    from segmin.nav_eval.sim.factories import FieldContext, make_follower, make_segmenter, make_simulator
 
     config = dataclasses.replace(
         config,
@@ -79,14 +79,14 @@ def bench_one_run(
     ctx = FieldContext(field, config)
     build_s = time.perf_counter() - t0
     segmenter = make_segmenter(model, threads)
-    env = make_env(ctx, config)
-    follower = make_follower(segmenter, method, ctx.depth_threshold, config)
+    simulator = make_simulator(ctx, config)
+    follower = make_follower(method, ctx.depth_threshold, config)
     navigator = follower.navigator
     render = _Timed(ctx.renderer, "render")
     seg = _Timed(segmenter, next(m for m in ("segment_prepared", "segment_frame", "segment") if hasattr(segmenter, m)))
     nav = _Timed(navigator, "command")
     t0 = time.perf_counter()
-    episode = run_episode(env, follower, seed)
+    episode = run_episode(simulator, follower, segmenter, seed)
     wall = time.perf_counter() - t0
     sim = float(episode.trajectory.t[-1])
     ctx.close()

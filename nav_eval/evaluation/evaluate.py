@@ -3,26 +3,24 @@
 Public entry point for the pipeline: `run_evaluation(model, fields, methods, runs, out_dir,
 workers, config) -> list[RunResult]`.
 
-Each run is one job. A worker process (spawned, never forked: pybullet and onnxruntime hold
-threads) builds its own pybullet DIRECT client per field, its own segmenter and navigators, and
-returns a `RunResult`. An exception inside a run becomes a failure row (reason "error", with the
-exception text); a crashed worker marks its unfinished jobs the same way. Seeds: the start noise
-and the depth noise of run k in a field depend on (seed, field, k) only, so every method starts
-from the same pose with the same noise (a paired comparison).
+Each run is one job. A `Worker` builds its own pybullet DIRECT client per field, its own
+segmenter and navigators, and returns a `RunResult`; with several workers each lives in its own
+spawned process (`nav_eval.evaluation.processes`). An exception inside a run becomes a failure
+row (reason "error", with the exception text); a crashed worker process fails its run the same
+way. Seeds: the start noise and the depth noise of run k in a field depend on (seed, field, k)
+only, so every method starts from the same pose with the same noise (a paired comparison).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import time
 import traceback
 import zlib
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -31,10 +29,19 @@ import numpy as np
 from segmin.common.config import from_dict, to_dict
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.metrics import compute_metrics
-from segmin.nav_eval.runtime.methods import METHODS
+from segmin.nav_eval.evaluation.processes import run_in_processes
+from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
-from segmin.nav_eval.sim.factories import FieldContext, field_label, make_follower, make_navigator, make_segmenter
+from segmin.nav_eval.sim.factories import (
+    FieldContext,
+    field_label,
+    make_follower,
+    make_navigator,
+    make_segmenter,
+    make_simulator,
+)
 from segmin.nav_eval.sim.mask_dropout import with_dropout
+from segmin.nav_eval.sim.protocols import FrameSegmenter
 from segmin.nav_eval.sim.track import Trajectory
 
 METRIC_KEYS = (
@@ -79,18 +86,37 @@ class RunResult:
     start_x: float = math.nan
     start_y: float = math.nan
     start_yaw: float = math.nan
-    # SegCorridor only (NaN for the paper's methods): share of commands from one row / the trunks / the fallback.
-    one_side_share: float = math.nan
-    trunk_share: float = math.nan
-    fallback_share: float = math.nan
+    # The navigator's per-run statistics (`statistics()`, e.g. SegCorridor's mode shares), by column
+    # name: a row has every method's columns (methods.STATISTIC_COLUMNS), NaN where its navigator
+    # reported none.
+    statistics: dict[str, float] = dataclasses.field(default_factory=dict)
     trajectory: Trajectory | None = dataclasses.field(default=None, repr=False)
     commands: list = dataclasses.field(default_factory=list, repr=False)
 
     def row(self) -> dict[str, Any]:
-        """Plain row without the trajectory (for CSV and JSON)."""
-        return {
-            f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("trajectory", "commands")
+        """Plain row without the trajectory (for CSV and JSON), the statistics flattened in place:
+        first every method's columns in their order, then any the methods do not declare."""
+        row: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            if f.name == "statistics":
+                row.update({column: self.statistics.get(column, math.nan) for column in STATISTIC_COLUMNS})
+                row.update({k: v for k, v in self.statistics.items() if k not in STATISTIC_COLUMNS})
+            elif f.name not in ("trajectory", "commands"):
+                row[f.name] = getattr(self, f.name)
+        return row
+
+    @classmethod
+    def from_row(cls, row: dict[str, Any]) -> RunResult:
+        """A RunResult from a `row()` read back (results.json, a sweep's stored run); keys that are
+        neither a field nor a statistic column (e.g. the config) are left out, and so are the
+        statistics a row holds as NaN or None (the navigator reported none)."""
+        names = {f.name for f in dataclasses.fields(cls)} - {"statistics", "trajectory", "commands"}
+        statistics = {
+            k: v
+            for k, v in row.items()
+            if k in STATISTIC_COLUMNS and v is not None and not (isinstance(v, float) and math.isnan(v))
         }
+        return cls(**{k: v for k, v in row.items() if k in names}, statistics=statistics)
 
 
 @dataclasses.dataclass
@@ -207,8 +233,13 @@ class Worker:
         self.model = str(model)
         self.config = config
         self.threads = threads
-        self._segmenter: Any = None
+        self._segmenter: FrameSegmenter | None = None
         self._fields: dict[tuple, FieldContext] = {}
+
+    @classmethod
+    def from_plain(cls, model: str, config: dict, threads: int) -> Worker:
+        """A worker for a config given as plain data (`to_dict`): how a worker process gets it."""
+        return cls(model, from_dict(NavEvalConfig, config), threads)
 
     def field(self, name: str, config: NavEvalConfig | None = None) -> FieldContext:
         """The field built for `config` (camera size and gap; the worker's config by default)."""
@@ -221,7 +252,8 @@ class Worker:
         return ctx
 
     @property
-    def segmenter(self) -> Any:
+    def segmenter(self) -> FrameSegmenter:
+        """The model's segmenter, loaded on first use and kept for every run of this worker."""
         if self._segmenter is None:
             self._segmenter = make_segmenter(self.model, self.threads)
         return self._segmenter
@@ -233,7 +265,7 @@ class Worker:
 
     def run(self, job: Job) -> RunResult:
         """One run; never raises (an exception becomes a failure row)."""
-        from segmin.nav_eval.evaluation.rollout import make_env, run_episode
+        from segmin.nav_eval.evaluation.rollout import run_episode
 
         start = time.perf_counter()
         result = RunResult(
@@ -249,14 +281,14 @@ class Worker:
             config = self.config if job.config is None else from_dict(NavEvalConfig, job.config)
             ctx = self.field(job.field, config)
             result.depth_threshold = config.depth_threshold(ctx.spec.name, ctx.spec.family)
-            env = make_env(ctx, config)
-            result.gap = env.row.gap
+            simulator = make_simulator(ctx, config)
+            result.gap = simulator.gap
             segmenter = with_dropout(self.segmenter, config.perception, job.seed)
-            follower = make_follower(segmenter, job.method, result.depth_threshold, config)
-            episode = run_episode(env, follower, job.seed, video=bool(job.video_path))
+            follower = make_follower(job.method, result.depth_threshold, config)
+            episode = run_episode(simulator, follower, segmenter, job.seed, video=bool(job.video_path))
             metrics = compute_metrics(
                 episode.trajectory,
-                env.row.centreline,
+                simulator.centreline,
                 success=episode.success,
                 clearance_time=episode.clearance_time,
                 collisions=episode.collisions,
@@ -269,7 +301,7 @@ class Worker:
             result.start_x, result.start_y, result.start_yaw = episode.start_pose
             result.trajectory = episode.trajectory
             result.commands = episode.commands
-            _record_modes(result, follower.navigator)
+            result.statistics = follower.navigator.statistics()
             if job.video_path and episode.video:
                 from segmin.nav_eval.replay.video import write_video
 
@@ -279,29 +311,6 @@ class Worker:
             result.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
         result.wall_time = time.perf_counter() - start
         return result
-
-
-def _record_modes(result: RunResult, navigator: Any) -> None:
-    """SegCorridor's mode shares (how often it steered on one row, or fell back to SegMinD)."""
-    counts = getattr(navigator, "mode_counts", None)
-    total = sum(counts.values()) if counts else 0
-    if total:
-        result.one_side_share = counts["one_side"] / total
-        result.trunk_share = counts["trunks"] / total
-        result.fallback_share = counts["fallback"] / total
-
-
-_WORKER: Worker | None = None
-
-
-def _init_worker(model: str, config_raw: dict, threads: int) -> None:
-    global _WORKER
-    _WORKER = Worker(model, from_dict(NavEvalConfig, config_raw), threads)
-
-
-def _run_in_worker(job: Job) -> RunResult:
-    assert _WORKER is not None, "worker not initialised"
-    return _WORKER.run(job)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -411,31 +420,28 @@ def _order(jobs: list[Job]) -> Callable[[RunResult], int]:
 def _run_pool(
     jobs: list[Job], model: str, config: NavEvalConfig, workers: int, done: Callable[[Job, RunResult], None], bar: Any
 ) -> None:
+    """`jobs` on `workers` processes, each with its own `Worker` (fields and segmenter kept
+    between its runs) sharing the cores."""
     threads = max(1, (os.cpu_count() or 1) // workers)
-    ctx = get_context("spawn")
-    pending = {}
-    with ProcessPoolExecutor(
-        max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(model, to_dict(config), threads)
-    ) as pool:
-        for job in jobs:
-            pending[pool.submit(_run_in_worker, job)] = job
-        for future in as_completed(pending):
-            job = pending[future]
-            try:
-                result = future.result()
-            except (BrokenProcessPool, Exception) as exc:  # a dead worker: its job is a failure row
-                result = RunResult(
-                    field=field_label(job.field),
-                    method=job.method,
-                    run=job.run,
-                    seed=job.seed,
-                    model=model,
-                    success=False,
-                    reason="error",
-                    error=f"{type(exc).__name__}: {exc}",
-                )
-            done(job, result)
-            bar.update(1)
+
+    def finished(job: Job, result: RunResult) -> None:
+        done(job, result)
+        bar.update(1)
+
+    def failed(job: Job, why: str) -> RunResult:  # its process died: a failure row
+        return RunResult(
+            field=field_label(job.field),
+            method=job.method,
+            run=job.run,
+            seed=job.seed,
+            model=model,
+            success=False,
+            reason="error",
+            error=why,
+        )
+
+    make_worker = functools.partial(Worker.from_plain, model, to_dict(config), threads)
+    run_in_processes(jobs, make_worker, workers, finished, failed)
 
 
 def _progress(total: int, enabled: bool, desc: str) -> Any:

@@ -151,7 +151,6 @@ def histogram_for_field(
 ) -> None:
     """Render the centreline view a few metres into the row and draw the histogram figure."""
     from segmin.nav_eval.sim.factories import make_segmenter
-    from segmin.nav_eval.sim.oracle import segment_frame
     from segmin.nav_eval.sim.row_env import depth_noise_camera
     from segmin.nav_eval.sim.track import point_on_polyline
 
@@ -163,4 +162,4 @@ def histogram_for_field(
     camera = depth_noise_camera(ctx.renderer, config.perception.depth_noise_scale)
     if config.perception.depth_noise and camera is not None:
         frame.depth = camera.apply_depth_noise(frame.depth, np.random.default_rng(0))
-    histogram_figure(path, label, frame, segment_frame(segmenters[model], frame), ctx.depth_threshold)
+    histogram_figure(path, label, frame, segmenters[model].segment_frame(frame), ctx.depth_threshold)

@@ -1,25 +1,28 @@
-"""nav-eval's episode: a plain rollout of the robot runtime (`RowFollower`) in `RowFollowEnv`.
+"""nav-eval's episode: a plain rollout of the robot runtime (`RowFollower`) in the simulator.
 
 Nothing here fuses masks or keeps time: the runtime does, exactly as on the robot. The rollout
-only adds the simulator's two economies, which change no command:
+drives the simulator (`nav_eval.sim.row_env.RowEnv`) through its public interface, the one the
+Gymnasium env adapts, and adds only the simulator's two economies, which change no command:
 
-- it asks the runtime whether the next frame will be segmented (`needs_frame`) and lets the env
-  skip rendering it otherwise (with the paper's rates, 15 of the 30 frames per second render);
-- each rendered frame is segmented on a helper thread (`sim.BackgroundSegmenter`) while the next
+- it asks the runtime whether the next frame will be segmented (`needs_frame`) and asks the
+  simulator for that frame only then (with the paper's rates, 15 of the 30 frames per second
+  render); a frame that is not rendered reaches the runtime as its timestamp, without image or
+  mask, and blank depth;
+- each rendered frame is segmented on a helper thread (`BackgroundSegmenter`) while the next
   one renders; the runtime waits for that mask only when a deadline needs it.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import numpy as np
 
 from segmin.nav_eval.replay.video import overlay
 from segmin.nav_eval.runtime.follower import RowFollower
-from segmin.nav_eval.sim.gym_env import RowFollowEnv
-from segmin.nav_eval.sim.row_env import BackgroundSegmenter
+from segmin.nav_eval.sim.protocols import FrameSegmenter
+from segmin.nav_eval.sim.row_env import RowEnv
+from segmin.nav_eval.sim.segmentation import BackgroundSegmenter
 from segmin.nav_eval.sim.track import Trajectory
 
 
@@ -38,63 +41,60 @@ class Episode:
     video: list[np.ndarray]
 
 
-@dataclasses.dataclass
-class _Frame:
-    """What a segmenter may read of a rendered frame (the oracle reads the exact mask)."""
-
-    rgb: np.ndarray
-    depth: np.ndarray
-    mask: np.ndarray
-
-
 def run_episode(
-    env: RowFollowEnv,
+    simulator: RowEnv,
     follower: RowFollower,
+    segmenter: FrameSegmenter,
     seed: int,
     *,
     video: bool = False,
     pose: tuple[float, float, float] | None = None,
 ) -> Episode:
-    """Drive one run to its end with `follower` (its segmenter may be the oracle)."""
+    """Drive one run to its end with `follower`, its masks from `segmenter` (the oracle, or a
+    model on the rendered images); `pose` replaces the seeded start."""
     follower.reset()
-    obs, info = env.reset(seed=seed, options=None if pose is None else {"pose": pose})
-    period = env.camera_period
-    imu = env.config.perception.imu
+    info = simulator.reset(seed, pose)
+    period = simulator.camera_period
+    imu = simulator.config.perception.imu
+    # What the runtime gets of a frame that is not rendered (no command reads it: it serves no
+    # segmentation deadline) and what the video shows when a command falls on one.
+    blank_rgb = np.zeros((*simulator.camera_size, 3), dtype=np.uint8)
+    blank_depth = np.zeros(simulator.camera_size, dtype=np.float32)
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
     ended = info["reason"] is not None
-    with BackgroundSegmenter(follower.segmenter) as background:
+    render = True  # the first frame always serves deadline 0
+    with BackgroundSegmenter(segmenter) as background:
         while not ended:
-            t = float(obs["t"])
-            rendered = info["rendered"]
-            mask = background.submit(_Frame(obs["rgb"], obs["depth"], info["mask"])) if rendered else None
-            out = follower.step(
-                obs["rgb"] if rendered else None, obs["depth"], t, mask=mask, attitude=obs["attitude"] if imu else None
-            )
+            t = simulator.t
+            if render:
+                frame = simulator.frame()
+                out = follower.step(
+                    frame.rgb,
+                    frame.depth,
+                    t,
+                    mask=background.submit(frame),
+                    attitude=simulator.attitude if imu else None,
+                )
+            else:
+                out = follower.step(None, blank_depth, t, attitude=simulator.attitude if imu else None)
             if out.fresh:
                 cmd = out.command
                 column = cmd.target_column
                 commands.append((t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
                 if video:
-                    frames_out.append(overlay(obs["rgb"], out.fused, column))
-            env.skip_next_render = not follower.needs_frame(t + period, t + 2 * period)
-            obs, _, terminated, truncated, info = env.step((out.command.v, out.command.omega))
-            ended = terminated or truncated
-    row = env.row
-    reason = row.reason or "error"
+                    frames_out.append(overlay(frame.rgb if render else blank_rgb, out.fused, column))
+            render = follower.needs_frame(t + period, t + 2 * period)
+            ended, _ = simulator.step((out.command.v, out.command.omega))
+    reason = simulator.reason or "error"
     return Episode(
-        trajectory=row.trajectory,
+        trajectory=simulator.trajectory,
         reason=reason,
         success=reason == "success",
-        clearance_time=row.clearance_time,
+        clearance_time=simulator.clearance_time,
         collisions=int(reason == "collision"),
-        start_pose=row.start_pose,
-        goal_m=row.goal_s - row.start_s,
+        start_pose=simulator.start_pose,
+        goal_m=simulator.goal_distance,
         commands=commands,
         video=frames_out,
     )
-
-
-def make_env(ctx: Any, config: Any) -> RowFollowEnv:
-    """An env on an already built field (a worker builds each field once, for many runs)."""
-    return RowFollowEnv(ctx.spec.name, config=config, world=ctx.world, renderer=ctx.renderer, gap=ctx.gap)

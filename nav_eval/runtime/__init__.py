@@ -2,6 +2,10 @@
 
 camera frame -> segmenter (ONNX) -> mask -> navigator -> `RowFollower` timing -> (v, omega)
 
+The interfaces between those pieces are `typing.Protocol`s in `protocols` (`Segmenter`,
+`MaskNavigator` and the `NavigatorInputs` a navigator declares); the command, its limits and
+the EMA that every navigator shares are in `control`.
+
 Only numpy, OpenCV and onnxruntime: never torch, pybullet or matplotlib (the architecture test
 checks it). The main names are importable from here; each is defined in its own module.
 """
@@ -12,15 +16,22 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from segmin.nav_eval.runtime.corridor import CorridorConfig, CorridorNavigator
-    from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
-    from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig, target_column
-    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+    from .camera import CameraGeometry
+    from .control import Command
+    from .corridor import CorridorConfig, CorridorNavigator
+    from .follower import FollowerOutput, RowFollower, RuntimeConfig
+    from .navigator import Navigator, NavigatorConfig, target_column
+    from .protocols import MaskNavigator, NavigatorInputs, Segmenter
+    from .segmenter import OnnxSegmenter
 
 # Name -> defining module; loaded on first use so that importing one piece does not load the rest
 # (the segmenter pulls in onnxruntime, which a navigator-only user does not need).
 _EXPORTS: dict[str, str] = {
-    "Command": "navigator",
+    "CameraGeometry": "camera",
+    "Command": "control",
+    "MaskNavigator": "protocols",
+    "NavigatorInputs": "protocols",
+    "Segmenter": "protocols",
     "Navigator": "navigator",
     "NavigatorConfig": "navigator",
     "target_column": "navigator",
@@ -32,15 +43,19 @@ _EXPORTS: dict[str, str] = {
     "OnnxSegmenter": "segmenter",
 }
 __all__ = [
+    "CameraGeometry",
     "Command",
     "CorridorConfig",
     "CorridorNavigator",
     "FollowerOutput",
+    "MaskNavigator",
     "Navigator",
     "NavigatorConfig",
+    "NavigatorInputs",
     "OnnxSegmenter",
     "RowFollower",
     "RuntimeConfig",
+    "Segmenter",
     "target_column",
 ]
 

@@ -74,11 +74,12 @@ the robot frame. From there:
    with alpha_max the half field of view, and omega = v_max kappa, clipped; both are smoothed with the
    paper's EMA.
 
-The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` offers the same
-calls (`step`, `push_mask`, `fused_mask`, `command`, `stop`, `reset`, `config.method`,
-`config.depth_threshold`, `config.fuse_frames`), so the runtime drives it like the others; `step`
-and `command` also take the image (`rgb`, uint8), which the runtime passes to navigators that
-declare `reads_rgb`: without it the trunk test trusts the mask alone.
+The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` is a
+`MaskNavigator` (nav_eval.runtime.protocols) like the paper's `Navigator`, so the runtime drives
+it like the others. It declares what it reads besides the masks (`inputs`): depth, the image
+(`rgb`, uint8; without it the trunk test trusts the mask alone), the IMU's attitude and its
+camera. Its per-run statistics (`statistics()`) are the shares of commands found on one row, on
+the trunks and by the fallback.
 """
 
 from __future__ import annotations
@@ -87,15 +88,16 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from segmin.nav_eval.runtime.navigator import (
-    Command,
+from .camera import CameraGeometry
+from .checks import check_depth_threshold, check_positive
+from .control import Command, CommandSmoother, clip
+from .navigator import (
     Navigator,
     NavigatorConfig,
-    _check_positive,
-    _check_threshold,
     _validated_frame,
     control_law,
     histogram_minimum,
@@ -104,99 +106,10 @@ from segmin.nav_eval.runtime.navigator import (
     validated_attitude,
     validated_rgb,
 )
+from .protocols import MaskNavigator, NavigatorInputs
 
 MODES = ("both", "one_side", "trunks", "fallback")
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
-
-
-@dataclass(frozen=True)
-class CameraGeometry:
-    """Pinhole intrinsics of the delivered frame and the camera mount on the robot."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    mount_height: float
-    tilt_deg: float
-    mount_forward: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"camera {name} must be an integer >= 1, got {value!r}")
-        for name in ("fx", "fy", "mount_height"):
-            _check_positive(f"camera {name}", getattr(self, name))
-        for name in ("cx", "cy", "mount_forward"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"camera {name} must be finite, got {getattr(self, name)!r}")
-        if not -89.0 < self.tilt_deg < 89.0:
-            raise ValueError(f"camera tilt_deg must be within (-89, 89) degrees, got {self.tilt_deg!r}")
-
-    @classmethod
-    def from_camera(cls, camera: object) -> CameraGeometry:
-        """From a `segmin.data.synth.camera.CameraModel` (its intrinsics and mount)."""
-        k = camera.intrinsics()  # type: ignore[attr-defined]
-        return cls(
-            width=int(k["width"]),
-            height=int(k["height"]),
-            fx=float(k["fx"]),
-            fy=float(k["fy"]),
-            cx=float(k["cx"]),
-            cy=float(k["cy"]),
-            mount_height=float(camera.mount_height),  # type: ignore[attr-defined]
-            tilt_deg=float(camera.tilt_deg),
-            mount_forward=float(camera.mount_forward),
-        )  # type: ignore[attr-defined]
-
-    def robot_frame(
-        self, rows: np.ndarray, cols: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None = None
-    ) -> tuple[np.ndarray, ...]:
-        """(x forward, y left, h up) in metres of pixels (rows, cols) with planar depth `depth_m`.
-
-        Without `attitude` the axes are the robot's (h along its up axis). With the IMU's
-        (roll, pitch) (REP 103: positive roll lifts the left side, positive pitch lowers the
-        nose) they are levelled, h along gravity: on rough ground the robot rolls by several
-        degrees, and a crown 1 m above the camera then appears 1 m x roll to the side.
-        """
-        return self.points_on_rays(self.ray_coefficients(rows, cols), depth_m, attitude)
-
-    def ray_coefficients(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per pixel, (a, b, c) with x = forward + z a, y = z b, h = height + z c for planar depth z.
-
-        They depend on the pixel only, so a navigator computes them once per image size and a
-        step costs three multiply-adds a point."""
-        theta = math.radians(self.tilt_deg)
-        s, c = math.sin(theta), math.cos(theta)
-        lateral = (cols - self.cx) / self.fx
-        vertical = (rows - self.cy) / self.fy
-        return c + vertical * s, -lateral, s - vertical * c
-
-    def points_on_rays(
-        self, rays: Sequence[np.ndarray], depth_m: np.ndarray, attitude: tuple[float, float] | None = None
-    ) -> tuple[np.ndarray, ...]:
-        """`robot_frame` of the pixels whose `ray_coefficients` are `rays` (a, b, c: a tuple or
-        the rows of a 3 x n array)."""
-        a, b, c = rays
-        x = self.mount_forward + depth_m * a
-        y = depth_m * b
-        h = self.mount_height + depth_m * c
-        return (x, y, h) if attitude is None else self.level(x, y, h, attitude)
-
-    @staticmethod
-    def level(x: np.ndarray, y: np.ndarray, h: np.ndarray, attitude: tuple[float, float]) -> tuple[np.ndarray, ...]:
-        """Robot-frame points rotated into the level frame (h along gravity) by the IMU's (roll, pitch)."""
-        roll, pitch = attitude  # body-to-level rotation R_y(pitch) R_x(roll)
-        sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-        return (cp * x + sp * sr * y + sp * cr * h, cr * y - sr * h, -sp * x + cp * sr * y + cp * cr * h)
-
-    def column_of(self, x: float, y: float) -> float:
-        """Image column of the robot-frame point (x, y) at camera height (for overlays)."""
-        forward = (x - self.mount_forward) * math.cos(math.radians(self.tilt_deg))
-        return self.cx - self.fx * y / max(forward, 1e-6)
 
 
 @dataclass(frozen=True)
@@ -243,7 +156,7 @@ class CorridorConfig:
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
-        _check_threshold(self.depth_threshold)
+        check_depth_threshold(self.depth_threshold)
         if self.degree not in (1, 2):
             raise ValueError(f"corridor.degree must be 1 (straight rows) or 2 (bends), got {self.degree!r}")
         for name in (
@@ -274,7 +187,7 @@ class CorridorConfig:
             "trunk_max_lateral",
             "roof_opening_reach",
         ):
-            _check_positive(f"corridor.{name}", getattr(self, name))
+            check_positive(f"corridor.{name}", getattr(self, name))
         if not (math.isfinite(self.significance) and self.significance >= 0.0):
             raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
         for name in ("x_min", "h_min", "trunk_h_min", "trunk_max_excess_green"):
@@ -333,7 +246,7 @@ class CorridorCommand(Command):
     fallback). `histogram` is SegMinD's smoothed histogram in fallback, else empty."""
 
     mode: str = "fallback"
-    centre: tuple[float, float] | None = None
+    centre: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -498,13 +411,15 @@ def polyval(x: np.ndarray | float, c: tuple[float, ...] | np.ndarray) -> np.ndar
 
 
 class CorridorNavigator:
-    """The stateful SegCorridor navigator (module docstring); the runtime's navigator interface."""
-
-    reads_rgb = True  # the runtime passes the newest image to `command` (the trunk test reads its colour)
+    """The stateful SegCorridor navigator (module docstring), a `MaskNavigator`."""
 
     def __init__(self, config: CorridorConfig, camera: CameraGeometry) -> None:
         self.config = config
         self.camera = camera
+        # The trunk test reads the image's colour, the points are levelled with the IMU and
+        # placed with the camera; SegMinD's fallback needs depth.
+        self.inputs = NavigatorInputs(depth=True, rgb=True, attitude=True, camera=camera)
+        self._smoother = CommandSmoother(config.ema_lambda)
         self._fusion = Navigator(
             NavigatorConfig(
                 method="segmind",
@@ -522,12 +437,24 @@ class CorridorNavigator:
     def reset(self) -> None:
         """Forget masks, the centreline, the corridor width, the EMA and the mode counts."""
         self._fusion.reset()
-        self._centre: tuple[float, float] | None = None
+        self._centre: tuple[float, ...] | None = None
         self._width: float | None = None
         self._trunk_width: float | None = None
-        self._v = 0.0
-        self._omega = 0.0
+        self._smoother.rest()
         self.mode_counts = dict.fromkeys(MODES, 0)
+
+    def statistics(self) -> dict[str, float]:
+        """Shares of this run's commands found on one row, on the trunks and by the fallback
+        (`methods.METHOD_STATISTICS`); none before the first command."""
+        total = sum(self.mode_counts.values())
+        if not total:
+            return {}
+        counts = self.mode_counts
+        return {
+            "one_side_share": counts["one_side"] / total,
+            "trunk_share": counts["trunks"] / total,
+            "fallback_share": counts["fallback"] / total,
+        }
 
     def step(
         self,
@@ -567,7 +494,7 @@ class CorridorNavigator:
 
     def stop(self) -> Command:
         """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
-        self._v = self._omega = 0.0
+        self._smoother.rest()
         self._centre = None
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
@@ -607,12 +534,10 @@ class CorridorNavigator:
             v, omega = self._pursuit(y_goal)
             column = self.camera.column_of(config.lookahead, y_goal)
         self.mode_counts[mode] += 1
-        lam = config.ema_lambda
-        self._v = (1.0 - lam) * self._v + lam * v
-        self._omega = (1.0 - lam) * self._omega + lam * omega
+        v, omega = self._smoother.update(v, omega)
         return CorridorCommand(
-            v=self._v,
-            omega=self._omega,
+            v=v,
+            omega=omega,
             target_column=float(column),
             histogram=histogram,
             valid=True,
@@ -690,7 +615,7 @@ class CorridorNavigator:
         the roof points' y), that holds (almost) no roof point: 0.75-1.25 m under the test pergola, 0-0.25 m
         under the merged crowns of the high trees (docs/nav_eval.md)."""
         reach = self.config.roof_opening_reach
-        counts = np.histogram(lateral, bins=int(round(2 * reach / ROOF_BIN)), range=(-reach, reach))[0]
+        counts = np.histogram(lateral, bins=round(2 * reach / ROOF_BIN), range=(-reach, reach))[0]
         widest = run = 0
         for empty in counts < 2:
             run = run + 1 if empty else 0
@@ -817,5 +742,9 @@ class CorridorNavigator:
         alpha_max = math.atan2(self.camera.width / 2.0, self.camera.fx)
         v = config.v_max * max(0.0, 1.0 - (alpha / alpha_max) ** 2)
         # The nominal speed, not the slowed one: a robot that slows for a large bearing still turns.
-        omega = min(max(config.v_max * kappa, -config.omega_max), config.omega_max)
+        omega = clip(config.v_max * kappa, -config.omega_max, config.omega_max)
         return v, omega
+
+
+if TYPE_CHECKING:  # both navigators are what the runtime drives (checked by mypy)
+    _NAVIGATORS: tuple[type[MaskNavigator], ...] = (Navigator, CorridorNavigator)

@@ -24,21 +24,26 @@ Timing faults, all decided from timestamps:
   restarts the follower (timer re-anchored, masks and EMA cleared) and is reported with
   `stopped="frame_timeout"`.
 
-Depth may be None for SegMin and SegZeros: the mask alone is then used (every vegetation pixel
-counts as near); SegMinD needs depth and refuses without it. numpy only: no torch, pybullet or
-matplotlib (this module is part of the bare robot install).
+The follower drives any `MaskNavigator` (nav_eval.runtime.protocols) and hands it what it
+declares in `inputs`, no more: depth may be None for a navigator that does not need it (SegMin,
+SegZeros: the mask alone is then used, every vegetation pixel counts as near), while SegMinD and
+SegCorridor refuse a frame without it; the image and the IMU's attitude reach `command` only when
+declared, and frames must match a declared camera. What it declares is checked when the frame
+arrives, not frames later at the command. numpy only: no torch, pybullet or matplotlib (this
+module is part of the bare robot install).
 """
 
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from segmin.nav_eval.runtime.methods import DEPTH_METHODS
-from segmin.nav_eval.runtime.navigator import Command, Navigator, to_metres, validated_attitude, validated_rgb
+from .control import Command, stop_command
+from .navigator import to_metres, validated_attitude, validated_rgb
+from .protocols import MaskNavigator, Segmenter
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).
 TIME_EPS = 1e-6
@@ -88,17 +93,22 @@ class _Frame:
     t: float
     rgb: np.ndarray | None
     depth: np.ndarray | None
-    mask: Any = None  # bool array, or a future of one (.result()), or None: segment rgb
+    mask: np.ndarray | Future[np.ndarray] | None = None  # None: segment rgb
     attitude: tuple[float, float] | None = None  # the IMU's (roll, pitch) at the frame
 
 
-STOP = Command(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
+STOP = stop_command()
 
 
 class RowFollower:
-    """Segmenter + `Navigator` under the runtime's timing (see the module docstring)."""
+    """Segmenter + navigator under the runtime's timing (see the module docstring).
 
-    def __init__(self, segmenter: Any, navigator: Navigator, config: RuntimeConfig | None = None) -> None:
+    `segmenter` may be None when every frame comes with its mask (the simulator, recorded masks).
+    """
+
+    def __init__(
+        self, segmenter: Segmenter | None, navigator: MaskNavigator, config: RuntimeConfig | None = None
+    ) -> None:
         self.segmenter = segmenter
         self.navigator = navigator
         self.config = config or RuntimeConfig()
@@ -119,7 +129,13 @@ class RowFollower:
 
     # ---- the robot's calls ----------------------------------------------------------------------
     def step(
-        self, rgb: np.ndarray | None, depth: np.ndarray | None, t: float, *, mask: Any = None, attitude: Any = None
+        self,
+        rgb: np.ndarray | None,
+        depth: np.ndarray | None,
+        t: float,
+        *,
+        mask: np.ndarray | Future[np.ndarray] | None = None,
+        attitude: object = None,
     ) -> FollowerOutput:
         """Take one camera frame at time `t` (seconds); return the command in force.
 
@@ -128,9 +144,11 @@ class RowFollower:
         trusts the mask alone, without its colour check). `attitude` is the IMU's
         (roll, pitch) in radians at the frame (REP 103), for navigators that level the depth
         points (SegCorridor); None: level ground assumed. Raises ValueError for a frame out of
-        time order, with mismatched sizes or with an invalid attitude.
+        time order, with mismatched sizes, without what the navigator declares it needs, or with
+        an invalid attitude.
         """
         t = _check_time(t, self._last.t if self._last is not None else None)
+        inputs = self.navigator.inputs
         if depth is not None:
             depth = np.asarray(depth)
             if rgb is not None and np.shape(rgb)[:2] != depth.shape[:2]:
@@ -138,12 +156,17 @@ class RowFollower:
                     f"frame at t={t:.6f} s: depth is {depth.shape[1]}x{depth.shape[0]}, "
                     f"rgb is {np.shape(rgb)[1]}x{np.shape(rgb)[0]}"
                 )
-            if getattr(self.navigator, "reads_rgb", False):  # refused now, not frames later at its command
+            if inputs.camera is not None and depth.shape[:2] != inputs.camera.frame_shape:
+                raise ValueError(
+                    f"frame at t={t:.6f} s: depth is {depth.shape[1]}x{depth.shape[0]} but the navigator's "
+                    f"camera is {inputs.camera.width}x{inputs.camera.height}"
+                )
+            if inputs.rgb:  # refused now, not frames later at its command
                 try:
                     validated_rgb(rgb, depth.shape[:2])
                 except ValueError as exc:
                     raise ValueError(f"frame at t={t:.6f} s: {exc}") from None
-        elif self.navigator.config.method in DEPTH_METHODS:
+        elif inputs.depth:
             raise ValueError(
                 f"{self.navigator.config.method} needs depth: give depth frames, or use segmin "
                 f"(which then runs on the mask alone)"
@@ -160,7 +183,11 @@ class RowFollower:
 
     def command_at(self, now: float) -> Command:
         """The command to send at time `now`: the one in force, or a stop once no frame came for
-        `frame_timeout_s` (call it from the control loop, which runs even when the camera stalls)."""
+        `frame_timeout_s` (call it from the control loop, which runs even when the camera stalls).
+
+        `now` must be a finite number of seconds (ValueError otherwise, as for a frame's
+        timestamp): a NaN clock would never time out and keep the last command in force."""
+        now = _seconds(now, "command time")
         if self._last is None or now - self._last.t > self.config.frame_timeout_s + TIME_EPS:
             return STOP
         return self._command
@@ -226,9 +253,14 @@ class RowFollower:
                     f"frame at t={source.t:.6f} s is needed for segmentation (deadline "
                     f"{self._deadline(k):.6f} s) but came without an image"
                 )
+            if self.segmenter is None:
+                raise ValueError(
+                    f"frame at t={source.t:.6f} s is needed for segmentation (deadline "
+                    f"{self._deadline(k):.6f} s) but came without a mask, and this follower has no segmenter"
+                )
             source.mask = self.segmenter.segment(source.rgb)
             computed = 1
-        elif hasattr(source.mask, "result"):
+        elif isinstance(source.mask, Future):  # a background segmenter's: wait for it now
             source.mask = source.mask.result()
             computed = 1
         mask = np.asarray(source.mask)
@@ -249,19 +281,30 @@ class RowFollower:
         if fused is None or self._newest_depth is None:
             self._command = self.navigator.stop()
             return None, None, "stale_masks"
-        extra = {"rgb": self._newest_rgb} if getattr(self.navigator, "reads_rgb", False) else {}
-        self._command = self.navigator.command(fused, self._newest_depth, self._newest_attitude, **extra)
+        inputs = self.navigator.inputs
+        self._command = self.navigator.command(
+            fused,
+            self._newest_depth,
+            self._newest_attitude if inputs.attitude else None,
+            self._newest_rgb if inputs.rgb else None,
+        )
         return fused, self._newest_depth, None
+
+
+def _seconds(t: object, what: str) -> float:
+    """`t` as a finite float number of seconds, else ValueError naming `what`."""
+    try:
+        value = float(t)  # type: ignore[arg-type]  # anything float() takes; the rest is refused below
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number of seconds, got {t!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what} must be finite, got {t!r}")
+    return value
 
 
 def _check_time(t: float, previous: float | None) -> float:
     """A finite timestamp strictly after the previous frame's, else ValueError naming both."""
-    try:
-        value = float(t)
-    except (TypeError, ValueError):
-        raise ValueError(f"frame timestamp must be a number of seconds, got {t!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"frame timestamp must be finite, got {t!r}")
+    value = _seconds(t, "frame timestamp")
     if previous is not None and value <= previous:
         raise ValueError(
             f"frame at t={value:.6f} s is not after the previous frame (t={previous:.6f} s): "

@@ -29,12 +29,14 @@ state only in the `Navigator` instance.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
-from segmin.nav_eval.runtime.methods import PAPER_METHODS
+from .checks import check_depth_threshold, check_positive
+from .control import Command, CommandSmoother, clip, stop_command
+from .methods import DEPTH_METHODS, PAPER_METHODS
+from .protocols import NavigatorInputs
 
 # SegZeros: a free corridor must be wider than 3 columns (Aghi et al. 2021).
 ZEROS_MIN_WIDTH = 4
@@ -62,12 +64,12 @@ class NavigatorConfig:
 
     def __post_init__(self) -> None:
         _check_method(self.method)
-        _check_threshold(self.depth_threshold)
+        check_depth_threshold(self.depth_threshold)
         _check_window(self.smooth_window)
         if isinstance(self.fuse_frames, bool) or not isinstance(self.fuse_frames, int) or self.fuse_frames < 1:
             raise ValueError(f"fuse_frames must be an integer >= 1, got {self.fuse_frames!r}")
         for name in ("v_max", "omega_max"):
-            _check_positive(name, getattr(self, name))
+            check_positive(name, getattr(self, name))
         if not (math.isfinite(self.omega_gain) and self.omega_gain >= 0):
             raise ValueError(f"omega_gain must be a finite number >= 0, got {self.omega_gain!r}")
         if not (0.0 < self.ema_lambda <= 1.0):
@@ -82,17 +84,6 @@ class NavigatorConfig:
             raise ValueError(f"zeros_startup_border must be in [0, 0.5), got {self.zeros_startup_border!r}")
         if not (math.isfinite(self.zeros_track_tolerance) and self.zeros_track_tolerance >= 0):
             raise ValueError(f"zeros_track_tolerance must be a finite number >= 0, got {self.zeros_track_tolerance!r}")
-
-
-@dataclass(frozen=True)
-class Command:
-    """One navigator output: smoothed velocities plus what they were computed from."""
-
-    v: float
-    omega: float
-    target_column: float | None
-    histogram: np.ndarray
-    valid: bool
 
 
 # ---------------------------------------------------------------------------------------------
@@ -114,7 +105,7 @@ def target_column(
     no valid target, which only SegZeros returns (no run of free columns).
     """
     _check_method(method)
-    _check_threshold(depth_threshold)
+    check_depth_threshold(depth_threshold)
     _check_window(smooth_window)
     mask_b, depth_m = _validated_frame(mask, depth)
     if method == "segzeros":
@@ -226,9 +217,7 @@ def control_law(x_h: float, width: int, config: NavigatorConfig) -> tuple[float,
     else:
         v = config.v_max * (1.0 - k)
         omega = -config.omega_gain * d
-    v = min(max(v, 0.0), config.v_max)
-    omega = min(max(omega, -config.omega_max), config.omega_max)
-    return v, omega
+    return clip(v, 0.0, config.v_max), clip(omega, -config.omega_max, config.omega_max)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -241,12 +230,18 @@ class Navigator:
 
     `step(mask, depth)` is the one-call form (push the mask, fuse, command). A caller that owns
     the timing, as `nav_eval.runtime.RowFollower` does (masks at the segmentation rate, commands
-    at the command rate), uses the split: `push_mask` per mask, `fused_mask` then `command` per
-    command. Both forms run the same code, so they give the same commands.
+    at the command rate), uses the split of the runtime's `MaskNavigator` interface: `push_mask`
+    per mask, `fused_mask` then `command` per command. Both forms run the same code, so they give
+    the same commands.
+
+    It reads depth (SegMinD needs it; SegMin and SegZeros run on the mask alone without it) and
+    nothing else: the paper's methods steer on image columns. It keeps no per-run statistics.
     """
 
     def __init__(self, config: NavigatorConfig) -> None:
         self.config = config
+        self.inputs = NavigatorInputs(depth=config.method in DEPTH_METHODS)
+        self._smoother = CommandSmoother(config.ema_lambda)
         self.reset()
 
     def reset(self) -> None:
@@ -254,15 +249,20 @@ class Navigator:
         self._masks: np.ndarray | None = None
         self._stamps = np.full(self.config.fuse_frames, -np.inf)
         self._count = 0
-        self._v = 0.0
-        self._omega = 0.0
+        self._smoother.rest()
         self._zeros_target: float | None = None
+
+    def statistics(self) -> dict[str, float]:
+        """None kept: the paper's methods have no modes to count."""
+        return {}
 
     def step(self, mask: np.ndarray, depth: np.ndarray) -> Command:
         """Take one mask + depth frame and return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
         self._push(mask_b, 0.0)
-        return self._command(self.fused_mask(), depth_m)
+        fused = self.fused_mask()
+        assert fused is not None  # the mask just pushed is in the window
+        return self._command(fused, depth_m)
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
         """Add one mask to the fusion window (a ring of `fuse_frames`, no reallocation).
@@ -297,13 +297,20 @@ class Navigator:
             if not keep.any():
                 return None
             window = self._masks if keep.all() else self._masks[keep]
-        return window.any(axis=0)
+        return np.asarray(window.any(axis=0))  # an array (numpy's stubs also allow a scalar)
 
-    def command(self, fused: np.ndarray, depth: np.ndarray, attitude: tuple[float, float] | None = None) -> Command:
+    def command(
+        self,
+        fused: np.ndarray,
+        depth: np.ndarray,
+        attitude: tuple[float, float] | None = None,
+        rgb: np.ndarray | None = None,
+    ) -> Command:
         """The smoothed command for an already fused mask and the newest depth frame (one EMA step).
 
-        `attitude`, the IMU's (roll, pitch), is checked and not used: the paper's methods steer
-        on image columns (the runtime gives it to every navigator; SegCorridor levels with it).
+        `attitude` (the IMU's roll, pitch) and `rgb` are the interface's: this navigator does not
+        declare them in `inputs`, so the runtime gives None. A given attitude is still checked, so
+        a caller's bad IMU reading is refused here as by SegCorridor; neither is used.
         """
         mask_b, depth_m = _validated_frame(fused, depth)
         validated_attitude(attitude)
@@ -311,9 +318,8 @@ class Navigator:
 
     def stop(self) -> Command:
         """An invalid stop command; the EMA restarts from rest (as after a lost target)."""
-        self._v = 0.0
-        self._omega = 0.0
-        return Command(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
+        self._smoother.rest()
+        return stop_command()
 
     def _command(self, fused: np.ndarray, depth_m: np.ndarray) -> Command:
         config = self.config
@@ -331,14 +337,10 @@ class Navigator:
             target = histogram_minimum(histogram)
         width = histogram.shape[0]
         if target is None:
-            self._v = 0.0
-            self._omega = 0.0
-            return Command(v=0.0, omega=0.0, target_column=None, histogram=histogram, valid=False)
-        v, omega = control_law(target, width, config)
-        lam = config.ema_lambda
-        self._v = (1.0 - lam) * self._v + lam * v
-        self._omega = (1.0 - lam) * self._omega + lam * omega
-        return Command(v=self._v, omega=self._omega, target_column=target, histogram=histogram, valid=True)
+            self._smoother.rest()
+            return stop_command(histogram)
+        v, omega = self._smoother.update(*control_law(target, width, config))
+        return Command(v=v, omega=omega, target_column=target, histogram=histogram, valid=True)
 
     def _track_free_run(self, histogram: np.ndarray) -> float | None:
         """SegZeros target with Aghi et al.'s start-up border rule and run tracking."""
@@ -465,17 +467,6 @@ def _check_method(method: str) -> None:
         raise ValueError(f"method must be one of {list(PAPER_METHODS)}, got {method!r}{hint}")
 
 
-def _check_threshold(value: float) -> None:
-    # numbers.Real, not (int, float): a threshold read from numpy (np.float32) is a fine number.
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"depth_threshold must be a finite number of metres > 0, got {value!r}")
-
-
 def _check_window(value: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1 or value % 2 == 0:
         raise ValueError(f"smooth_window must be an odd integer >= 1, got {value!r}")
-
-
-def _check_positive(name: str, value: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")

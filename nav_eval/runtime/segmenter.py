@@ -8,8 +8,8 @@ export verification: INTER_AREA when shrinking, INTER_LINEAR when enlarging). Th
 nearest neighbour, so it stays boolean and its edges do not move by more than one model pixel;
 `probabilities` is resized back bilinearly.
 
-The simulator's exact-mask oracle lives in `nav_eval.oracle` (it needs the whole rendered frame,
-see `nav_eval.oracle.segment_frame`).
+`OnnxSegmenter` is a `nav_eval.runtime.protocols.Segmenter`. The simulator's exact-mask oracle
+is not (it needs the whole rendered frame): it lives in `nav_eval.sim.oracle`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -26,19 +25,6 @@ from segmin.export import metadata as md
 
 # Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter).
 SPIN_DEFAULT = True
-
-
-@runtime_checkable
-class Segmenter(Protocol):
-    """What the navigator needs from perception."""
-
-    def segment(self, rgb: np.ndarray) -> np.ndarray:
-        """uint8 H x W x 3 RGB frame -> bool H x W vegetation mask."""
-        ...
-
-    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
-        """uint8 H x W x 3 RGB frame -> float32 H x W vegetation probability in [0, 1]."""
-        ...
 
 
 def check_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -155,7 +141,7 @@ class OnnxSegmenter:
         """The mask of a frame from `prepare` (onnxruntime, threshold, resize back)."""
         import cv2
 
-        mask = (self._model_probabilities(prepared) >= self.threshold).astype(np.uint8)
+        mask: np.ndarray = (self._model_probabilities(prepared) >= self.threshold).astype(np.uint8)
         height, width = prepared.frame_shape
         if mask.shape != (height, width):
             mask = cv2.resize(mask, (width, height), interpolation=cv2.INTER_NEAREST)

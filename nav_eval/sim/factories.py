@@ -1,4 +1,5 @@
-"""Factories for one closed-loop run: a field built in pybullet, its segmenter and its navigator.
+"""Factories for one closed-loop run: a field built in pybullet, its simulator, its segmenter and
+its navigator.
 
 They live apart from `evaluate` (the matrix runner) so that figures, benches and the runner can
 all build the same objects without importing one another.
@@ -8,9 +9,16 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from segmin.nav_eval.sim.config import NavEvalConfig
+from segmin.nav_eval.sim.protocols import FrameSegmenter
+from segmin.nav_eval.sim.row_env import RowEnv
+
+if TYPE_CHECKING:
+    from segmin.data.synth.camera import CameraModel
+    from segmin.nav_eval.runtime.follower import RowFollower
+    from segmin.nav_eval.runtime.protocols import MaskNavigator
 
 
 def field_label(field: str) -> str:
@@ -19,7 +27,7 @@ def field_label(field: str) -> str:
     return p.stem if p.suffix in (".yaml", ".yml") else field
 
 
-def nav_camera(config: NavEvalConfig) -> Any:
+def nav_camera(config: NavEvalConfig) -> CameraModel:
     """The robot camera of the evaluation: the CameraModel default at perception.width/height."""
     from segmin.data.synth.camera import CameraModel
 
@@ -55,8 +63,14 @@ class FieldContext:
             pass
 
 
-def make_segmenter(model: str, threads: int = 1) -> Any:
-    """'oracle' -> OracleSegmenter; otherwise an ONNX file -> nav_eval.segmenter.OnnxSegmenter."""
+def make_simulator(ctx: FieldContext, config: NavEvalConfig) -> RowEnv:
+    """The simulator on an already built field (a worker builds each field once, for many runs)."""
+    return RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
+
+
+def make_segmenter(model: str, threads: int = 1) -> FrameSegmenter:
+    """The simulator's segmenter: 'oracle' -> OracleSegmenter; otherwise an ONNX file, run by the
+    robot's OnnxSegmenter on each frame's image."""
     if str(model) == "oracle":
         from segmin.nav_eval.sim.oracle import OracleSegmenter
 
@@ -65,11 +79,12 @@ def make_segmenter(model: str, threads: int = 1) -> Any:
     if not path.is_file():
         raise FileNotFoundError(f"--model: {path} not found (give an .onnx file or 'oracle')")
     from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+    from segmin.nav_eval.sim.segmentation import OnnxFrameSegmenter
 
-    return OnnxSegmenter(str(path), threads=threads)
+    return OnnxFrameSegmenter(OnnxSegmenter(str(path), threads=threads))
 
 
-def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
+def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> MaskNavigator:
     """The method's navigator with the evaluation's fusion window (perception.fuse_frames):
     the paper's `Navigator` (its `navigator` section), or SegCorridor (its `corridor` section,
     with the evaluation camera's intrinsics and mount)."""
@@ -92,13 +107,15 @@ def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -
     )
 
 
-def make_follower(segmenter: Any, method: str, depth_threshold: float, config: NavEvalConfig) -> Any:
-    """The robot runtime at the evaluation's rates: what nav-eval drives in the simulator."""
+def make_follower(method: str, depth_threshold: float, config: NavEvalConfig) -> RowFollower:
+    """The robot runtime at the evaluation's rates: what nav-eval drives in the simulator. It has
+    no segmenter of its own: the simulator segments every frame it renders (`run_episode`) and
+    hands the runtime the mask with the frame."""
     from segmin.nav_eval.runtime.follower import RowFollower, RuntimeConfig
 
     rates = config.rates
     return RowFollower(
-        segmenter,
+        None,
         make_navigator(method, depth_threshold, config),
         RuntimeConfig(segment_hz=rates.segment_hz, command_hz=rates.command_hz),
     )

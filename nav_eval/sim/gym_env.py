@@ -1,8 +1,9 @@
-"""`RowFollowEnv`: the closed-loop world as a Gymnasium env (`segmin/RowFollow-v0`).
+"""`RowFollowEnv`: the simulator as a Gymnasium env (`segmin/RowFollow-v0`), a thin adapter.
 
 One step is one camera frame: the action (v, omega) is held for 1 / camera_hz seconds of
 simulated time (the robot integrates at physics_hz and the end conditions are checked at every
-physics tick), and the observation is the next camera frame.
+physics tick), and the observation is the next camera frame. The simulator itself
+(`nav_eval.sim.row_env.RowEnv`) is `env.simulator`.
 
 - observation: Dict(rgb uint8 H x W x 3, depth float32 H x W metres (0 = no reading), t float64
   seconds, attitude float64 (roll, pitch) radians: the IMU, REP 103), what
@@ -14,21 +15,20 @@ physics tick), and the observation is the next camera frame.
 - terminated: "success" (goal distance covered), "collision", "left_row"; truncated: "timeout"
   (run.time_limit_s) and "stalled" (no progress over run.stall_time_s), which say nothing
   about the state itself;
-- info: t, s (progress), lateral error, pose (x, y, yaw, ground truth), reason, the oracle
-  (exact) vegetation mask of the frame, and `rendered`.
+- info: t, s (progress), lateral error, pose (x, y, yaw, ground truth), reason, and the oracle
+  (exact) vegetation mask of the frame.
 
-`reset(seed=..., options={"pose": (x, y, yaw)})` replaces the seeded start pose. A run's start
-noise and depth noise depend on its seed only. `close()` disconnects the pybullet client.
+`reset(seed=..., options={"pose": (x, y, yaw)})` replaces the seeded start pose, which must be
+finite and inside the row gap (`RowEnv.check_pose`). A run's start noise and depth noise depend on
+its seed only. `close()` disconnects the pybullet client; a closed env refuses `reset` and `step`.
 
-Rendering is the cost of a step. A caller that knows it will not use the next frame (the
-runtime's `needs_frame`) sets `skip_next_render = True`: the next observation then holds
-zero images and `info["rendered"]` is False. nav-eval uses it to render only the frames the
-runtime segments; the frames it does render, and their noise, are then the same.
+Every step renders its frame: that is what an observation is. nav-eval, which renders only the
+frames the robot runtime segments, drives the simulator directly (`nav_eval.evaluation.rollout`).
 
-Registered as `segmin/RowFollow-v0` when this module is imported (it imports gymnasium, not
-pybullet: the field is built in `__init__`):
+Registered by `segmin.envs` (which imports gymnasium, not pybullet or this module: the field is
+built when the env is made):
 
-    import gymnasium, segmin.nav_eval.sim.gym_env
+    import gymnasium, segmin.envs
     env = gymnasium.make("segmin/RowFollow-v0", field="straight_vineyard")
 """
 
@@ -40,10 +40,11 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+import segmin.envs  # noqa: F401  (registers segmin/RowFollow-v0 for code that imports only this module)
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
+from segmin.nav_eval.sim.protocols import SimRenderer, SimWorld
 from segmin.nav_eval.sim.row_env import RowEnv
 
-ENV_ID = "segmin/RowFollow-v0"
 TERMINAL = ("success", "collision", "left_row")
 TRUNCATING = ("timeout", "stalled")
 
@@ -60,8 +61,8 @@ class RowFollowEnv(gymnasium.Env):
         config: NavEvalConfig | str | None = None,
         overrides: list[str] | tuple[str, ...] = (),
         gap: int | None = None,
-        world: Any = None,
-        renderer: Any = None,
+        world: SimWorld | None = None,
+        renderer: SimRenderer | None = None,
     ) -> None:
         """`config`: a NavEvalConfig, a config name/path, or None (the shipped default) plus
         `overrides` (key=value). `world` + `renderer` replace the field (tests, custom worlds)."""
@@ -82,13 +83,10 @@ class RowFollowEnv(gymnasium.Env):
         elif renderer is None:
             raise ValueError("a world needs its renderer")
         self.field = field
-        self.row = RowEnv(world, renderer, config, gap=gap)
-        self.depth_threshold = (
-            self._context.depth_threshold
-            if self._context is not None
-            else config.depth_threshold(world.spec.name, world.spec.family)
-        )
-        height, width = self._camera_size(renderer)
+        self.simulator = RowEnv(world, renderer, config, gap=gap)
+        self.depth_threshold = config.depth_threshold(world.spec.name, world.spec.family)
+        self._closed = False
+        height, width = self.simulator.camera_size
         robot = config.robot
         self.observation_space = spaces.Dict(
             {
@@ -101,41 +99,31 @@ class RowFollowEnv(gymnasium.Env):
         self.action_space = spaces.Box(
             np.array([-robot.max_v, -robot.max_omega]), np.array([robot.max_v, robot.max_omega]), dtype=np.float64
         )
-        self.skip_next_render = False
         self._s = 0.0
 
-    def _camera_size(self, renderer: Any) -> tuple[int, int]:
-        camera = getattr(renderer, "camera", None)
-        if camera is not None:
-            return int(camera.height), int(camera.width)
-        size = getattr(renderer, "size", None)
-        if size is not None:
-            return int(size), int(size)
-        frame = renderer.render(*self.row.centreline[0], 0.0, rng=None, noisy_depth=False)
-        return tuple(np.asarray(frame.depth).shape[:2])
-
-    @property
-    def camera_period(self) -> float:
-        """Seconds between two observations."""
-        return 1.0 / self.config.rates.camera_hz
-
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        self._refuse_if_closed("reset")
         super().reset(seed=seed)
         run_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
         options = dict(options or {})
         pose = options.pop("pose", None)
         if options:
             raise ValueError(f"reset options: unknown {sorted(options)}; allowed: ['pose']")
-        info = self.row.reset(run_seed, None if pose is None else tuple(float(v) for v in pose))
+        if pose is not None:
+            pose = self.simulator.check_pose(pose, "options['pose']")
+        info = self.simulator.reset(run_seed, pose)
         self._s = info["s"]
-        self.skip_next_render = False
         return self._observe(info)
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        self._refuse_if_closed("step")
+        try:
+            a = np.asarray(action, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):  # a string, a ragged list: not two numbers
+            a = np.empty(0)
         if a.shape != (2,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be two finite numbers (v, omega), got {action!r}")
-        _, info = self.row.step((float(a[0]), float(a[1])))
+        _, info = self.simulator.step((float(a[0]), float(a[1])))
         reward = float(info["s"] - self._s)
         self._s = info["s"]
         obs, info = self._observe(info)
@@ -143,35 +131,22 @@ class RowFollowEnv(gymnasium.Env):
         return obs, reward, reason in TERMINAL, reason in TRUNCATING, info
 
     def _observe(self, info: dict[str, Any]) -> tuple[dict, dict]:
-        space = self.observation_space
-        info = dict(info, pose=self.row.pose, rendered=not self.skip_next_render, mask=None)
-        if self.skip_next_render:
-            rgb = np.zeros(space["rgb"].shape, dtype=np.uint8)
-            depth = np.zeros(space["depth"].shape, dtype=np.float32)
-        else:
-            frame = self.row.frame()
-            rgb = np.asarray(frame.rgb, dtype=np.uint8)
-            depth = np.asarray(frame.depth, dtype=np.float32)
-            info["mask"] = np.asarray(frame.mask, dtype=bool)
-        self.skip_next_render = False
+        frame = self.simulator.frame()
+        info = dict(info, pose=self.simulator.pose, mask=np.asarray(frame.mask, dtype=bool))
         return {
-            "rgb": rgb,
-            "depth": depth,
-            "t": np.array(self.row.t, dtype=np.float64),
-            "attitude": np.array(self.row.attitude, dtype=np.float64),
+            "rgb": np.asarray(frame.rgb, dtype=np.uint8),
+            "depth": np.asarray(frame.depth, dtype=np.float32),
+            "t": np.array(self.simulator.t, dtype=np.float64),
+            "attitude": np.array(self.simulator.attitude, dtype=np.float64),
         }, info
 
+    def _refuse_if_closed(self, call: str) -> None:
+        if self._closed:
+            raise RuntimeError(f"{call}() on a closed RowFollowEnv: close() released its simulator; make a new env")
+
     def close(self) -> None:
+        self._closed = True
         if self._context is not None:
             self._context.close()
             self._context = None
         super().close()
-
-
-def register_env() -> None:
-    """Register `segmin/RowFollow-v0` (idempotent)."""
-    if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="segmin.nav_eval.sim.gym_env:RowFollowEnv")
-
-
-register_env()

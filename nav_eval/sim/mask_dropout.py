@@ -2,7 +2,8 @@
 
 Sweeping how good the model must be needs models of every quality; corrupting the masks of one
 (the oracle's exact masks, or an exported model's) gives the same axis at no training cost.
-`MaskDropout(segmenter, share, mode, seed)` wraps any segmenter the simulator accepts and, for
+`MaskDropout(segmenter, share, mode, seed)` wraps any `FrameSegmenter` (the simulator's
+segmenters: the oracle, an exported model on frames) and is one itself; for
 each mask it returns, draws whether to corrupt it (probability `share`, the run's seeded stream,
 in the order the masks are computed, which a run fixes):
 
@@ -16,21 +17,20 @@ what a share p does to a run is what the sweep measures.
 
 from __future__ import annotations
 
-from typing import Any
-
 import cv2
 import numpy as np
 
-from segmin.nav_eval.sim.oracle import segment_frame
+from segmin.nav_eval.sim.config import Perception
+from segmin.nav_eval.sim.protocols import FrameSegmenter, SimFrame
 
 MODES = ("erode", "drop")
 ERODE_FRACTION = 1.0 / 16.0  # erosion kernel side as a share of the image width
 
 
-class MaskDropout:
+class MaskDropout(FrameSegmenter):
     """Corrupts a seeded share of the wrapped segmenter's masks (see the module docstring)."""
 
-    def __init__(self, segmenter: Any, share: float, mode: str = "erode", seed: int = 0) -> None:
+    def __init__(self, segmenter: FrameSegmenter, share: float, mode: str = "erode", seed: int = 0) -> None:
         if not 0.0 <= share <= 1.0:
             raise ValueError(f"mask dropout share must be within [0, 1], got {share}")
         if mode not in MODES:
@@ -43,9 +43,9 @@ class MaskDropout:
         self.corrupted = 0  # masks corrupted so far
         self.masks = 0  # masks returned so far
 
-    def segment_frame(self, frame: Any) -> np.ndarray:
+    def segment_frame(self, frame: SimFrame) -> np.ndarray:
         """The wrapped segmenter's mask, corrupted with probability `share`."""
-        mask = segment_frame(self.segmenter, frame)
+        mask = self.segmenter.segment_frame(frame)
         self.masks += 1
         if self._rng.random() >= self.share:
             return mask
@@ -62,7 +62,7 @@ def corrupt(mask: np.ndarray, mode: str) -> np.ndarray:
     return cv2.erode(mask.astype(np.uint8), kernel).astype(bool)
 
 
-def with_dropout(segmenter: Any, perception: Any, seed: int) -> Any:
+def with_dropout(segmenter: FrameSegmenter, perception: Perception, seed: int) -> FrameSegmenter:
     """`segmenter` wrapped as perception.mask_dropout asks (itself when the share is 0)."""
     if perception.mask_dropout <= 0:
         return segmenter

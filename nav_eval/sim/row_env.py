@@ -1,12 +1,18 @@
-"""The world side of the closed loop in simulated time: robot + camera in a synth world.
+"""The simulator: the world side of the closed loop in simulated time, robot + camera in a field.
 
 `RowEnv` places the robot at the row entrance with a seeded lateral offset and heading error
 (`reset(seed)`), and `step((v, omega))` holds that command for one camera period
 (1 / camera_hz), integrating the robot at physics_hz and checking the end conditions at every
-tick. `frame()` renders the camera frame at the current tick on demand. The robot's software
-(segmenter, mask fusion, navigator, all timing) is `nav_eval.runtime.RowFollower`, the same one
-a robot runs; `nav_eval.gym_env.RowFollowEnv` wraps this class as a Gymnasium env and
-`nav_eval.rollout.run_episode` drives the runtime in it.
+tick. `frame()` renders the camera frame at the current tick on demand: a frame nobody asks for
+is never rendered, which is how nav-eval renders only the frames the runtime will segment. The
+robot's software (segmenter, mask fusion, navigator, all timing) is
+`nav_eval.runtime.RowFollower`, the same one a robot runs.
+
+Its public interface is all that its two drivers use: `nav_eval.sim.gym_env.RowFollowEnv`, a
+thin Gymnasium adapter, and nav-eval's rollout (`nav_eval.evaluation.rollout.run_episode`):
+`reset`, `step`, `frame`, the state (`t`, `pose`, `attitude`, `trajectory`, `reason`,
+`clearance_time`, `start_pose`, `goal_distance`) and the row driven (`gap`, `centreline`,
+`half_width`), and the camera (`camera_period`, `camera_size`).
 
 End conditions (first one wins): "success" (covered run.length_m along the centreline),
 "collision" (footprint touches a trunk or post), "left_row" (|lateral| beyond the gap's free
@@ -18,24 +24,34 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import threading
-from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from segmin.nav_eval.sim.config import NavEvalConfig
-from segmin.nav_eval.sim.oracle import segment_frame
+from segmin.nav_eval.sim.protocols import SimRenderer, SimWorld
 from segmin.nav_eval.sim.robot import footprint_distances, imu_attitude
 from segmin.nav_eval.sim.skid_steer import make_robot
 from segmin.nav_eval.sim.track import Trajectory, point_on_polyline, polyline_length, project_onto_polyline
 
+if TYPE_CHECKING:
+    from segmin.data.synth.camera import CameraModel
 
-def depth_noise_camera(renderer: Any, scale: float) -> Any:
+
+@dataclasses.dataclass(frozen=True)
+class CameraFrame:
+    """A camera frame as the simulated robot receives it: the render, with the sensor's depth noise."""
+
+    rgb: np.ndarray  # uint8 H x W x 3
+    depth: np.ndarray  # float32 H x W metres, 0 = no reading
+    mask: np.ndarray  # bool H x W exact vegetation (for the oracle only)
+
+
+def depth_noise_camera(renderer: SimRenderer, scale: float) -> CameraModel | None:
     """The renderer's camera with its depth-noise model scaled by `scale` (sigma coefficient and
-    dropout share); None when the renderer has no noise model (the tests' stand-in)."""
-    camera = getattr(renderer, "camera", None)
-    if camera is None or not hasattr(camera, "apply_depth_noise"):
+    dropout share); None when the camera's depth noise is switched off (`depth_noise_enabled`)."""
+    camera = renderer.camera
+    if not camera.depth_noise_enabled:
         return None
     if scale == 1.0:
         return camera
@@ -47,15 +63,17 @@ def depth_noise_camera(renderer: Any, scale: float) -> Any:
 
 
 class RowEnv:
-    """One row gap of a world, a robot in it, and the rendering schedule."""
+    """The simulator: one row gap of a world, a robot in it, and its camera (module docstring)."""
 
-    def __init__(self, world: Any, renderer: Any, config: NavEvalConfig, *, gap: int | None = None) -> None:
+    def __init__(
+        self, world: SimWorld, renderer: SimRenderer, config: NavEvalConfig, *, gap: int | None = None
+    ) -> None:
         self.world = world
         self.renderer = renderer
         self.config = config
         n_gaps = len(world.centrelines)
         if n_gaps == 0:
-            raise ValueError(f"world {getattr(world.spec, 'name', '?')!r} has no row gap (centrelines is empty)")
+            raise ValueError(f"world {world.spec.name!r} has no row gap (centrelines is empty)")
         g = config.run.gap if gap is None else gap
         self.gap = n_gaps // 2 if g is None else int(g)
         if not 0 <= self.gap < n_gaps:
@@ -64,7 +82,7 @@ class RowEnv:
         self.half_width = float(world.gap_half_widths[self.gap])
         self.row_length = polyline_length(self.centreline)
         plants = np.asarray(world.plant_circles, dtype=float).reshape(-1, 3)
-        obstacles = np.asarray(getattr(world, "obstacle_circles", np.zeros((0, 3))), dtype=float).reshape(-1, 3)
+        obstacles = np.asarray(world.obstacle_circles, dtype=float).reshape(-1, 3)
         self.plants, self.obstacles = plants, obstacles
         self._solid = np.concatenate([plants, obstacles], axis=0)
         self.robot = make_robot(config.robot, world)
@@ -79,23 +97,21 @@ class RowEnv:
         self.start_pose = (0.0, 0.0, 0.0)
         self._rows: list[tuple[float, ...]] = []
         self._tick = 0
-        self._frame: tuple[int, Any] | None = None
+        self._frame: tuple[int, CameraFrame] | None = None
 
     def reset(self, seed: int, pose: tuple[float, float, float] | None = None) -> dict[str, Any]:
         """Start a run: seeded start noise, depth-noise and actuator-noise streams; returns the info.
 
-        `pose` (x, y, yaw) replaces the seeded start pose (tests, scripted scenarios).
+        `pose` (x, y, yaw) replaces the seeded start pose (tests, scripted scenarios); it must
+        pass `check_pose`.
         """
         run = self.config.run
+        if pose is not None:
+            pose = self.check_pose(pose)  # before anything changes: a refused pose leaves the run as it was
         seeds = np.random.SeedSequence(int(seed)).spawn(3)
         start_rng = np.random.default_rng(seeds[0])
         self._noise_rng = np.random.default_rng(seeds[1])
-        self.start_s = float(run.start_s)
-        self.goal_s = min(self.start_s + run.length_m, self.row_length - 0.05)
-        if self.goal_s <= self.start_s:
-            raise ValueError(
-                f"row gap {self.gap} is {self.row_length:.2f} m long; start_s={self.start_s} leaves nothing to drive"
-            )
+        self.start_s, self.goal_s = self._run_span()
         x0, y0, tangent = point_on_polyline(self.centreline, self.start_s)
         offset = float(start_rng.uniform(-run.start_lateral_max, run.start_lateral_max))
         heading = math.radians(float(start_rng.uniform(-run.start_heading_max_deg, run.start_heading_max_deg)))
@@ -103,7 +119,7 @@ class RowEnv:
         y = y0 + math.cos(tangent) * offset
         yaw = tangent + heading
         if pose is not None:
-            x, y, yaw = (float(v) for v in pose)
+            x, y, yaw = pose
         self.start_pose = (x, y, yaw)
         self.robot.reset(x, y, yaw, rng=np.random.default_rng(seeds[2]))
         self.reason, self.clearance_time = None, None
@@ -113,8 +129,50 @@ class RowEnv:
         self._check_end()
         return self._info()
 
+    def check_pose(self, pose: object, name: str = "pose") -> tuple[float, float, float]:
+        """`pose` as (x, y, yaw) floats if a run can start there, else ValueError naming `name`.
+
+        A start must be finite and inside the row gap driven, where the run has not already
+        ended: within the gap's free half-width of the centreline and, along it, between
+        run.back_margin_m behind the start and the goal (a pose outside would end the run as
+        "left_row" or "success" before its first step).
+        """
+        values: tuple[float, ...] = ()
+        if not isinstance(pose, (str, bytes)):
+            try:
+                values = tuple(float(v) for v in np.asarray(pose, dtype=float).reshape(-1))
+            except (TypeError, ValueError):
+                values = ()
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{name} must be (x, y, yaw): three finite numbers (metres, radians), got {pose!r}")
+        x, y, yaw = values
+        start_s, goal_s = self._run_span()
+        earliest = start_s - self.config.run.back_margin_m
+        along, lateral, _ = project_onto_polyline(np.array([[x, y]]), self.centreline)
+        s, offset = float(along[0]), float(lateral[0])
+        if not (earliest <= s < goal_s and abs(offset) <= self.half_width):
+            raise ValueError(
+                f"{name} = ({x:g}, {y:g}, {yaw:g}) is outside row gap {self.gap} of the field: it lies "
+                f"{s:.2f} m along the gap's centreline and {offset:+.2f} m beside it; a run starts within "
+                f"{self.half_width:.2f} m of the centreline, from {earliest:.2f} m up to the goal at {goal_s:.2f} m"
+            )
+        return x, y, yaw
+
+    def _run_span(self) -> tuple[float, float]:
+        """(start, goal) of a run along the centreline, in metres from the row entrance."""
+        run = self.config.run
+        start_s = float(run.start_s)
+        goal_s = min(start_s + run.length_m, self.row_length - 0.05)
+        if goal_s <= start_s:
+            raise ValueError(
+                f"row gap {self.gap} is {self.row_length:.2f} m long; start_s={start_s} leaves nothing to drive"
+            )
+        return start_s, goal_s
+
     def step(self, action: tuple[float, float]) -> tuple[bool, dict[str, Any]]:
         """Hold (v, omega) for one camera period; returns (ended, info)."""
+        if not self._rows:
+            raise RuntimeError("step() before the first reset(): call reset(seed) to start a run")
         if self.reason is not None:
             raise RuntimeError("step() after the run ended; call reset()")
         self.robot.command(float(action[0]), float(action[1]))
@@ -147,7 +205,24 @@ class RowEnv:
 
     @property
     def trajectory(self) -> Trajectory:
+        """Every tick of the run so far (time, pose, velocities, distance to the nearest plant)."""
         return Trajectory.from_rows(self._rows)
+
+    @property
+    def goal_distance(self) -> float:
+        """Metres along the centreline from the start to the goal (the run's length)."""
+        return self.goal_s - self.start_s
+
+    @property
+    def camera_period(self) -> float:
+        """Seconds of simulated time between two camera frames (one `step`)."""
+        return 1.0 / self.config.rates.camera_hz
+
+    @property
+    def camera_size(self) -> tuple[int, int]:
+        """(height, width) of the camera frames."""
+        camera = self.renderer.camera
+        return int(camera.height), int(camera.width)
 
     def _record(self) -> None:
         s = self.robot.state
@@ -183,9 +258,10 @@ class RowEnv:
         return {"t": self.t, "s": self._s - self.start_s, "lateral": self._lateral, "reason": self.reason}
 
     # ---- camera -----------------------------------------------------------------------------
-    def frame(self) -> Any:
+    def frame(self) -> CameraFrame:
         """The camera frame at the current tick's pose, rendered on first use (fixed light and
-        sky: no flicker) and cached until the robot moves.
+        sky: no flicker) and cached until the robot moves. Not asking for a frame skips its
+        render.
 
         Depth noise is applied here with the run's own generator, not inside the renderer, so a
         run's noise depends on its seed and on which frames were rendered, in tick order (not on
@@ -193,49 +269,9 @@ class RowEnv:
         """
         if self._frame is None or self._frame[0] != self._tick:
             _, x, y, yaw = self._rows[self._tick][:4]
-            frame = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
+            rendered = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
+            depth = rendered.depth
             if self.config.perception.depth_noise and self._depth_camera is not None:
-                frame = dataclasses.replace(
-                    frame, depth=self._depth_camera.apply_depth_noise(frame.depth, self._noise_rng)
-                )
-            self._frame = (self._tick, frame)
+                depth = self._depth_camera.apply_depth_noise(depth, self._noise_rng)
+            self._frame = (self._tick, CameraFrame(rendered.rgb, depth, rendered.mask))
         return self._frame[1]
-
-
-class BackgroundSegmenter:
-    """Segments frames on one helper thread while the caller renders the next one.
-
-    `submit` returns only once the helper has started the job. A thread waiting for the GIL
-    gets it at the holder's next switch point, and pybullet holds the GIL for the whole of
-    `getCameraImage`: without the handshake the helper would start after the next render, and
-    nothing would overlap. Once started, the helper releases the GIL inside onnxruntime.
-    """
-
-    def __init__(self, segmenter: Any) -> None:
-        self.segmenter = segmenter
-        # OnnxSegmenter splits `segment` into prepare (check, resize) and segment_prepared.
-        self._two_phase = hasattr(segmenter, "prepare") and hasattr(segmenter, "segment_prepared")
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="segmin-segment")
-
-    def submit(self, frame: Any) -> Future:
-        """Start segmenting `frame`; the future holds its bool mask."""
-        # Resize on this thread: OpenCV releases the GIL, which would hand it to this thread's
-        # next render and stall the helper before it reached onnxruntime.
-        prepared = self.segmenter.prepare(frame.rgb) if self._two_phase else None
-        started = threading.Event()
-
-        def job() -> np.ndarray:
-            started.set()
-            if prepared is None:
-                return segment_frame(self.segmenter, frame)
-            return np.asarray(self.segmenter.segment_prepared(prepared), dtype=bool)
-
-        future = self._pool.submit(job)
-        started.wait()
-        return future
-
-    def __enter__(self) -> BackgroundSegmenter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._pool.shutdown(wait=True)

@@ -39,12 +39,15 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from segmin.common.angles import wrap_angle
 from segmin.nav_eval.sim.robot import Robot, RobotConfig, RobotState, _actuate
+
+if TYPE_CHECKING:
+    from segmin.nav_eval.sim.protocols import SimWorld
 
 MAX_SLIP = 0.9  # beyond this the wheels spin in place: the model no longer describes the robot
 
@@ -136,10 +139,9 @@ class SkidSteerRobot(Robot):
         self._noise = self._noise * a + k.noise_std * math.sqrt(1.0 - a * a) * self._rng.standard_normal(2)
 
 
-def make_robot(config: RobotConfig, world: Any) -> Robot:
+def make_robot(config: RobotConfig, world: SimWorld) -> Robot:
     """The robot `config.model` names, on `world`'s terrain (its spec's roughness sets the slip)."""
     if config.model == "kinematic":
         return Robot(config, world.terrain_height, world.terrain_normal)
-    terrain = getattr(getattr(world, "spec", None), "terrain", None)
-    roughness = float(getattr(terrain, "roughness", 0.0))
+    roughness = float(world.spec.terrain.roughness)
     return SkidSteerRobot(config, world.terrain_height, world.terrain_normal, roughness=roughness)

@@ -135,7 +135,6 @@ def _field(plan: SweepPlan, variant: Variant, out: Path, written: set[str]) -> s
 
 def _load_cached(folder: Path, keys: list[list[tuple[str, str]]]) -> dict[str, RunResult]:
     """The stored results of this sweep's jobs (an unreadable file is run again)."""
-    names = {f.name for f in dataclasses.fields(RunResult)}
     cached = {}
     for key in {key for pairs in keys for _, key in pairs}:
         path = folder / f"{key}.json"
@@ -143,7 +142,7 @@ def _load_cached(folder: Path, keys: list[list[tuple[str, str]]]) -> dict[str, R
             continue
         try:
             row = json.loads(path.read_text())["result"]
-            cached[key] = RunResult(**{k: v for k, v in row.items() if k in names})
+            cached[key] = RunResult.from_row(row)
         except (OSError, ValueError, KeyError, TypeError):
             continue
     return cached

@@ -7,7 +7,6 @@ small JSON-able dict of outputs for its stage record. Caching and ordering live 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -336,10 +335,5 @@ def load_results(path: Path) -> list[Any]:
 
     from segmin.nav_eval.evaluation.evaluate import RunResult
 
-    names = {f.name for f in dataclasses.fields(RunResult)} - {"trajectory", "commands"}
     rows = json.loads(path.read_text())["rows"]
-    results = []
-    for row in rows:
-        values = {k: (math.nan if v is None else v) for k, v in row.items() if k in names}
-        results.append(RunResult(**values))
-    return results
+    return [RunResult.from_row({k: (math.nan if v is None else v) for k, v in row.items()}) for row in rows]
