@@ -35,7 +35,7 @@ def _write_mp4(path: Path, frames: list[np.ndarray], fps: float) -> None:
 
     height, width = np.asarray(frames[0]).shape[:2]
     with atomic_path(path, suffix=".mp4") as tmp:  # VideoWriter picks the container from the name
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (width, height))
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), float(fps), (width, height))
         if not writer.isOpened():
             raise _NoMp4Encoder(path)
         for frame in frames:
