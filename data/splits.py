@@ -68,11 +68,11 @@ def load_split(path: str | Path, frames: Sequence[Frame]) -> dict[str, list[Fram
     splits: dict[str, list[Frame]] = {}
     for name in ("train", "val"):
         chosen = []
-        for key in content.get(name, []):
+        for entry in content.get(name, []):
             try:
-                key = (str(key[0]), str(key[1]), int(key[2]))
+                key = (str(entry[0]), str(entry[1]), int(entry[2]))
             except (TypeError, ValueError, IndexError, KeyError):
-                raise DatasetError(f"{path}: {name} entry {key!r} is not [domain, subset, frame_id]") from None
+                raise DatasetError(f"{path}: {name} entry {entry!r} is not [domain, subset, frame_id]") from None
             if key not in index:
                 raise DatasetError(f"{path}: {name} frame {key} is not in the dataset")
             chosen.append(index[key])

@@ -84,10 +84,7 @@ def load_frames(
     root = Path(source)
     if not root.exists():
         raise FileNotFoundError(f"{root}: calibration/verification data folder not found")
-    if root.is_file():
-        paths = [root]
-    else:
-        paths = _agriseg_images(root, domains) or ([] if domains else _image_files(root))
+    paths = [root] if root.is_file() else _agriseg_images(root, domains) or ([] if domains else _image_files(root))
     if not paths:
         which = f" of domains {domains}" if domains else ""
         raise ValueError(f"{root}: no images{which} ({', '.join(IMAGE_SUFFIXES)}) found to verify the export on")

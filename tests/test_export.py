@@ -274,7 +274,7 @@ def _agriseg_root(root: Path) -> Path:
     for domain, count in (("synth_a", 3), ("synth_b", 2)):
         subset = root / domain / f"{domain}_0"
         for n in range(1, count + 1):
-            image, mask = field_image(rng, 40, 40)
+            image, _mask = field_image(rng, 40, 40)
             (subset / "images" / f"Image{n}").mkdir(parents=True)
             (subset / "masks" / f"Image{n}").mkdir(parents=True)
             cv2.imwrite(str(subset / "images" / f"Image{n}" / f"Image{n}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))

@@ -23,7 +23,7 @@ def broken_root(tmp_path: Path) -> tuple[Path, Path]:
 def test_training_stops_before_the_first_step_naming_the_corrupt_file(broken_root, tmp_path):
     from segmin.train.run import fit
 
-    root, bad = broken_root
+    root, _bad = broken_root
     # before: found only if a worker happened to load it (a 15-line dump), or never
     config = tiny_config(root, epochs=1, image_size=32, batch_size=2, tensorboard=False)
     with pytest.raises(DatasetError, match="Image5.png: truncated PNG") as info:

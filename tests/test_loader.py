@@ -361,7 +361,7 @@ def test_augmentations_keep_image_and_mask_aligned(config):
         truth = y[0].numpy() > 0.5
         assert set(np.unique(y.numpy())) <= {0.0, 1.0}
 
-        def disagreement(m: np.ndarray) -> float:
+        def disagreement(m: np.ndarray, level: np.ndarray = level) -> float:
             """Clearly bright pixels off the mask or clearly dark ones on it (edges are blurred)."""
             return float((((level > 0.75) & ~m) | ((level < 0.25) & m)).mean())
 

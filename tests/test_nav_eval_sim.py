@@ -112,7 +112,7 @@ def _run(method: str = "segmin", seed: int = 3, **run):
 
 
 def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
-    episode, renderer, env = _run()
+    episode, renderer, _env = _run()
     assert episode.reason == "success", episode.reason
     assert episode.clearance_time == pytest.approx(episode.trajectory.t[-1])
     assert 8.0 / 0.5 < episode.clearance_time < 40.0

@@ -57,7 +57,7 @@ def test_without_slip_noise_or_latency_it_is_the_unicycle() -> None:
     tilted = (0.05, -0.03, 1.0)  # a slope under the robot: pitch and roll both non-zero
     for normal in ((0.0, 0.0, 1.0), tilted):
         n = np.asarray(normal) / np.linalg.norm(normal)
-        unicycle = _drive(Robot(RobotConfig(), None, lambda x, y: n), COMMANDS)
+        unicycle = _drive(Robot(RobotConfig(), None, lambda x, y, n=n: n), COMMANDS)
         skid = _drive(_skid(normal=normal), COMMANDS)
         assert np.allclose(skid, unicycle, atol=1e-9, rtol=0)
     # ... whatever the calibrated ICR expansion: the drive's mixing and the kinematics cancel.
@@ -94,7 +94,7 @@ def test_cross_slope_creeps_downhill_and_the_icr_offset_slides_a_turn_outward() 
     assert abs(flat[-1, 1]) < 1e-12
     robot = _skid(icr_x=0.05)
     robot.reset(0.0, 0.0, 0.0)
-    vx, vy, w = robot.body_velocity(0.5, 0.4)
+    _vx, vy, w = robot.body_velocity(0.5, 0.4)
     assert w > 0 and vy == pytest.approx(-0.05 * w)  # turning left, the centre slides right
 
 

@@ -133,7 +133,7 @@ def test_resume_after_killing_a_run(tmp_path):
     reference = tmp_path / "reference"
     render_dataset(RenderJob(spec=spec_from_dict(tiny()), out=reference, frames=frames, camera=CAM, progress=False))
     assert _tree(out) == _tree(reference)
-    assert not [p for p in out.rglob(".*")], "staging or temporary files left behind"
+    assert not list(out.rglob(".*")), "staging or temporary files left behind"
 
 
 def test_unwritable_output_fails_before_rendering(tmp_path, monkeypatch):

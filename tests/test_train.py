@@ -159,7 +159,7 @@ def test_fit_writes_checkpoints_logs_and_previews(dataset_root, tmp_path):
     last = torch.load(out / "last.pt", map_location="cpu", weights_only=True)
     assert last["training_state"]["epoch"] == 2 and last["training_state"]["step"] == 0
     assert isinstance(last["training_state"]["rng"]["torch"], torch.Tensor)
-    model, info = load_model(out / "best.pt")
+    _model, info = load_model(out / "best.pt")
     assert info["input_size"] == [64, 64] and info["family"] == "vineyards"
     preview = cv2.imread(str(out / "previews" / "epoch_002.png"))
     assert preview.shape == (2 * 64, 4 * 64, 3)
@@ -376,7 +376,7 @@ def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
     )
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.strip().startswith("32"))
-    size, grid, frames, area, fitted = row.split()
+    _size, grid, frames, area, fitted = row.split()
     assert (grid, frames) == ("4x4", "4")
     assert 0.3 < float(area) <= 1.0 and 0.3 < float(fitted) <= 1.0  # blobs of 10-28 px: mostly representable
 

@@ -135,7 +135,7 @@ def backdrop_meshes(spec, layout, terrain, rng: np.random.Generator, textures) -
         side = int(rng.integers(4))
         distance = rng.uniform(*bd.tree_distance)
         count = int(rng.integers(8, 16))
-        for k in range(count):
+        for _ in range(count):
             xy, _ = _around(rng, lo, hi, distance + rng.uniform(0, 4), side)
             foot = np.array([xy[0], xy[1], float(terrain.height(*xy))])
             parts.append(

@@ -49,7 +49,7 @@ class Mesh:
         centre = v.mean(axis=0)
         xy = v[:, :2] - centre[:2]
         cov = xy.T @ xy
-        w, vec = np.linalg.eigh(cov)
+        _w, vec = np.linalg.eigh(cov)
         axis = np.array([vec[0, -1], vec[1, -1], 0.0])
         t = (v - centre) @ axis
         a, b = centre + t.min() * axis, centre + t.max() * axis

@@ -9,6 +9,7 @@ impossible field (negative spacing, rows that would intersect) fails before pybu
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,7 +113,7 @@ class RowsSpec:
         pts = [tuple(map(float, q)) for q in self.polyline]
         if len(pts) < 2:
             raise ValueError("rows.polyline: needs at least 2 points (or leave it empty)")
-        seg = [math.dist(a, b) for a, b in zip(pts[:-1], pts[1:])]
+        seg = [math.dist(a, b) for a, b in itertools.pairwise(pts)]
         if min(seg) <= 0:
             raise ValueError("rows.polyline: repeated point")
         if sum(seg) < self.length:

@@ -86,7 +86,7 @@ def write_results(out: str | Path, results: list[Any], meta: dict[str, Any]) -> 
     rows = [{k: _clean(v) for k, v in r.row().items()} for r in results]
     write_json(
         out / "results.json",
-        {**{k: v for k, v in meta.items()}, "rows": [{**row, "config": meta.get("config", {})} for row in rows]},
+        {**dict(meta.items()), "rows": [{**row, "config": meta.get("config", {})} for row in rows]},
     )
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, extrasaction="ignore")

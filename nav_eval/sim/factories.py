@@ -7,6 +7,7 @@ all build the same objects without importing one another.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -57,10 +58,8 @@ class FieldContext:
     def close(self) -> None:
         import pybullet as p
 
-        try:
+        with contextlib.suppress(Exception):  # already gone
             p.disconnect(self.client)
-        except Exception:  # already gone
-            pass
 
 
 def make_simulator(ctx: FieldContext, config: NavEvalConfig) -> RowEnv:

@@ -137,7 +137,7 @@ def summary_markdown(
         "|---" * (3 + len(methods)) + "|",
     ]
     table = breaks(plan, rows)
-    for name, values in spec.parameters.items():
+    for name, _values in spec.parameters.items():
         labels = ", ".join(str(r["value"]) for r in rows if r["parameter"] == name and r["method"] == methods[0])
         lines.append(
             f"| {name} | {PARAMETERS[name].unit or '–'} | {labels} | "

@@ -81,8 +81,7 @@ def _one_line(exc: BaseException) -> str:
     """The message of a user error on one line; an OSError names its path and the reason."""
     if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
         return f"{exc.filename}: {exc.strerror}"
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":
