@@ -92,8 +92,12 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
     videos = list((tmp_path / "videos").iterdir())
     assert len(videos) == 1 and videos[0].suffix in (".mp4", ".gif") and videos[0].stat().st_size > 1000
     assert not list(tmp_path.rglob("*.tmp"))  # atomic writes leave no temporaries
-    # An invalid navigator value is refused before the first run (it used to make every run raise).
-    bad = load_nav_config(overrides=TINY + ["navigator.smooth_window=4"])
+    # An invalid navigator value is refused when the config loads, and one set past the loader
+    # before the first run (it used to make every run raise).
+    with pytest.raises(ValueError, match="navigator.smooth_window"):
+        load_nav_config(overrides=[*TINY, "navigator.smooth_window=4"])
+    bad = load_nav_config(overrides=TINY)
+    bad.navigator["smooth_window"] = 4
     with pytest.raises(ValueError, match="smooth_window"):
         run_evaluation(
             "oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad, progress=False, plots=False
