@@ -247,7 +247,7 @@ def test_held_out_validation_domains(tmp_path):
     config = tiny_config(train_root, epochs=1)
     config.data.val_root = val_root
     config.data.val_domains = ["synth_vineyards"]
-    from segmin.train.run import select_frames
+    from segmin.train.loaders import select_frames
 
     train_frames, val_frames = select_frames(config)
     assert len(train_frames) == 6 and {f.domain for f in val_frames} == {"synth_straight_vineyard"}

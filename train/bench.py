@@ -73,8 +73,8 @@ def bench_train(
     from segmin.data.augment import train_transform
     from segmin.models import build_model
     from segmin.train.distributed import EpochSampler
+    from segmin.train.loaders import loader_worker_init
     from segmin.train.loop import SegLoss, StepContext, train_step
-    from segmin.train.run import _worker_init
 
     torch.set_num_threads(threads)
     cv2.setNumThreads(1)  # OpenCV's own thread pool would fight torch's threads for the cores
@@ -91,7 +91,7 @@ def bench_train(
         )
         extra: dict[str, Any] = {}
         if workers > 0:
-            extra = {"prefetch_factor": 4, "persistent_workers": True, "worker_init_fn": _worker_init}
+            extra = {"prefetch_factor": 4, "persistent_workers": True, "worker_init_fn": loader_worker_init}
         loader = DataLoader(
             dataset,
             batch_size=batch_size,
