@@ -403,35 +403,69 @@ def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp
     assert (out / "last.pt").read_bytes() != before[0]
 
 
-def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(
-    dataset_root, tmp_path, monkeypatch, sigint_delivered
-):
-    """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
-    used to save "k steps done" with the weights of k+1, so --resume ran a step twice."""
+def _metrics_without_seconds(run_dir: Path) -> list[str]:
+    """metrics.csv without its last column (seconds: wall time, never the same twice)."""
+    return [line.rsplit(",", 1)[0] for line in (run_dir / "metrics.csv").read_text().splitlines()]
+
+
+def _interrupt_with_sigint_after(monkeypatch, step: int) -> None:
+    """Ctrl-C as a user sends it, during training step number `step` (counted from 1 over the
+    run): the signal lands after that step's weight update, before the step is counted."""
     import signal
 
     import segmin.train.loop as loop_module
-    from segmin.train.run import fit
 
-    config = tiny_config(dataset_root, epochs=2, tensorboard=False)
-    fit(config, tmp_path / "straight")
     real_step = loop_module.train_step
     calls = {"n": 0}
 
     def step_then_sigint(*args, **kwargs):
         result = real_step(*args, **kwargs)
         calls["n"] += 1
-        if calls["n"] == 3:  # first step of epoch 2: its weight update is done, the count is not yet
+        if calls["n"] == step:
             signal.raise_signal(signal.SIGINT)
         return result
 
     monkeypatch.setattr(loop_module, "train_step", step_then_sigint)
-    assert fit(config, tmp_path / "cut").interrupted
+
+
+def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(
+    dataset_root, tmp_path, monkeypatch, sigint_delivered
+):
+    """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
+    used to save "k steps done" with the weights of k+1, so --resume ran a step twice.
+
+    metrics.csv must match too: the interrupted epoch's train_loss is a mean over all its steps,
+    those before the Ctrl-C included (their running sums travel in last.pt; they used to restart
+    at zero, so the resumed epoch reported the mean of its remaining steps only).
+    """
+    from segmin.train.run import fit
+
+    config = tiny_config(dataset_root, epochs=2, tensorboard=False)
+    fit(config, tmp_path / "straight")
+    with monkeypatch.context() as patch:
+        _interrupt_with_sigint_after(patch, 3)  # first step of epoch 2 (2 steps per epoch)
+        assert fit(config, tmp_path / "cut").interrupted
     state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
     assert (state["epoch"], state["step"]) == (1, 1)  # the step in flight was finished and counted
-    monkeypatch.setattr(loop_module, "train_step", real_step)
     assert not fit(config, tmp_path / "cut", resume=True).interrupted
     _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
+    assert _metrics_without_seconds(tmp_path / "cut") == _metrics_without_seconds(tmp_path / "straight")
+
+
+def test_resume_after_ctrl_c_continues_a_cosine_schedule_exactly(dataset_root, tmp_path, monkeypatch, sigint_delivered):
+    """--resume restores the LR scheduler: one rebuilt from scratch steps a cosine schedule from
+    its start again (epoch 3 trains at 0.56 x lr instead of 0.25 x). The other resume tests use
+    a step schedule with step_size 1, where a fresh scheduler happens to land on the same rates."""
+    from segmin.train.run import fit
+
+    config = tiny_config(dataset_root, epochs=3, schedule="cosine", tensorboard=False)
+    fit(config, tmp_path / "straight")
+    with monkeypatch.context() as patch:
+        _interrupt_with_sigint_after(patch, 3)  # first step of epoch 2 of 3
+        assert fit(config, tmp_path / "cut").interrupted
+    assert not fit(config, tmp_path / "cut", resume=True).interrupted
+    _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
+    assert _metrics_without_seconds(tmp_path / "cut") == _metrics_without_seconds(tmp_path / "straight")  # lr column
 
 
 def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp_path, monkeypatch):

@@ -174,7 +174,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     loaders = build_loaders(config, dist, train_frames, val_frames)
     state, ctx = build_state(config, dist)
     if resume:
-        resume_state(state, out_dir / "last.pt")
+        resume_state(state, out_dir / "last.pt", dist)
         if dist.is_main:
             print(f"resuming {out_dir / 'last.pt'}: epoch {state.epoch + 1}, step {state.step}")
     logger = _open_run_folder(config, out_dir, train_frames, val_frames) if dist.is_main else None
@@ -293,7 +293,9 @@ def _train_steps(run: Run, state: TrainState) -> float:
         disable=not run.show_progress,
         leave=False,
     )
-    result = train_one_epoch(run.ctx, run.loaders.train, max_steps=steps - skip, on_step=after_step, progress=bar)
+    result = train_one_epoch(
+        run.ctx, run.loaders.train, max_steps=steps - skip, on_step=after_step, progress=bar, total=state.loss_total
+    )
     bar.close()
     return result["loss"]
 
@@ -310,13 +312,14 @@ def _validate(
 
 def _end_epoch(config: TrainConfig, state: TrainState, row: dict[str, Any]) -> bool:
     """Add a finished epoch to the state (history, best IoU, weight average; the next epoch starts
-    at step 0); True when its IoU is the best yet."""
+    at step 0 with its loss sums at zero); True when its IoU is the best yet."""
     state.history.append(row)
     improved = row["val_iou"] > state.best_iou
     state.best_iou = max(state.best_iou, row["val_iou"])
     if state.averaged is not None and config.swa_start_epoch is not None and row["epoch"] >= config.swa_start_epoch:
         state.averaged.update_parameters(state.model)
     state.epoch, state.step = state.epoch + 1, 0
+    state.loss_total.zero_()
     return improved
 
 

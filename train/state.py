@@ -1,9 +1,9 @@
 """What a training run changes as it goes, in one `TrainState`: how it is built and how last.pt holds it.
 
 The model side of a run (model -> optimizer -> LR schedule -> AMP scaler -> weight average) and
-its progress (epoch, step, best IoU, history). last.pt stores all of it
+its progress (epoch, step, best IoU, history, the running loss sums). last.pt stores all of it
 (`TrainState.checkpoint_state`) and `resume_state` puts it back, so `--resume` continues a run exactly:
-the same weights as a run that was never stopped.
+the same weights and the same metrics.csv as a run that was never stopped.
 """
 
 from __future__ import annotations
@@ -29,7 +29,10 @@ class TrainState:
 
     `model` is the plain network, the one checkpoints hold (the steps may run it wrapped in DDP:
     `StepContext.model`). `epoch` is the epoch in progress, 0-based (`config.epochs` once every
-    epoch is done), and `step` how many of its steps are done.
+    epoch is done), and `step` how many of its steps are done. `loss_total` is that epoch's
+    running [sum of per-sample losses, samples], float64 on the device, updated in place by
+    `train_one_epoch`: it goes into last.pt with the rest, so an epoch that is interrupted and
+    resumed reports the train_loss of an uninterrupted one.
     """
 
     model: torch.nn.Module
@@ -37,6 +40,7 @@ class TrainState:
     scheduler: torch.optim.lr_scheduler.LRScheduler | None
     scaler: torch.amp.GradScaler | None
     averaged: AveragedModel | None  # the weight average, when swa_start_epoch is set
+    loss_total: torch.Tensor
     epoch: int = 0
     step: int = 0
     best_iou: float = -math.inf
@@ -61,6 +65,7 @@ class TrainState:
             "swa": None
             if self.averaged is None
             else {k: v.detach().cpu().clone() for k, v in self.averaged.state_dict().items()},
+            "loss_total": self.loss_total.detach().cpu().clone(),
         }
 
 
@@ -81,7 +86,8 @@ def build_state(config: TrainConfig, dist: DistInfo) -> tuple[TrainState, StepCo
         channels_last=config.channels_last,
     )
     averaged = AveragedModel(model) if config.swa_start_epoch is not None else None
-    return TrainState(model, optimizer, scheduler, scaler, averaged), ctx
+    loss_total = torch.zeros(2, dtype=torch.float64, device=dist.device)
+    return TrainState(model, optimizer, scheduler, scaler, averaged, loss_total), ctx
 
 
 def _build_model(config: TrainConfig, dist: DistInfo) -> tuple[torch.nn.Module, torch.nn.Module]:
@@ -112,9 +118,15 @@ def _build_scheduler(
     return None
 
 
-def resume_state(state: TrainState, last_path: Path) -> None:
+def resume_state(state: TrainState, last_path: Path, dist: DistInfo) -> None:
     """Put back what `last_path` holds: weights, optimizer, LR schedule, AMP scale, weight average,
-    RNG streams and the place in the epoch."""
+    RNG streams, the place in the epoch and the epoch's running loss sums.
+
+    Only rank 0 writes last.pt, so the loss sums in it are rank 0's: only rank 0 takes them back.
+    With one process the resumed epoch's train_loss is exact; under DDP it leaves out the other
+    ranks' share of the steps done before the interrupt. A last.pt from before the sums were
+    saved resumes with them at zero (that epoch's train_loss then covers only the resumed steps).
+    """
     payload = read_training_state(last_path)
     saved = payload["training_state"]
     state.model.load_state_dict(payload["model"])
@@ -128,3 +140,5 @@ def resume_state(state: TrainState, last_path: Path) -> None:
     state.best_iou, state.history = float(saved["best_iou"]), list(saved["history"])
     if state.averaged is not None and saved.get("swa") is not None:
         state.averaged.load_state_dict(saved["swa"])
+    if dist.is_main and saved.get("loss_total") is not None:
+        state.loss_total.copy_(saved["loss_total"])
