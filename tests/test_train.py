@@ -253,6 +253,26 @@ def test_held_out_validation_domains(tmp_path):
     assert len(train_frames) == 6 and {f.domain for f in val_frames} == {"synth_straight_vineyard"}
 
 
+def test_a_dataset_too_small_to_validate_on_is_named_as_such(tmp_path, capsys):
+    """One frame with val_fraction 0.1 used to be told to "set data.val_fraction > 0": the split
+    holds out a frame only from a domain of two or more, so the dataset is what is too small."""
+    import yaml
+
+    from segmin.app.cli import main
+    from segmin.common.config import to_dict
+
+    root = write_blob_dataset(tmp_path / "one", frames=1)
+    data = {"root": str(root), "domains": ["synth_vineyards"], "val_fraction": 0.1}
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(to_dict(tiny_config(root, data=data))))
+    assert main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "too small" in err, err
+    assert "1 frame(s) (synth_vineyard_a: 1)" in err and "at least 2 frames" in err
+    assert "val_fraction=0.1" in err and "set data.val_fraction > 0" not in err
+    assert not (tmp_path / "run" / "last.pt").exists()
+
+
 # ----------------------------------------------------------------------------- configs and CLI
 
 

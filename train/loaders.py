@@ -1,11 +1,13 @@
 """Which frames train and which validate, and the samplers and loaders that feed them to a run.
 
 The first steps of a run (data -> sampler -> loader), apart from the model side in `train.state`
-and the epochs in `train.run`.
+and the epochs in `train.run`. An empty split is refused here with the reason and the fix, before
+any model is built.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
@@ -14,7 +16,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from segmin.data.agriseg_loader import AgriSegDataset, DatasetError, Frame, find_frames, load_split, make_splits
 from segmin.data.augment import eval_transform, train_transform
-from segmin.train.config import TrainConfig
+from segmin.train.config import DataConfig, TrainConfig
 from segmin.train.distributed import DistInfo, EpochSampler, ShardSampler
 
 
@@ -22,7 +24,7 @@ def select_frames(config: TrainConfig) -> tuple[list[Frame], list[Frame]]:
     """(train frames, val frames) as the config says: held-out domains, split file or seeded split."""
     d = config.data
     if d.val_domains:
-        train = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
+        train = frames = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
         val = find_frames(d.val_root or d.root, d.val_domains, skip_unpaired=d.skip_unpaired)
         overlap = {f.image_path for f in train} & {f.image_path for f in val}
         if overlap:
@@ -36,10 +38,29 @@ def select_frames(config: TrainConfig) -> tuple[list[Frame], list[Frame]]:
     if not train:
         raise DatasetError(f"{d.root}: no training frames for domains {d.domains}")
     if not val:
-        raise DatasetError(
-            f"{d.val_root or d.root}: no validation frames (set data.val_fraction > 0 or data.val_domains)"
-        )
+        raise DatasetError(_why_no_validation_frames(d, frames))
     return train, val
+
+
+def _why_no_validation_frames(d: DataConfig, frames: list[Frame]) -> str:
+    """One line: why validation came out empty, and what to change.
+
+    With `val_fraction` > 0 the seeded split holds out at least one frame of every domain of two
+    or more frames (`data.splits.make_splits`), so an empty validation set there means every
+    domain is a single frame: the dataset is too small, and the setting is not the thing to fix.
+    """
+    if d.val_domains:
+        return f"{d.val_root or d.root}: no validation frames for data.val_domains {d.val_domains}"
+    if d.split_file:
+        return f"{d.split_file}: the split file puts no frame of {d.root} in validation"
+    if d.val_fraction == 0:
+        return f"{d.root}: no validation frames (set data.val_fraction > 0 or data.val_domains)"
+    counts = ", ".join(f"{domain}: {n}" for domain, n in sorted(Counter(f.domain for f in frames).items()))
+    return (
+        f"{d.root}: dataset too small to validate on: {len(frames)} frame(s) ({counts}); "
+        f"data.val_fraction={d.val_fraction} holds out frames only from a domain of at least 2 frames "
+        "(add frames, or set data.val_domains to validate on other domains)"
+    )
 
 
 def _subsample(frames: list[Frame], limit: int | None, seed: int) -> list[Frame]:
