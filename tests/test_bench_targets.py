@@ -34,6 +34,11 @@ def test_verdicts_cover_the_measured_figures_only():
     [
         (["bench", "export", "--runs", "0"], "--runs 0: must be >= 1"),
         (["bench", "export", "--size", "16"], "--size 16: must be >= 32"),
+        (["bench", "train", "--repeats", "0"], "--repeats 0: must be >= 1"),
+        (["bench", "synth", "--frames", "0"], "--frames 0: must be >= 1"),
+        (["bench", "synth", "--workers", "1", "0"], "--workers 1 0: each must be >= 1"),
+        (["bench", "nav-eval", "--workers", "0"], "--workers 0: must be >= 1"),
+        (["bench", "nav-eval", "--seconds", "0"], "--seconds 0.0: must be > 0"),
     ],
 )
 def test_benches_refuse_bad_parameters_with_one_line(argv, message, capsys):

@@ -314,13 +314,19 @@ def test_train_cli_runs_and_resumes(dataset_root, tmp_path, capsys):
 
 
 def test_bench_runs_and_reports_both_rates():
-    from segmin.train.bench import bench_train
+    from segmin.train.bench import TrainBenchOptions, bench_train, report_lines
 
-    result = bench_train(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
+    result = bench_train(
+        TrainBenchOptions(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
+    )
     assert result["model_step_ips"] > 0 and result["full_pipeline_ips"] > 0
     assert result["ratio"] == pytest.approx(result["full_pipeline_ips"] / result["model_step_ips"])
     assert result["model_step_nchw_ips"] > 0
     assert result["channels_last_speedup"] == pytest.approx(result["model_step_ips"] / result["model_step_nchw_ips"])
+    verdict = "met" if result["ratio"] >= 0.9 else "NOT met"
+    assert f"target full pipeline / model step >= 0.9: {verdict}" in "\n".join(report_lines(result))
+    with pytest.raises(ValueError, match="--repeats 0: must be >= 1"):
+        TrainBenchOptions(repeats=0)
 
 
 def test_cpu_training_uses_channels_last_and_can_turn_it_off(tmp_path, dataset_root):
