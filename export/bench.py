@@ -8,6 +8,7 @@ machine: a 2-core CPU, 224 x 224 input, 2 threads.
 
 from __future__ import annotations
 
+import logging
 import tempfile
 import time
 from collections.abc import Callable
@@ -25,6 +26,8 @@ TARGETS: tuple[SpeedTarget, ...] = (
     SpeedTarget("ort_fp32_ratio", "ort fp32", 0.35, "x eager"),
     SpeedTarget("full_step_ms", "full step median", 7.0, "ms"),
 )
+log = logging.getLogger(__name__)
+
 FP32 = "onnxruntime fp32"
 INT8 = "onnxruntime INT8 (QDQ)"
 
@@ -226,7 +229,7 @@ def _conv_flops(path: Path) -> int | None:
     try:
         return conv_flops(path)
     except ValueError as exc:  # time it anyway
-        print(f"no FLOP count for the fp32 graph ({exc})")
+        log.warning("no FLOP count for the fp32 graph (%s)", exc)
         return None
 
 

@@ -1,4 +1,4 @@
-"""`segmin export` (its benchmark, `segmin bench export`, is wired in segmin/bench_export.py)."""
+"""`segmin export` (its benchmark, `segmin bench export`, is wired in segmin/app/bench_export.py)."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def run_export(args: argparse.Namespace) -> int:
     from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    logging.getLogger("export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes
+    logging.getLogger("segmin.export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes
     options = ExportOptions(
         checkpoint=args.checkpoint,
         out=args.out,

@@ -133,7 +133,8 @@ def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> No
     assert code == 2 and out.read_bytes() == before
 
 
-def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, capsys) -> None:
+def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, capsys, caplog) -> None:
+    """Also: `segmin export` shows its progress lines (the segmin.export loggers at INFO)."""
     out = workdir / "legacy.onnx"
     out.write_bytes(b"old")
     variant_path(out, "int8").write_bytes(b"old int8 built from the old file")
@@ -159,6 +160,9 @@ def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, 
     assert meta[md.KEY_EXPORTER] == "legacy" and meta[md.KEY_OPSET] == "17"
     assert not variant_path(out, "int8").exists()  # stale variant of the replaced file removed
     assert not [p for p in workdir.iterdir() if p.name.endswith(".tmp")]
+    progress = [r.getMessage() for r in caplog.records if r.name == "segmin.export.pipeline"]
+    assert progress[0].startswith(f"wrote {out} (verified: 3 frames")
+    assert progress[1] == f"removed {variant_path(out, 'int8')} (a variant of the previous legacy.onnx)"
 
 
 def test_failed_verification_leaves_no_file(workdir, checkpoint, frames_dir, monkeypatch) -> None:

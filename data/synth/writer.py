@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import multiprocessing as mp
 import os
@@ -39,6 +40,8 @@ from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import WorldSpec
 
 FORMAT = "segmin-synth/1"
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -434,10 +437,12 @@ def render_dataset(job: RenderJob) -> dict:
     """
     check_writable(job.out)
     with writer_lock(lock_path(job), f"dataset {job.out / job.spec.domain}") as previous:
-        if previous and job.progress:
-            print(
-                f"{lock_path(job)}: taking over the lock of pid {previous.get('pid')} on "
-                f"{previous.get('host')}, which has stopped; resuming its work"
+        if previous:
+            log.warning(
+                "%s: taking over the lock of pid %s on %s, which has stopped; resuming its work",
+                lock_path(job),
+                previous.get("pid"),
+                previous.get("host"),
             )
         return _render_locked(job)
 
