@@ -162,6 +162,7 @@ class Run:
 
 
 def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> FitResult:
+    """The run: data -> sampler -> loader -> model -> optimizer -> resume -> epochs -> weight average."""
     _seed_everything(config.seed)
     train_frames, val_frames = select_frames(config)
     # Decode every frame once now: a corrupt one must stop the run here, naming the file, not
@@ -200,12 +201,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     except KeyboardInterrupt:
         interrupted = True
         if dist.is_main:
-            save_last(run, state)
-            print(
-                f"\ninterrupted: saved {run.last_path} (epoch {state.epoch + 1}, step {state.step}); "
-                "continue with --resume",
-                flush=True,
-            )
+            _save_interrupted(run, state)
     finally:
         if logger is not None:
             logger.close()
@@ -359,6 +355,15 @@ def save_last(run: Run, state: TrainState) -> None:
         metrics=state.last_metrics(),
         config=run.config_dict,
         training_state=state.checkpoint_state(),
+    )
+
+
+def _save_interrupted(run: Run, state: TrainState) -> None:
+    """Rank 0, on Ctrl-C (always at a step boundary, see train.interrupt): last.pt, and how to go on."""
+    save_last(run, state)
+    print(
+        f"\ninterrupted: saved {run.last_path} (epoch {state.epoch + 1}, step {state.step}); continue with --resume",
+        flush=True,
     )
 
 
