@@ -14,8 +14,7 @@ from pathlib import Path
 from segmin.data.frames import DatasetError, Frame
 from segmin.data.layouts import scan
 
-# The facade's name, so logging set up for the loader keeps catching these warnings.
-log = logging.getLogger("segmin.data.agriseg_loader")
+log = logging.getLogger(__name__)
 
 # Crop families of the paper. Members are domain names, globs or prefixes (see resolve_domains).
 # `tree` is the domain name the distributed layout's Synthetic_Dataset_Big_Trees gets.

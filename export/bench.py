@@ -2,24 +2,57 @@
 
 All candidates are timed in alternating rounds (eager, fp32, INT8, ..., eager, fp32, ...) so that
 load from other processes on a shared machine hits every candidate alike; each figure is the
-median and 95th percentile over all its rounds. Targets (2-core CPU, 224 x 224, 2 threads):
-onnxruntime fp32 median <= 6 ms and <= 0.35x eager; OnnxSegmenter + Navigator.step <= 7 ms.
+median and 95th percentile over all its rounds. The targets are `TARGETS`, set for the reference
+machine: a 2-core CPU, 224 x 224 input, 2 threads.
 """
 
 from __future__ import annotations
 
+import logging
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from segmin.common.speed_targets import SpeedTarget, verdict_lines, verdicts
 from segmin.common.timing import time_calls
 
-TARGET_ORT_MS = 6.0
-TARGET_RATIO = 0.35
-TARGET_STEP_MS = 7.0
+TARGETS: tuple[SpeedTarget, ...] = (
+    SpeedTarget("ort_fp32_ms", "ort fp32 median", 6.0, "ms"),
+    SpeedTarget("ort_fp32_ratio", "ort fp32", 0.35, "x eager"),
+    SpeedTarget("full_step_ms", "full step median", 7.0, "ms"),
+)
+log = logging.getLogger(__name__)
+
+FP32 = "onnxruntime fp32"
+INT8 = "onnxruntime INT8 (QDQ)"
+
+# Times a graph for downstream code: (fp32 .onnx, one RGB frame, threads) -> {name: timed call}.
+StepCandidates = Callable[[Path, np.ndarray, int], dict[str, Callable[[], object]]]
+
+
+@dataclass(frozen=True)
+class ExportBenchOptions:
+    """What `segmin bench export` takes (segmin/app/bench_export.py has the command-line help)."""
+
+    checkpoint: Path | None = None  # None: random weights (latency does not depend on the weights)
+    onnx: Path | None = None  # an exported fp32 file to time instead of exporting the model
+    size: int = 224
+    threads: int = 2
+    runs: int = 200
+    int8: bool = True
+    compare_exporters: bool = False  # also time the legacy TorchScript exporter's graph
+    calib_data: Path | None = None  # frames for INT8 calibration (default: stand-in frames)
+    json: Path | None = None  # also write the summary here
+
+    def __post_init__(self) -> None:
+        for name, minimum in (("size", 32), ("threads", 1), ("runs", 1)):
+            if getattr(self, name) < minimum:
+                raise ValueError(f"--{name} {getattr(self, name)}: must be >= {minimum}")
 
 
 def _field_like_frames(count: int, size: int, seed: int = 0) -> np.ndarray:
@@ -57,116 +90,186 @@ def interleaved(candidates: dict[str, Callable[[], object]], runs: int, rounds: 
     }
 
 
-def run_benchmark(
-    *,
-    checkpoint: Path | None = None,
-    onnx_path: Path | None = None,
-    size: int = 224,
-    threads: int = 2,
-    runs: int = 200,
-    int8: bool = True,
-    compare_exporters: bool = False,
-    calib_data: Path | None = None,
-    json_path: Path | None = None,
-    step_candidates: Callable[[Path, np.ndarray, int], dict[str, Callable[[], object]]] | None = None,
-) -> dict:
+def run_benchmark(options: ExportBenchOptions, step_candidates: StepCandidates | None = None) -> dict[str, Any]:
+    """Time eager PyTorch against the onnxruntime graphs; print the table, the roofline and the
+    targets, and return the summary (also written to `options.json`).
+
+    `step_candidates` adds timers of code downstream of export (the robot-side perception +
+    control step): they come from the caller, so this package never imports nav_eval.
+    """
     import onnxruntime as ort
     import torch
 
-    from segmin.export.metadata import KEY_INPUT_SIZE, parse_input_size
-    from segmin.export.onnx import DeployWrapper, export_graph
-    from segmin.export.quantize import quantize_int8
-    from segmin.export.roofline import conv_flops, floor_summary, sgemm_gflops
-    from segmin.export.verify import load_frames, make_session
-    from segmin.models import build_model
-    from segmin.models.checkpoint import load_model
-
-    torch.set_num_threads(threads)
-    if checkpoint is not None:
-        model, _ = load_model(checkpoint)
-        origin = str(checkpoint)
-    else:
-        torch.manual_seed(0)
-        model = build_model("none").eval()
-        origin = "random weights (latency does not depend on the weights)"
-    wrapper = DeployWrapper(model).eval()
-
+    torch.set_num_threads(options.threads)
+    model, origin = _model(options.checkpoint)
     with tempfile.TemporaryDirectory(prefix="segmin-bench-") as tmp_dir:
         tmp = Path(tmp_dir)
-        files: dict[str, Path] = {}
-        if onnx_path is not None:
-            session = make_session(onnx_path, threads=threads)
-            size_hw = parse_input_size(session.get_modelmeta().custom_metadata_map[KEY_INPUT_SIZE])
-            if size_hw != (size, size):
-                raise ValueError(f"{onnx_path}: model input {size_hw} is not {size}x{size}; pass --size")
-            files["onnxruntime fp32"] = Path(onnx_path)
-        else:
-            start = time.perf_counter()
-            files["onnxruntime fp32"] = tmp / "fp32.onnx"
-            export_graph(model, files["onnxruntime fp32"], input_size=(size, size), exporter="dynamo")
-            _stamp_minimal(files["onnxruntime fp32"], size)
-            print(f"exported {size}x{size} graph (dynamo, opset 18) in {time.perf_counter() - start:.1f} s")
-        if compare_exporters:
-            files["onnxruntime fp32 (legacy exporter)"] = tmp / "legacy.onnx"
-            export_graph(model, files["onnxruntime fp32 (legacy exporter)"], input_size=(size, size), exporter="legacy")
-        frames = (
-            load_frames(calib_data, (size, size), limit=32) if calib_data is not None else _field_like_frames(16, size)
-        )
-        if int8:
-            files["onnxruntime INT8 (QDQ)"] = tmp / "int8.onnx"
-            quantize_int8(files["onnxruntime fp32"], files["onnxruntime INT8 (QDQ)"], frames)
-
+        files, frames = _graphs_and_frames(options, model, tmp)
         frame = frames[:1]
-        torch_frame = torch.from_numpy(frame)
-        candidates: dict[str, Callable[[], object]] = {}
-
-        def eager() -> object:
-            with torch.inference_mode():
-                return wrapper(torch_frame)
-
-        candidates["pytorch eager"] = eager
-        for name, path in files.items():
-            session = make_session(path, threads=threads)
-            feed = {session.get_inputs()[0].name: frame}
-            candidates[name] = lambda s=session, f=feed: s.run(None, f)
-        quiet = make_session(files["onnxruntime fp32"], threads=threads, spin=False)
-        candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(
-            None, {quiet.get_inputs()[0].name: frame}
-        )
-
+        candidates = _candidates(model, files, frame, options.threads)
         if step_candidates is not None:
-            # Timers of code downstream of export (the robot-side perception + control step)
-            # come from the caller, so this package never imports nav_eval.
-            candidates.update(step_candidates(files["onnxruntime fp32"], frame[0], threads))
-        try:
-            flops: int | None = conv_flops(files["onnxruntime fp32"])
-        except ValueError as exc:  # a user graph we cannot count: time it anyway
-            print(f"no FLOP count for the fp32 graph ({exc})")
-            flops = None
+            candidates.update(step_candidates(files[FP32], frame[0], options.threads))
+        flops = _conv_flops(files[FP32])
         load_before = _load_average()
-        sgemm_before = sgemm_gflops(threads) if flops is not None else 0.0
-        results = interleaved(candidates, runs=runs)
-        sgemm_after = sgemm_gflops(threads) if flops is not None else 0.0
-
-        cuda = {}
+        results, sgemm_peak = _time_with_sgemm_reference(candidates, options, measure_sgemm=flops is not None)
         if "CUDAExecutionProvider" in ort.get_available_providers():
-            from segmin.export.quantize import convert_fp16
-
-            convert_fp16(files["onnxruntime fp32"], tmp / "fp16.onnx")
-            session = make_session(tmp / "fp16.onnx", threads=threads, providers=["CUDAExecutionProvider"])
-            feed = {session.get_inputs()[0].name: frame}
-            cuda = interleaved({"onnxruntime fp16 CUDA": lambda: session.run(None, feed)}, runs=runs)
-            results.update(cuda)
-
+            results.update(_time_fp16_cuda(files[FP32], tmp, frame, options))
     eager_ms = results["pytorch eager"]["median_ms"]
     for entry in results.values():
         entry["ratio_to_eager"] = entry["median_ms"] / eager_ms
-    print(f"segmin bench export: {size}x{size}, batch 1, {threads} threads, weights: {origin}")
+    _print_table(options, origin, load_before, results)
+    roofline = _roofline(options, flops, results, sgemm_peak)
+    targets = _print_targets(results)
+    summary = {
+        "size": options.size,
+        "threads": options.threads,
+        "weights": origin,
+        "load_average_1min": load_before,
+        "results": results,
+        "roofline": roofline,
+        "targets": targets,
+    }
+    if options.json is not None:
+        from segmin.common.atomic import write_json
+
+        write_json(options.json, summary)
+    return summary
+
+
+def _model(checkpoint: Path | None) -> tuple[Any, str]:
+    """The model to export and time, and where its weights come from (for the printout)."""
+    import torch
+
+    from segmin.models import build_model
+    from segmin.models.checkpoint import load_model
+
+    if checkpoint is not None:
+        model, _ = load_model(checkpoint)
+        return model, str(checkpoint)
+    torch.manual_seed(0)
+    return build_model("none").eval(), "random weights (latency does not depend on the weights)"
+
+
+def _graphs_and_frames(options: ExportBenchOptions, model, tmp: Path) -> tuple[dict[str, Path], np.ndarray]:
+    """{candidate name: .onnx file} (the given or a freshly exported fp32 graph, and the variants
+    asked for) and the frames: INT8 is calibrated on them, and the first is the timed frame."""
+    from segmin.export.onnx import export_graph
+    from segmin.export.quantize import quantize_int8
+    from segmin.export.verify import load_frames
+
+    size = options.size
+    if options.onnx is not None:
+        files = {FP32: _given_fp32(options.onnx, options)}
+    else:
+        files = {FP32: _export_fp32(model, tmp / "fp32.onnx", size)}
+    if options.compare_exporters:
+        legacy = files["onnxruntime fp32 (legacy exporter)"] = tmp / "legacy.onnx"
+        export_graph(model, legacy, input_size=(size, size), exporter="legacy")
+    if options.calib_data is not None:
+        frames = load_frames(options.calib_data, (size, size), limit=32)
+    else:
+        frames = _field_like_frames(16, size)
+    if options.int8:
+        files[INT8] = tmp / "int8.onnx"
+        quantize_int8(files[FP32], files[INT8], frames)
+    return files, frames
+
+
+def _export_fp32(model, path: Path, size: int) -> Path:
+    """The model exported as the deployed graph (dynamo), with the metadata OnnxSegmenter reads."""
+    from segmin.export.onnx import export_graph
+
+    start = time.perf_counter()
+    export_graph(model, path, input_size=(size, size), exporter="dynamo")
+    _stamp_minimal(path, size)
+    print(f"exported {size}x{size} graph (dynamo, opset 18) in {time.perf_counter() - start:.1f} s")
+    return path
+
+
+def _given_fp32(path: Path, options: ExportBenchOptions) -> Path:
+    """An exported file to time, refused unless its input is --size x --size."""
+    from segmin.export.metadata import KEY_INPUT_SIZE, parse_input_size
+    from segmin.export.verify import make_session
+
+    session = make_session(path, threads=options.threads)
+    size_hw = parse_input_size(session.get_modelmeta().custom_metadata_map[KEY_INPUT_SIZE])
+    if size_hw != (options.size, options.size):
+        raise ValueError(f"{path}: model input {size_hw} is not {options.size}x{options.size}; pass --size")
+    return Path(path)
+
+
+def _candidates(model, files: dict[str, Path], frame: np.ndarray, threads: int) -> dict[str, Callable[[], object]]:
+    """Eager PyTorch, one onnxruntime session per graph, and fp32 without thread spinning."""
+    import torch
+
+    from segmin.export.onnx import DeployWrapper
+    from segmin.export.verify import make_session
+
+    wrapper = DeployWrapper(model).eval()
+    torch_frame = torch.from_numpy(frame)
+
+    def eager() -> object:
+        with torch.inference_mode():
+            return wrapper(torch_frame)
+
+    candidates: dict[str, Callable[[], object]] = {"pytorch eager": eager}
+    for name, path in files.items():
+        session = make_session(path, threads=threads)
+        feed = {session.get_inputs()[0].name: frame}
+        candidates[name] = lambda s=session, f=feed: s.run(None, f)
+    quiet = make_session(files[FP32], threads=threads, spin=False)
+    candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(None, {quiet.get_inputs()[0].name: frame})
+    return candidates
+
+
+def _conv_flops(path: Path) -> int | None:
+    """The fp32 graph's convolution FLOPs, or None for a user graph they cannot be counted in."""
+    from segmin.export.roofline import conv_flops
+
+    try:
+        return conv_flops(path)
+    except ValueError as exc:  # time it anyway
+        log.warning("no FLOP count for the fp32 graph (%s)", exc)
+        return None
+
+
+def _time_with_sgemm_reference(
+    candidates: dict[str, Callable[[], object]], options: ExportBenchOptions, *, measure_sgemm: bool
+) -> tuple[dict[str, dict[str, float]], float]:
+    """The interleaved timings, and the machine's sgemm rate (best of just before and just after)."""
+    from segmin.export.roofline import sgemm_gflops
+
+    sgemm_before = sgemm_gflops(options.threads) if measure_sgemm else 0.0
+    results = interleaved(candidates, runs=options.runs)
+    sgemm_after = sgemm_gflops(options.threads) if measure_sgemm else 0.0
+    return results, max(sgemm_before, sgemm_after)
+
+
+def _time_fp16_cuda(
+    fp32: Path, tmp: Path, frame: np.ndarray, options: ExportBenchOptions
+) -> dict[str, dict[str, float]]:
+    """The fp16 graph on onnxruntime's CUDA provider (only where one is installed)."""
+    from segmin.export.quantize import convert_fp16
+    from segmin.export.verify import make_session
+
+    convert_fp16(fp32, tmp / "fp16.onnx")
+    session = make_session(tmp / "fp16.onnx", threads=options.threads, providers=["CUDAExecutionProvider"])
+    feed = {session.get_inputs()[0].name: frame}
+    return interleaved({"onnxruntime fp16 CUDA": lambda: session.run(None, feed)}, runs=options.runs)
+
+
+def _print_table(
+    options: ExportBenchOptions, origin: str, load_before: float | None, results: dict[str, dict[str, float]]
+) -> None:
+    import onnxruntime as ort
+    import torch
+
+    print(f"segmin bench export: {options.size}x{options.size}, batch 1, {options.threads} threads, weights: {origin}")
     print(f"onnxruntime {ort.__version__}, torch {torch.__version__}")
-    load = load_before
-    if load is not None:
+    if load_before is not None:
         print(
-            f"load average (1 min) before timing: {load:.2f} on {_cpu_count()} cores; figures are noisy when it is high"
+            f"load average (1 min) before timing: {load_before:.2f} on {_cpu_count()} cores; "
+            "figures are noisy when it is high"
         )
     print(f"{'model':<56}{'median ms':>10}{'p95 ms':>10}{'min ms':>9}{'x eager':>9}")
     for name, entry in results.items():
@@ -174,46 +277,43 @@ def run_benchmark(
             f"{name:<56}{entry['median_ms']:>10.2f}{entry['p95_ms']:>10.2f}"
             f"{entry['min_ms']:>9.2f}{entry['ratio_to_eager']:>9.2f}"
         )
-    fp32 = results["onnxruntime fp32"]
-    roofline = None
-    if flops is not None:
-        roofline = floor_summary(flops, fp32["median_ms"], eager_ms, max(sgemm_before, sgemm_after))
-        print(
-            f"fp32 graph: {roofline['conv_gflop']:.3f} GFLOP of convolutions per frame, run at "
-            f"{roofline['achieved_gflops']:.0f} GFLOP/s = {roofline['fraction_of_peak']:.0%} of this machine's "
-            f"{threads}-thread torch sgemm rate ({roofline['peak_gflops']:.0f} GFLOP/s, best of before/after); "
-            f"at that rate a frame would take {roofline['floor_ms']:.2f} ms = {roofline['floor_ratio_to_eager']:.2f}x eager"
-        )
-    checks = {
-        f"ort fp32 median <= {TARGET_ORT_MS} ms": fp32["median_ms"] <= TARGET_ORT_MS,
-        f"ort fp32 <= {TARGET_RATIO}x eager": fp32["ratio_to_eager"] <= TARGET_RATIO,
-    }
+
+
+def _roofline(
+    options: ExportBenchOptions, flops: int | None, results: dict[str, dict[str, float]], sgemm_peak: float
+) -> dict[str, float] | None:
+    """The fp32 graph against this machine's sgemm rate (printed); None without a FLOP count."""
+    from segmin.export.roofline import floor_summary
+
+    if flops is None:
+        return None
+    roofline = floor_summary(flops, results[FP32]["median_ms"], results["pytorch eager"]["median_ms"], sgemm_peak)
+    print(
+        f"fp32 graph: {roofline['conv_gflop']:.3f} GFLOP of convolutions per frame, run at "
+        f"{roofline['achieved_gflops']:.0f} GFLOP/s = {roofline['fraction_of_peak']:.0%} of this machine's "
+        f"{options.threads}-thread torch sgemm rate ({roofline['peak_gflops']:.0f} GFLOP/s, best of before/after); "
+        f"at that rate a frame would take {roofline['floor_ms']:.2f} ms = {roofline['floor_ratio_to_eager']:.2f}x eager"
+    )
+    return roofline
+
+
+def _print_targets(results: dict[str, dict[str, float]]) -> dict[str, bool]:
+    """Print the figures against `TARGETS`, the full step's rate and INT8's verdict; returns the verdicts."""
+    fp32 = results[FP32]
+    figures = {"ort_fp32_ms": fp32["median_ms"], "ort_fp32_ratio": fp32["ratio_to_eager"]}
     step = next((entry for name, entry in results.items() if name.startswith("full step")), None)
     if step is not None:
-        checks[f"full step median <= {TARGET_STEP_MS} ms"] = step["median_ms"] <= TARGET_STEP_MS
-    for label, ok in checks.items():
-        print(f"target {label}: {'met' if ok else 'NOT met'}")
+        figures["full_step_ms"] = step["median_ms"]
+    for line in verdict_lines(TARGETS, figures):
+        print(line)
     if step is not None:
         rate = 1000.0 / step["median_ms"]
         print(f"full step rate: {rate:.0f} Hz ({rate / 20.0:.1f}x the paper's 20 Hz)")
-    if "onnxruntime INT8 (QDQ)" in results:
-        speedup = fp32["median_ms"] / results["onnxruntime INT8 (QDQ)"]["median_ms"]
+    if INT8 in results:
+        speedup = fp32["median_ms"] / results[INT8]["median_ms"]
         verdict = "faster" if speedup >= 1.05 else "not faster: deploy fp32"
         print(f"INT8 vs fp32: {speedup:.2f}x ({verdict})")
-    summary = {
-        "size": size,
-        "threads": threads,
-        "weights": origin,
-        "load_average_1min": load_before,
-        "results": results,
-        "roofline": roofline,
-        "targets": checks,
-    }
-    if json_path is not None:
-        from segmin.common.atomic import write_json
-
-        write_json(json_path, summary)
-    return summary
+    return verdicts(TARGETS, figures)
 
 
 def _stamp_minimal(path: Path, size: int) -> None:

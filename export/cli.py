@@ -47,7 +47,7 @@ def run_export(args: argparse.Namespace) -> int:
     from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    logging.getLogger("export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes
+    logging.getLogger("segmin.export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes
     options = ExportOptions(
         checkpoint=args.checkpoint,
         out=args.out,

@@ -33,6 +33,7 @@ from segmin.export.onnx import (
 from segmin.export.verify import (
     MAX_ABS_DIFF,
     MIN_MASK_AGREEMENT,
+    Agreement,
     VerificationError,
     check_bounds,
     load_frames,
@@ -142,17 +143,14 @@ def _stamp(path: Path, meta: dict[str, str]) -> None:
 
 
 def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
-    """Run the whole export; returns the report (also written to model.export.json)."""
-    import onnx
+    """Run the whole export; returns the report (also written to model.export.json).
 
+    checkpoint -> real frames -> fp32 graph (verified against PyTorch) -> fp16 / INT8 variants
+    (compared with the fp32 graph) -> report.
+    """
     from segmin.models.checkpoint import load_model
 
-    for planned in planned_outputs(options):
-        check_output_file(planned, "--out")
-    existing = [str(p) for p in planned_outputs(options) if p.exists()]
-    if existing and not options.force:
-        raise OutputExistsError(f"{', '.join(existing)}: already exists; pass --force to overwrite")
-
+    _refuse_existing_outputs(options)
     model, info = load_model(options.checkpoint)
     input_size = tuple(int(v) for v in info["input_size"])
     threshold = float(info.get("threshold", 0.5))
@@ -180,6 +178,42 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
         "metadata": meta,
         "bounds": {"max_abs_diff": options.max_abs_diff, "min_mask_agreement": options.min_agreement},
     }
+    out = Path(options.out)
+    agreement = _export_verified_fp32(options, model, meta, verify_set, threshold, input_size, opset)
+    report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
+    log.info("wrote %s (verified: %s)", out, _summary(agreement))
+    _remove_stale_variants(options)
+    fp32_probs = run_session(make_session(out, threads=options.threads), verify_set)
+    if options.fp16:
+        report["fp16"] = _export_fp16(out, meta, fp32_probs, verify_set, threshold)
+    if options.int8:
+        calib_set = spread(frames, options.calib_frames)
+        report["int8"] = _export_int8(out, meta, fp32_probs, calib_set, verify_set, threshold, options.threads)
+    write_json(report_path(out), report)
+    return report
+
+
+def _refuse_existing_outputs(options: ExportOptions) -> None:
+    """Every output must be writable, and none may exist unless `force` says to replace it."""
+    for planned in planned_outputs(options):
+        check_output_file(planned, "--out")
+    existing = [str(p) for p in planned_outputs(options) if p.exists()]
+    if existing and not options.force:
+        raise OutputExistsError(f"{', '.join(existing)}: already exists; pass --force to overwrite")
+
+
+def _export_verified_fp32(
+    options: ExportOptions,
+    model,
+    meta: dict[str, str],
+    verify_set: np.ndarray,
+    threshold: float,
+    input_size: tuple[int, ...],
+    opset: int,
+) -> Agreement:
+    """Export, stamp and verify the fp32 graph inside a temporary file, renamed to `options.out`
+    only when it matches PyTorch within the bounds; returns the agreement."""
+    import onnx
 
     out = Path(options.out)
     wrapper = DeployWrapper(model).eval()
@@ -204,22 +238,17 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
             kept = " (the existing file was left unchanged)" if out.exists() else ""
             raise VerificationError(f"{out}: export failed verification, no file written{kept}: {exc}") from exc
         _stamp(tmp, {"verification": _summary(agreement)})
-    report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
-    log.info("wrote %s (verified: %s)", out, _summary(agreement))
+    return agreement
 
+
+def _remove_stale_variants(options: ExportOptions) -> None:
+    """fp16 / INT8 files not asked for this time were built from the fp32 file just replaced."""
+    out = Path(options.out)
     for tag, wanted in (("fp16", options.fp16), ("int8", options.int8)):
         stale = variant_path(out, tag)
-        if not wanted and stale.exists():  # built from the file just replaced: it no longer matches
+        if not wanted and stale.exists():
             stale.unlink()
             log.info("removed %s (a variant of the previous %s)", stale, out.name)
-    fp32_probs = run_session(make_session(out, threads=options.threads), verify_set)
-    if options.fp16:
-        report["fp16"] = _export_fp16(out, meta, fp32_probs, verify_set, threshold)
-    if options.int8:
-        calib_set = spread(frames, options.calib_frames)
-        report["int8"] = _export_int8(out, meta, fp32_probs, calib_set, verify_set, threshold, options.threads)
-    write_json(report_path(out), report)
-    return report
 
 
 def spread(frames: np.ndarray, count: int) -> np.ndarray:

@@ -157,7 +157,8 @@ def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> No
     assert code == 2 and out.read_bytes() == before
 
 
-def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, capsys) -> None:
+def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, capsys, caplog) -> None:
+    """Also: `segmin export` shows its progress lines (the segmin.export loggers at INFO)."""
     out = workdir / "legacy.onnx"
     out.write_bytes(b"old")
     variant_path(out, "int8").write_bytes(b"old int8 built from the old file")
@@ -183,6 +184,9 @@ def test_force_overwrites_with_legacy_exporter(workdir, checkpoint, frames_dir, 
     assert meta[md.KEY_EXPORTER] == "legacy" and meta[md.KEY_OPSET] == "17"
     assert not variant_path(out, "int8").exists()  # stale variant of the replaced file removed
     assert not [p for p in workdir.iterdir() if p.name.endswith(".tmp")]
+    progress = [r.getMessage() for r in caplog.records if r.name == "segmin.export.pipeline"]
+    assert progress[0].startswith(f"wrote {out} (verified: 3 frames")
+    assert progress[1] == f"removed {variant_path(out, 'int8')} (a variant of the previous legacy.onnx)"
 
 
 def test_failed_verification_leaves_no_file(workdir, checkpoint, frames_dir, monkeypatch) -> None:
@@ -326,7 +330,9 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     )
     assert code == 0
     printed = capsys.readouterr().out
-    assert "pytorch eager" in printed and "full step: OnnxSegmenter + Navigator.step (SegMinD)" in printed
+    from segmin.nav_eval.bench.runtime import STEP_NAME
+
+    assert "pytorch eager" in printed and STEP_NAME in printed
     summary = json.loads((tmp_path / "bench.json").read_text())
     for entry in summary["results"].values():
         assert entry["runs"] == 8 and 0 < entry["min_ms"] <= entry["median_ms"] <= entry["p95_ms"]
@@ -334,10 +340,19 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     assert roofline["conv_gflop"] > 0 and roofline["peak_gflops"] > 0
     assert roofline["floor_ms"] == pytest.approx(roofline["conv_gflop"] / roofline["peak_gflops"] * 1e3)
     assert "GFLOP of convolutions per frame" in printed
-    with pytest.raises(ValueError, match="pass --size"):
-        from segmin.export.bench import run_benchmark
+    from segmin.export.bench import ExportBenchOptions, run_benchmark
 
-        run_benchmark(onnx_path=out, checkpoint=checkpoint, size=SIZE * 2, runs=2, int8=False)
+    with pytest.raises(ValueError, match="pass --size"):
+        run_benchmark(ExportBenchOptions(onnx=out, checkpoint=checkpoint, size=SIZE * 2, runs=2, int8=False))
+    assert summary["targets"] == {
+        "ort fp32 median <= 6 ms": summary["results"]["onnxruntime fp32"]["median_ms"] <= 6,
+        "ort fp32 <= 0.35x eager": summary["results"]["onnxruntime fp32"]["ratio_to_eager"] <= 0.35,
+        "full step median <= 7 ms": summary["results"][STEP_NAME]["median_ms"] <= 7,
+    }
+    for label, met in summary["targets"].items():
+        assert f"target {label}: {'met' if met else 'NOT met'}" in printed
+    assert segmin_main(["bench", "export", "--runs", "0"]) == 2
+    assert "--runs 0: must be >= 1" in capsys.readouterr().err
 
 
 def test_conv_flops_counts_grouped_and_strided_convolutions(tmp_path) -> None:

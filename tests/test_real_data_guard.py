@@ -124,7 +124,7 @@ def test_the_frames_training_selects_are_checked_whatever_the_config_says_now(tm
     the frames are selected, by the frames themselves."""
     from test_train import tiny_config, write_blob_dataset
 
-    from segmin.train.run import select_frames
+    from segmin.train.loaders import select_frames
 
     config = tiny_config(write_blob_dataset(tmp_path / "synth", frames=6))
     train, val = select_frames(config)  # the normal path: rendered frames train and validate

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -162,8 +164,10 @@ def test_rerun_with_other_settings_is_refused_unless_overwrite(tmp_path):
     assert again["written"] == 1 and again["skipped"] == 2
 
 
-def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_path):
-    """Issue 13.14: a second render on the same --out deleted the first one's staging folders."""
+def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_path, caplog):
+    """Issue 13.14: a second render on the same --out deleted the first one's staging folders.
+
+    Taking over a dead writer's lock is logged as a warning (whether or not a progress bar shows)."""
     from segmin.common.lock import LockHeldError
     from segmin.data.synth.writer import lock_path
 
@@ -184,7 +188,12 @@ def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_pa
         holder.kill()  # like kill -9: no clean-up, the lock file still names it
         holder.wait()
     assert f'"pid": {holder.pid}' in lock_path(job).read_text()
-    assert render_dataset(job)["written"] == 2  # stale lock taken over
+    with caplog.at_level(logging.WARNING, logger="segmin.data.synth.writer"):
+        assert render_dataset(job)["written"] == 2  # stale lock taken over
+    assert [r.getMessage() for r in caplog.records if r.name == "segmin.data.synth.writer"] == [
+        f"{lock_path(job)}: taking over the lock of pid {holder.pid} on {socket.gethostname()}, "
+        "which has stopped; resuming its work"
+    ]
     assert not staging.exists()  # and now the clean-up of the dead writer's leftovers is right
     assert not lock_path(job).exists()  # released
 

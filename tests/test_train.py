@@ -266,10 +266,30 @@ def test_held_out_validation_domains(tmp_path):
     config = tiny_config(train_root, epochs=1)
     config.data.val_root = val_root
     config.data.val_domains = ["synth_vineyards"]
-    from segmin.train.run import select_frames
+    from segmin.train.loaders import select_frames
 
     train_frames, val_frames = select_frames(config)
     assert len(train_frames) == 6 and {f.domain for f in val_frames} == {"synth_straight_vineyard"}
+
+
+def test_a_dataset_too_small_to_validate_on_is_named_as_such(tmp_path, capsys):
+    """One frame with val_fraction 0.1 used to be told to "set data.val_fraction > 0": the split
+    holds out a frame only from a domain of two or more, so the dataset is what is too small."""
+    import yaml
+
+    from segmin.app.cli import main
+    from segmin.common.config import to_dict
+
+    root = write_blob_dataset(tmp_path / "one", frames=1)
+    data = {"root": str(root), "domains": ["synth_vineyards"], "val_fraction": 0.1}
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(to_dict(tiny_config(root, data=data))))
+    assert main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "too small" in err, err
+    assert "1 frame(s) (synth_vineyard_a: 1)" in err and "at least 2 frames" in err
+    assert "val_fraction=0.1" in err and "set data.val_fraction > 0" not in err
+    assert not (tmp_path / "run" / "last.pt").exists()
 
 
 # ----------------------------------------------------------------------------- configs and CLI
@@ -313,13 +333,19 @@ def test_train_cli_runs_and_resumes(dataset_root, tmp_path, capsys):
 
 
 def test_bench_runs_and_reports_both_rates():
-    from segmin.train.bench import bench_train
+    from segmin.train.bench import TrainBenchOptions, bench_train, report_lines
 
-    result = bench_train(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
+    result = bench_train(
+        TrainBenchOptions(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
+    )
     assert result["model_step_ips"] > 0 and result["full_pipeline_ips"] > 0
     assert result["ratio"] == pytest.approx(result["full_pipeline_ips"] / result["model_step_ips"])
     assert result["model_step_nchw_ips"] > 0
     assert result["channels_last_speedup"] == pytest.approx(result["model_step_ips"] / result["model_step_nchw_ips"])
+    verdict = "met" if result["ratio"] >= 0.9 else "NOT met"
+    assert f"target full pipeline / model step >= 0.9: {verdict}" in "\n".join(report_lines(result))
+    with pytest.raises(ValueError, match="--repeats 0: must be >= 1"):
+        TrainBenchOptions(repeats=0)
 
 
 def test_cpu_training_uses_channels_last_and_can_turn_it_off(tmp_path, dataset_root):
@@ -422,35 +448,69 @@ def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp
     assert (out / "last.pt").read_bytes() != before[0]
 
 
-def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(
-    dataset_root, tmp_path, monkeypatch, sigint_delivered
-):
-    """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
-    used to save "k steps done" with the weights of k+1, so --resume ran a step twice."""
+def _metrics_without_seconds(run_dir: Path) -> list[str]:
+    """metrics.csv without its last column (seconds: wall time, never the same twice)."""
+    return [line.rsplit(",", 1)[0] for line in (run_dir / "metrics.csv").read_text().splitlines()]
+
+
+def _interrupt_with_sigint_after(monkeypatch, step: int) -> None:
+    """Ctrl-C as a user sends it, during training step number `step` (counted from 1 over the
+    run): the signal lands after that step's weight update, before the step is counted."""
     import signal
 
     import segmin.train.loop as loop_module
-    from segmin.train.run import fit
 
-    config = tiny_config(dataset_root, epochs=2, tensorboard=False)
-    fit(config, tmp_path / "straight")
     real_step = loop_module.train_step
     calls = {"n": 0}
 
     def step_then_sigint(*args, **kwargs):
         result = real_step(*args, **kwargs)
         calls["n"] += 1
-        if calls["n"] == 3:  # first step of epoch 2: its weight update is done, the count is not yet
+        if calls["n"] == step:
             signal.raise_signal(signal.SIGINT)
         return result
 
     monkeypatch.setattr(loop_module, "train_step", step_then_sigint)
-    assert fit(config, tmp_path / "cut").interrupted
+
+
+def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(
+    dataset_root, tmp_path, monkeypatch, sigint_delivered
+):
+    """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
+    used to save "k steps done" with the weights of k+1, so --resume ran a step twice.
+
+    metrics.csv must match too: the interrupted epoch's train_loss is a mean over all its steps,
+    those before the Ctrl-C included (their running sums travel in last.pt; they used to restart
+    at zero, so the resumed epoch reported the mean of its remaining steps only).
+    """
+    from segmin.train.run import fit
+
+    config = tiny_config(dataset_root, epochs=2, tensorboard=False)
+    fit(config, tmp_path / "straight")
+    with monkeypatch.context() as patch:
+        _interrupt_with_sigint_after(patch, 3)  # first step of epoch 2 (2 steps per epoch)
+        assert fit(config, tmp_path / "cut").interrupted
     state = torch.load(tmp_path / "cut" / "last.pt", map_location="cpu", weights_only=True)["training_state"]
     assert (state["epoch"], state["step"]) == (1, 1)  # the step in flight was finished and counted
-    monkeypatch.setattr(loop_module, "train_step", real_step)
     assert not fit(config, tmp_path / "cut", resume=True).interrupted
     _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
+    assert _metrics_without_seconds(tmp_path / "cut") == _metrics_without_seconds(tmp_path / "straight")
+
+
+def test_resume_after_ctrl_c_continues_a_cosine_schedule_exactly(dataset_root, tmp_path, monkeypatch, sigint_delivered):
+    """--resume restores the LR scheduler: one rebuilt from scratch steps a cosine schedule from
+    its start again (epoch 3 trains at 0.56 x lr instead of 0.25 x). The other resume tests use
+    a step schedule with step_size 1, where a fresh scheduler happens to land on the same rates."""
+    from segmin.train.run import fit
+
+    config = tiny_config(dataset_root, epochs=3, schedule="cosine", tensorboard=False)
+    fit(config, tmp_path / "straight")
+    with monkeypatch.context() as patch:
+        _interrupt_with_sigint_after(patch, 3)  # first step of epoch 2 of 3
+        assert fit(config, tmp_path / "cut").interrupted
+    assert not fit(config, tmp_path / "cut", resume=True).interrupted
+    _assert_same_weights(tmp_path / "straight" / "last.pt", tmp_path / "cut" / "last.pt")
+    assert _metrics_without_seconds(tmp_path / "cut") == _metrics_without_seconds(tmp_path / "straight")  # lr column
 
 
 def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp_path, monkeypatch):

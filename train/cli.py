@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from segmin.common.cli_args import CommandParser, add_overrides, overrides_of
 
@@ -26,7 +27,7 @@ def register(commands, bench) -> None:
     train.set_defaults(func=_train)
 
     b = bench.add_parser("train", help="training images/s: full data pipeline vs the model step alone")
-    b.add_argument("--root", default=None, help="dataset root (default: a generated 320x240 PNG set)")
+    b.add_argument("--root", type=Path, default=None, help="dataset root (default: a generated 320x240 PNG set)")
     b.add_argument("--size", type=int, default=224)
     b.add_argument("--batch", type=int, default=8)
     b.add_argument("--threads", type=int, default=2)
@@ -50,8 +51,6 @@ def register(commands, bench) -> None:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from segmin.train.config import load_train_config
     from segmin.train.run import fit
 
@@ -68,11 +67,10 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from segmin.common.machine import load_average
-    from segmin.train.bench import bench_train
+    from segmin.train.bench import TrainBenchOptions, bench_train, report_lines
 
-    r = bench_train(
-        args.root,
+    options = TrainBenchOptions(
+        root=args.root,
         image_size=args.size,
         batch_size=args.batch,
         threads=args.threads,
@@ -81,22 +79,7 @@ def _bench(args: argparse.Namespace) -> int:
         repeats=args.repeats,
         device=args.device,
     )
-    print(
-        f"train bench: {r['image_size']}x{r['image_size']}, batch {r['batch_size']}, {r['threads']} threads, "
-        f"{r['workers']} loader worker(s), {r['device']}, {r['frames']} frames; "
-        f"{load_average()}"
-    )
-    print(f"  model step alone : {r['model_step_ips']:7.2f} images/s (channels-last)")
-    print(
-        f"  same, plain NCHW : {r['model_step_nchw_ips']:7.2f} images/s; channels-last gain "
-        f"{r['channels_last_speedup']:.2f}x"
-    )
-    print(f"  full pipeline    : {r['full_pipeline_ips']:7.2f} images/s")
-    print(f"  ratio            : {r['ratio']:.3f}  (target >= 0.90)")
-    print(
-        f"  data alone       : {r['data_only_ips']:7.2f} images/s (decode + augment, 1 process); "
-        f"serial-loading bound {r['serial_bound']:.3f}"
-    )
+    print("\n".join(report_lines(bench_train(options))))
     return 0
 
 

@@ -89,15 +89,21 @@ def train_one_epoch(
     max_steps: int | None = None,
     on_step: Callable[[int], None] | None = None,
     progress=None,
+    total: torch.Tensor | None = None,
 ) -> dict[str, float]:
     """Train over `batches`; returns {"loss": mean over samples (reduced over ranks)}.
 
     `on_step(step)` is called after each step (used to record mid-epoch progress for Ctrl-C and
     for mid-epoch checkpoints). A Ctrl-C during a step is raised once the step and its `on_step`
     are done (see train.interrupt), so the recorded progress always matches the weights.
+    `total` ([sum of per-sample losses, samples], float64 on the device) carries the sums of the
+    steps an interrupted epoch did before: it is updated in place after each step, so a
+    checkpoint written from `on_step` holds the sums up to that step, and summed over the ranks
+    at the end.
     """
     ctx.model.train()
-    total = torch.zeros(2, dtype=torch.float64, device=ctx.device)
+    if total is None:
+        total = torch.zeros(2, dtype=torch.float64, device=ctx.device)
     with StepGuard() as guard:
         for step, (images, masks) in enumerate(batches):
             if max_steps is not None and step >= max_steps:

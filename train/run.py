@@ -1,7 +1,10 @@
-"""Fit a model: data -> sampler -> loader -> model -> optimizer -> resume -> epochs -> checkpoints.
+"""Fit a model: data -> sampler -> loader -> model -> optimizer -> resume -> epochs -> evaluate -> save.
 
-Reads top to bottom like torchvision's reference `train.py`. `train_model(config, out_dir)` is
-the entry point for other stages; `segmin train` and `torchrun -m segmin.train.cli` call `fit`.
+Reads top to bottom like torchvision's reference `train.py`: `_fit` is that sequence, one call a
+step. The data side is `train.loaders`, the model side and what a run changes as it goes (one
+`TrainState`) `train.state`; this module runs the epochs and writes the run folder.
+`train_model(config, out_dir)` is the entry point for other stages; `segmin train` and
+`torchrun -m segmin.train.cli` call `fit`.
 
 Run folder (written by rank 0 only): `best.pt` (best val IoU), `swa.pt` (the weight average, when
 `swa_start_epoch` is set), `last.pt` (end of the last epoch,
@@ -14,10 +17,9 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import logging
-import math
 import os
 import random
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,40 +29,21 @@ import numpy as np
 import torch
 import yaml
 from torch.optim.swa_utils import AveragedModel, update_bn
-from torch.utils.data import DataLoader, DistributedSampler
+from tqdm import tqdm
 
 from segmin.common.atomic import write_text
 from segmin.common.config import to_dict
 from segmin.common.outputs import check_output_dir
-from segmin.data.agriseg_loader import (
-    AgriSegDataset,
-    DatasetError,
-    Frame,
-    find_frames,
-    load_split,
-    make_splits,
-    save_split,
-)
-from segmin.data.augment import eval_transform, train_transform
+from segmin.data.agriseg_loader import DatasetError, Frame, save_split
 from segmin.data.frame_check import require_sound_frames, worker_error_line
-from segmin.data.real_sets import check_frames_not_real
-from segmin.models import build_model
 from segmin.models.lraspp import check_backbone_weights
-from segmin.train.checkpoint import model_info, read_training_state, rng_state, set_rng_state, write_training_checkpoint
+from segmin.train.checkpoint import model_info, write_training_checkpoint
 from segmin.train.config import TrainConfig
-from segmin.train.distributed import (
-    DistInfo,
-    EpochSampler,
-    ShardSampler,
-    all_reduce_sum,
-    barrier,
-    cleanup,
-    init_distributed,
-)
+from segmin.train.distributed import DistInfo, all_reduce_sum, barrier, cleanup, init_distributed
+from segmin.train.loaders import Loaders, build_loaders, select_frames
 from segmin.train.logs import RunLogger
-from segmin.train.loop import SegLoss, StepContext, evaluate, train_one_epoch
-
-log = logging.getLogger(__name__)
+from segmin.train.loop import StepContext, evaluate, train_one_epoch
+from segmin.train.state import TrainState, build_state, resume_state
 
 
 @dataclass
@@ -82,94 +65,6 @@ def train_model(config: TrainConfig, out_dir: str | Path, *, resume: bool = Fals
     if result.interrupted:
         raise KeyboardInterrupt(f"training interrupted; resume with --resume from {result.last_path}")
     return result.swa_path or result.best_path
-
-
-# ----------------------------------------------------------------------------- data
-
-
-def select_frames(config: TrainConfig) -> tuple[list[Frame], list[Frame]]:
-    """(train frames, val frames) as the config says: held-out domains, split file or seeded split."""
-    d = config.data
-    if d.val_domains:
-        train = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
-        val = find_frames(d.val_root or d.root, d.val_domains, skip_unpaired=d.skip_unpaired)
-        overlap = {f.image_path for f in train} & {f.image_path for f in val}
-        if overlap:
-            raise DatasetError(f"{sorted(overlap)[0]}: frame is in both training and validation domains")
-    else:
-        frames = find_frames(d.root, d.domains, skip_unpaired=d.skip_unpaired)
-        splits = load_split(d.split_file, frames) if d.split_file else make_splits(frames, d.val_fraction, d.split_seed)
-        train, val = splits["train"], splits["val"]
-    check_frames_not_real({"training": train, "validation": val})  # whatever the config says now
-    train = _subsample(train, d.max_train_frames, d.split_seed)
-    val = _subsample(val, d.max_val_frames, d.split_seed + 1)
-    if not train:
-        raise DatasetError(f"{d.root}: no training frames for domains {d.domains}")
-    if not val:
-        raise DatasetError(
-            f"{d.val_root or d.root}: no validation frames (set data.val_fraction > 0 or data.val_domains)"
-        )
-    return train, val
-
-
-def _subsample(frames: list[Frame], limit: int | None, seed: int) -> list[Frame]:
-    if limit is None or len(frames) <= limit:
-        return frames
-    keep = np.random.default_rng(seed).choice(len(frames), size=limit, replace=False)
-    return [frames[i] for i in sorted(keep.tolist())]
-
-
-def _worker_init(_: int) -> None:
-    import signal
-
-    import cv2
-
-    cv2.setNumThreads(1)  # loader workers must not fight the training threads for the cores
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle (it saves)
-
-
-def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame], val_frames: list[Frame]):
-    size = config.image_size
-    closing = config.data.label_closing
-    train_ds = AgriSegDataset(
-        config.data.root,
-        split="all",
-        seed=config.seed,
-        frames=train_frames,
-        transform=train_transform(size, config.augment),
-        image_size=size,
-        label_closing=closing,
-    )
-    val_ds = AgriSegDataset(
-        config.data.root,
-        split="all",
-        seed=config.seed,
-        frames=val_frames,
-        transform=eval_transform(size),
-        image_size=size,
-        label_closing=closing,
-    )
-    base = DistributedSampler(
-        train_ds, num_replicas=dist.world_size, rank=dist.rank, shuffle=True, seed=config.seed, drop_last=False
-    )
-    sampler = EpochSampler(base)
-    common: dict[str, Any] = {"num_workers": config.num_workers, "pin_memory": dist.device.type == "cuda"}
-    if config.num_workers > 0:
-        common.update(prefetch_factor=config.prefetch_factor, persistent_workers=True, worker_init_fn=_worker_init)
-    per_rank = len(base)
-    train_loader = DataLoader(
-        train_ds, batch_size=config.batch_size, sampler=sampler, drop_last=per_rank > config.batch_size, **common
-    )
-    val_loader = DataLoader(
-        val_ds,
-        batch_size=config.eval_batch_size or config.batch_size,
-        sampler=ShardSampler(len(val_ds), dist.rank, dist.world_size),
-        **common,
-    )
-    return train_loader, sampler, val_loader
-
-
-# ----------------------------------------------------------------------------- fit
 
 
 # What a training run leaves in its folder; a new run must not silently replace them.
@@ -195,8 +90,6 @@ def claim_run_folder(out_dir: Path, *, resume: bool, force: bool) -> None:
             f"{out_dir}: already holds a training run ({', '.join(existing)}); "
             "pass --resume to continue it or --force to start over"
         )
-    import shutil
-
     for name in RUN_OUTPUTS:
         target = out_dir / name
         if target.is_dir():
@@ -223,15 +116,53 @@ def fit(config: TrainConfig, out_dir: str | Path, *, resume: bool = False, force
         cleanup()
 
 
-def _seed_everything(seed: int) -> None:
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
+@dataclass
+class CheckpointClock:
+    """When a mid-epoch last.pt is due: every `every_steps` steps, and/or `minutes` after the last one."""
+
+    every_steps: int | None
+    minutes: float | None
+    saved_at: float = field(default_factory=time.monotonic)
+
+    def due(self, step: int) -> bool:
+        return (self.every_steps is not None and step % self.every_steps == 0) or (
+            self.minutes is not None and time.monotonic() - self.saved_at >= 60.0 * self.minutes
+        )
+
+    def restart(self) -> None:
+        self.saved_at = time.monotonic()
+
+
+@dataclass
+class Run:
+    """What stays fixed while a run trains: its settings, its process, its loaders and step context,
+    and what rank 0 writes to (`logger` is None on the other ranks)."""
+
+    config: TrainConfig
+    dist: DistInfo
+    out_dir: Path
+    loaders: Loaders
+    ctx: StepContext
+    logger: RunLogger | None
+    info: dict[str, Any]  # model_info, stored in every checkpoint
+    config_dict: dict[str, Any]  # the config, stored in every checkpoint
+    clock: CheckpointClock
+
+    @property
+    def best_path(self) -> Path:
+        return self.out_dir / "best.pt"
+
+    @property
+    def last_path(self) -> Path:
+        return self.out_dir / "last.pt"
+
+    @property
+    def show_progress(self) -> bool:
+        return self.config.progress and self.dist.is_main
 
 
 def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> FitResult:
-    from tqdm import tqdm
-
+    """The run: data -> sampler -> loader -> model -> optimizer -> resume -> epochs -> weight average."""
     _seed_everything(config.seed)
     train_frames, val_frames = select_frames(config)
     # Decode every frame once now: a corrupt one must stop the run here, naming the file, not
@@ -241,265 +172,216 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
         out_dir / "frame_check.json" if dist.is_main else None,
         threads=max(1, config.num_workers),
     )
-    train_loader, sampler, val_loader = build_loaders(config, dist, train_frames, val_frames)
-
-    model = build_model(config.backbone_weights)
-    if config.bn_momentum is not None:
-        for module in model.modules():
-            if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-                module.momentum = config.bn_momentum
-    cuda = dist.device.type == "cuda"
-    if cuda:
-        torch.backends.cudnn.benchmark = True  # fixed input size: let cuDNN pick the fastest kernels
-    model.to(dist.device)
-    if config.channels_last:  # GPUs and CPUs alike: oneDNN's CPU convolutions gain too (segmin bench train)
-        model.to(memory_format=torch.channels_last)
-    net: torch.nn.Module = model
-    if dist.distributed:
-        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[dist.device.index] if cuda else None)
-    optimizer = torch.optim.Adam(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    scheduler: torch.optim.lr_scheduler.LRScheduler | None = None
-    if config.schedule == "cosine":
-        scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.epochs)
-    elif config.schedule == "step":
-        scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=config.step_size, gamma=config.gamma)
-    scaler = torch.amp.GradScaler("cuda") if cuda and config.amp else None
-    ctx = StepContext(
-        net,
-        optimizer,
-        SegLoss(config.dice_weight),
-        dist.device,
-        scaler,
-        amp=cuda and config.amp,
-        channels_last=config.channels_last,
-    )
-
-    averaged = AveragedModel(model) if config.swa_start_epoch is not None else None
-    info = model_info(
-        backbone_weights=str(config.backbone_weights),
-        input_size=(config.image_size, config.image_size),
-        family=config.family,
-        train_data=_describe_data(config),
-        threshold=config.threshold,
-    )
-    config_dict = to_dict(config)
-    best_path, last_path = out_dir / "best.pt", out_dir / "last.pt"
-    start_epoch, skip_steps, best_iou, history = 0, 0, -math.inf, []
+    loaders = build_loaders(config, dist, train_frames, val_frames)
+    state, ctx = build_state(config, dist)
     if resume:
-        payload = read_training_state(last_path)
-        state = payload["training_state"]
-        model.load_state_dict(payload["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        if scheduler is not None and state.get("scheduler") is not None:
-            scheduler.load_state_dict(state["scheduler"])
-        if scaler is not None and state.get("scaler"):
-            scaler.load_state_dict(state["scaler"])
-        set_rng_state(state["rng"])
-        start_epoch, skip_steps = int(state["epoch"]), int(state["step"])
-        best_iou, history = float(state["best_iou"]), list(state["history"])
-        if averaged is not None and state.get("swa") is not None:
-            averaged.load_state_dict(state["swa"])
+        resume_state(state, out_dir / "last.pt", dist)
         if dist.is_main:
-            print(f"resuming {last_path}: epoch {start_epoch + 1}, step {skip_steps}")
-
-    logger = RunLogger(out_dir, config.tensorboard) if dist.is_main else None
-    if dist.is_main:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        write_text(out_dir / "config.yaml", yaml.safe_dump(config_dict, sort_keys=False))
-        save_split(
-            out_dir / "split.json",
-            {"train": train_frames, "val": val_frames},
-            root=str(config.data.root),
-            val_root=str(config.data.val_root or config.data.root),
-        )
-
-    progress = {"epoch": start_epoch, "step": skip_steps}
-
-    def save_last(metrics: dict[str, float]) -> None:
-        write_training_checkpoint(
-            last_path,
-            model=model,
-            info=info,
-            epoch=progress["epoch"],
-            metrics=metrics,
-            config=config_dict,
-            training_state={
-                "epoch": progress["epoch"],
-                "step": progress["step"],
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict() if scheduler is not None else None,
-                "scaler": scaler.state_dict() if scaler is not None else {},
-                "rng": rng_state(),
-                "best_iou": best_iou,
-                "history": history,
-                # not cpu_state_dict: it unwraps `.module` and would drop n_averaged
-                "swa": None
-                if averaged is None
-                else {k: v.detach().cpu().clone() for k, v in averaged.state_dict().items()},
-            },
-        )
-
-    interrupted = False
-    swa_path: Path | None = None
-    last_metrics: dict[str, float] = history[-1] if history else {}
-    saved_at = time.monotonic()
-
-    def after_step(step: int) -> None:
-        """Record progress; write a mid-epoch last.pt when one is due (rank 0; no collectives)."""
-        nonlocal saved_at
-        progress.update(step=step)
-        if not dist.is_main:
-            return
-        every, minutes = config.checkpoint_every_steps, config.checkpoint_every_minutes
-        due = (every is not None and step % every == 0) or (
-            minutes is not None and time.monotonic() - saved_at >= 60.0 * minutes
-        )
-        if due and step < steps_per_epoch:  # the epoch end saves anyway, with its metrics
-            save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
-            saved_at = time.monotonic()
-
-    steps_per_epoch = len(train_loader)
-    if config.max_steps_per_epoch is not None:
-        steps_per_epoch = min(steps_per_epoch, config.max_steps_per_epoch)
+            print(f"resuming {out_dir / 'last.pt'}: epoch {state.epoch + 1}, step {state.step}")
+    logger = _open_run_folder(config, out_dir, train_frames, val_frames) if dist.is_main else None
+    run = Run(
+        config,
+        dist,
+        out_dir,
+        loaders,
+        ctx,
+        logger,
+        info=_model_info(config),
+        config_dict=to_dict(config),
+        clock=CheckpointClock(config.checkpoint_every_steps, config.checkpoint_every_minutes),
+    )
+    interrupted, swa_path = False, None
     try:
-        for epoch in range(start_epoch, config.epochs):
-            started = time.perf_counter()
-            skip = skip_steps if epoch == start_epoch else 0
-            progress.update(epoch=epoch, step=skip)
-            sampler.set_epoch(epoch, skip=skip * config.batch_size)
-            bar = tqdm(
-                total=max(0, steps_per_epoch - skip),
-                desc=f"epoch {epoch + 1}/{config.epochs}",
-                disable=not (config.progress and dist.is_main),
-                leave=False,
-            )
-            train = train_one_epoch(
-                ctx,
-                train_loader,
-                max_steps=steps_per_epoch - skip,
-                on_step=lambda s, skip=skip: after_step(skip + s),
-                progress=bar,
-            )
-            bar.close()
-            keep = config.preview_images if dist.is_main else 0
-            bar = tqdm(
-                total=len(val_loader), desc="validate", disable=not (config.progress and dist.is_main), leave=False
-            )
-            val, samples = evaluate(ctx, val_loader, threshold=config.threshold, keep=keep, progress=bar)
-            bar.close()
-            lr = optimizer.param_groups[0]["lr"]
-            if scheduler is not None:
-                scheduler.step()
-            row = {
-                "epoch": epoch + 1,
-                "train_loss": train["loss"],
-                "val_loss": val["loss"],
-                "val_iou": val["iou"],
-                "val_pixel_acc": val["pixel_acc"],
-                "lr": lr,
-                "seconds": time.perf_counter() - started,
-            }
-            history.append(row)
-            last_metrics = row
-            improved = val["iou"] > best_iou
-            best_iou = max(best_iou, val["iou"])
-            if averaged is not None and epoch + 1 >= config.swa_start_epoch:
-                averaged.update_parameters(model)
-            progress.update(epoch=epoch + 1, step=0)
-            if dist.is_main:
-                metrics = {k: v for k, v in row.items() if k != "epoch"}
-                if improved:
-                    write_training_checkpoint(
-                        best_path, model=model, info=info, epoch=epoch + 1, metrics=metrics, config=config_dict
-                    )
-                save_last(metrics)
-                assert logger is not None
-                logger.epoch(history)
-                logger.preview(epoch + 1, samples, config.threshold)
-                print(
-                    f"epoch {epoch + 1}/{config.epochs}: train loss {train['loss']:.4f}  val loss "
-                    f"{val['loss']:.4f}  IoU {val['iou']:.4f}  acc {val['pixel_acc']:.4f}  "
-                    f"({row['seconds']:.0f} s){'  *best*' if improved else ''}",
-                    flush=True,
-                )
-            barrier()
-        if averaged is not None and int(averaged.n_averaged) > 0:
-            sampler.set_epoch(config.epochs)
-            swa_path = _finish_weight_average(
-                config, ctx, averaged, train_loader, steps_per_epoch, val_loader, out_dir, dist, info, config_dict
-            )
+        while state.epoch < config.epochs:
+            train_epoch(run, state)
+        if state.averaged is not None and int(state.averaged.n_averaged) > 0:
+            swa_path = finish_weight_average(run, state.averaged)
     except DatasetError as exc:  # from a loader worker: its message is the worker's whole traceback
         raise DatasetError(worker_error_line(exc)) from None
     except KeyboardInterrupt:
         interrupted = True
         if dist.is_main:
-            save_last({k: v for k, v in last_metrics.items() if k != "epoch"})
-            print(
-                f"\ninterrupted: saved {last_path} (epoch {progress['epoch'] + 1}, step {progress['step']}); "
-                "continue with --resume",
-                flush=True,
-            )
+            _save_interrupted(run, state)
     finally:
         if logger is not None:
             logger.close()
+    swa_model = state.averaged.module if swa_path is not None and state.averaged is not None else None
     return FitResult(
-        best_path,
-        last_path,
-        history,
-        model,
+        run.best_path,
+        run.last_path,
+        state.history,
+        state.model,
         interrupted,
         dist.rank,
         dist.world_size,
         swa_path,
-        averaged.module if swa_path is not None else None,
+        swa_model,
     )
 
 
-def _finish_weight_average(
-    config: TrainConfig,
-    ctx: StepContext,
-    averaged: AveragedModel,
-    train_loader,
-    steps: int,
-    val_loader,
-    out_dir: Path,
-    dist: DistInfo,
-    info: dict[str, Any],
-    config_dict: dict[str, Any],
-) -> Path:
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _open_run_folder(
+    config: TrainConfig, out_dir: Path, train_frames: list[Frame], val_frames: list[Frame]
+) -> RunLogger:
+    """Rank 0: the run's logs, its config and its exact split, written before the first epoch."""
+    logger = RunLogger(out_dir, config.tensorboard)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_text(out_dir / "config.yaml", yaml.safe_dump(to_dict(config), sort_keys=False))
+    save_split(
+        out_dir / "split.json",
+        {"train": train_frames, "val": val_frames},
+        root=str(config.data.root),
+        val_root=str(config.data.val_root or config.data.root),
+    )
+    return logger
+
+
+# ----------------------------------------------------------------------------- one epoch
+
+
+def train_epoch(run: Run, state: TrainState) -> None:
+    """The epoch `state` is in, from where it stands: train, validate, step the LR schedule, record, save."""
+    started = time.perf_counter()
+    train_loss = _train_steps(run, state)
+    val, samples = _validate(run, run.ctx, "validate", keep=run.config.preview_images if run.dist.is_main else 0)
+    lr = state.optimizer.param_groups[0]["lr"]
+    if state.scheduler is not None:
+        state.scheduler.step()
+    row = {
+        "epoch": state.epoch + 1,
+        "train_loss": train_loss,
+        "val_loss": val["loss"],
+        "val_iou": val["iou"],
+        "val_pixel_acc": val["pixel_acc"],
+        "lr": lr,
+        "seconds": time.perf_counter() - started,
+    }
+    improved = _end_epoch(run.config, state, row)
+    if run.dist.is_main:
+        _save_epoch(run, state, samples, improved)
+    barrier()
+
+
+def _train_steps(run: Run, state: TrainState) -> float:
+    """The epoch's steps from `state.step` on; returns the epoch's mean training loss.
+
+    After each step the state counts it, and rank 0 writes a mid-epoch last.pt when one is due
+    (no collectives there: the other ranks never wait for it). The epoch's last step is left to
+    the epoch end, which saves anyway, with the epoch's metrics.
+    """
+    skip, steps = state.step, run.loaders.steps_per_epoch
+    run.loaders.sampler.set_epoch(state.epoch, skip=skip * run.config.batch_size)
+
+    def after_step(done: int) -> None:
+        state.step = skip + done
+        if run.dist.is_main and state.step < steps and run.clock.due(state.step):
+            save_last(run, state)
+            run.clock.restart()
+
+    bar = tqdm(
+        total=max(0, steps - skip),
+        desc=f"epoch {state.epoch + 1}/{run.config.epochs}",
+        disable=not run.show_progress,
+        leave=False,
+    )
+    result = train_one_epoch(
+        run.ctx, run.loaders.train, max_steps=steps - skip, on_step=after_step, progress=bar, total=state.loss_total
+    )
+    bar.close()
+    return result["loss"]
+
+
+def _validate(
+    run: Run, ctx: StepContext, desc: str, keep: int = 0
+) -> tuple[dict[str, float], list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]]:
+    """Metrics of `ctx.model` on the whole validation set (reduced over ranks), and `keep` previews."""
+    bar = tqdm(total=len(run.loaders.val), desc=desc, disable=not run.show_progress, leave=False)
+    result = evaluate(ctx, run.loaders.val, threshold=run.config.threshold, keep=keep, progress=bar)
+    bar.close()
+    return result
+
+
+def _end_epoch(config: TrainConfig, state: TrainState, row: dict[str, Any]) -> bool:
+    """Add a finished epoch to the state (history, best IoU, weight average; the next epoch starts
+    at step 0 with its loss sums at zero); True when its IoU is the best yet."""
+    state.history.append(row)
+    improved = row["val_iou"] > state.best_iou
+    state.best_iou = max(state.best_iou, row["val_iou"])
+    if state.averaged is not None and config.swa_start_epoch is not None and row["epoch"] >= config.swa_start_epoch:
+        state.averaged.update_parameters(state.model)
+    state.epoch, state.step = state.epoch + 1, 0
+    state.loss_total.zero_()
+    return improved
+
+
+def _save_epoch(
+    run: Run, state: TrainState, samples: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], improved: bool
+) -> None:
+    """Rank 0, after an epoch: best.pt when it improved, last.pt, metrics.csv, TensorBoard, a preview, one line."""
+    if improved:
+        write_training_checkpoint(
+            run.best_path,
+            model=state.model,
+            info=run.info,
+            epoch=state.epoch,
+            metrics=state.last_metrics(),
+            config=run.config_dict,
+        )
+    save_last(run, state)
+    assert run.logger is not None
+    run.logger.epoch(state.history)
+    run.logger.preview(state.epoch, samples, run.config.threshold)
+    row = state.history[-1]
+    print(
+        f"epoch {state.epoch}/{run.config.epochs}: train loss {row['train_loss']:.4f}  val loss "
+        f"{row['val_loss']:.4f}  IoU {row['val_iou']:.4f}  acc {row['val_pixel_acc']:.4f}  "
+        f"({row['seconds']:.0f} s){'  *best*' if improved else ''}",
+        flush=True,
+    )
+
+
+def save_last(run: Run, state: TrainState) -> None:
+    """last.pt: the weights, everything `--resume` needs, and the last finished epoch's metrics."""
+    write_training_checkpoint(
+        run.last_path,
+        model=state.model,
+        info=run.info,
+        epoch=state.epoch,
+        metrics=state.last_metrics(),
+        config=run.config_dict,
+        training_state=state.checkpoint_state(),
+    )
+
+
+def _save_interrupted(run: Run, state: TrainState) -> None:
+    """Rank 0, on Ctrl-C (always at a step boundary, see train.interrupt): last.pt, and how to go on."""
+    save_last(run, state)
+    print(
+        f"\ninterrupted: saved {run.last_path} (epoch {state.epoch + 1}, step {state.step}); continue with --resume",
+        flush=True,
+    )
+
+
+# ----------------------------------------------------------------------------- weight average
+
+
+def finish_weight_average(run: Run, averaged: AveragedModel) -> Path:
     """BatchNorm statistics for the averaged weights, its validation, and swa.pt.
 
     The running statistics of the last epoch belong to the last weights, not to their average:
     `update_bn` recomputes them with one pass over the training frames (as the SWA paper does),
-    `steps` batches: an epoch's.
+    an epoch's worth of batches.
     """
-    from tqdm import tqdm
-
-    show = config.progress and dist.is_main
-    update_bn(
-        tqdm(
-            itertools.islice(train_loader, steps),
-            total=steps,
-            desc="swa: BatchNorm statistics",
-            disable=not show,
-            leave=False,
-        ),
-        averaged.module,
-        device=dist.device,
-    )
-    # Each rank saw its own shard: average the statistics so that every rank validates, and rank
-    # 0 saves, the same model (update_bn's variance is itself a mean of per-batch variances).
-    for module in averaged.module.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm) and module.running_mean is not None:
-            for buffer in (module.running_mean, module.running_var):
-                all_reduce_sum(buffer).div_(dist.world_size)
-    bar = tqdm(total=len(val_loader), desc="swa: validate", disable=not show, leave=False)
-    val, _ = evaluate(
-        dataclasses.replace(ctx, model=averaged.module), val_loader, threshold=config.threshold, progress=bar
-    )
-    bar.close()
-    path = out_dir / "swa.pt"
-    if dist.is_main:
+    run.loaders.sampler.set_epoch(run.config.epochs)
+    _average_batchnorm_statistics(run, averaged)
+    val, _ = _validate(run, dataclasses.replace(run.ctx, model=averaged.module), "swa: validate")
+    path = run.out_dir / "swa.pt"
+    if run.dist.is_main:
         metrics = {
             "val_loss": val["loss"],
             "val_iou": val["iou"],
@@ -507,10 +389,10 @@ def _finish_weight_average(
             "swa_epochs": float(averaged.n_averaged),
         }
         write_training_checkpoint(
-            path, model=averaged.module, info=info, epoch=config.epochs, metrics=metrics, config=config_dict
+            path, model=averaged.module, info=run.info, epoch=run.config.epochs, metrics=metrics, config=run.config_dict
         )
         print(
-            f"swa: average of epochs {config.swa_start_epoch}-{config.epochs} "
+            f"swa: average of epochs {run.config.swa_start_epoch}-{run.config.epochs} "
             f"({int(averaged.n_averaged)} epochs): val loss {val['loss']:.4f}  IoU {val['iou']:.4f}  "
             f"acc {val['pixel_acc']:.4f}  -> {path}",
             flush=True,
@@ -519,9 +401,35 @@ def _finish_weight_average(
     return path
 
 
-def _describe_data(config: TrainConfig) -> str:
+def _average_batchnorm_statistics(run: Run, averaged: AveragedModel) -> None:
+    """`update_bn` over an epoch of this rank's batches, then the mean over the ranks.
+
+    Each rank saw its own shard: averaging the statistics makes every rank validate, and rank 0
+    save, the same model (update_bn's variance is itself a mean of per-batch variances).
+    """
+    steps = run.loaders.steps_per_epoch
+    batches = itertools.islice(run.loaders.train, steps)
+    update_bn(
+        tqdm(batches, total=steps, desc="swa: BatchNorm statistics", disable=not run.show_progress, leave=False),
+        averaged.module,
+        device=run.dist.device,
+    )
+    for module in averaged.module.modules():
+        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm) and module.running_mean is not None:
+            for buffer in (module.running_mean, module.running_var):
+                all_reduce_sum(buffer).div_(run.dist.world_size)
+
+
+def _model_info(config: TrainConfig) -> dict[str, Any]:
+    """What every checkpoint of the run says about its model and the data it learned from."""
     d = config.data
-    text = f"{d.root} domains={d.domains or 'all'}"
+    train_data = f"{d.root} domains={d.domains or 'all'}"
     if d.val_domains:
-        text += f"; val {d.val_root or d.root} domains={d.val_domains}"
-    return text
+        train_data += f"; val {d.val_root or d.root} domains={d.val_domains}"
+    return model_info(
+        backbone_weights=str(config.backbone_weights),
+        input_size=(config.image_size, config.image_size),
+        family=config.family,
+        train_data=train_data,
+        threshold=config.threshold,
+    )

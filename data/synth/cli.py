@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 from segmin.common.cli_args import NamesThenOverrides, add_overrides, overrides_of
@@ -154,76 +153,14 @@ def _preview(args) -> int:
 
 
 def _bench(args) -> int:
-    import tempfile
+    from segmin.data.synth.bench import SynthBenchOptions, bench_synth
+    from segmin.data.synth.spec import TEST_FIELDS
 
-    import numpy as np
-    import pybullet as p
-
-    from segmin.common.machine import load_average
-    from segmin.data.synth.render import Renderer
-    from segmin.data.synth.spec import TEST_FIELDS, load_world_spec
-    from segmin.data.synth.world import build_world
-    from segmin.data.synth.writer import FrameRenderer, RenderJob, encode_frame, render_dataset
-
-    camera = _camera(args.size)
-    fields = args.fields or list(TEST_FIELDS)
-    print(
-        f"segmin bench synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
-        f"{args.frames} frames per run, {load_average()}"
+    options = SynthBenchOptions(
+        camera=_camera(args.size),
+        frames=args.frames,
+        fields=tuple(args.fields or TEST_FIELDS),
+        workers=tuple(args.workers),
     )
-    print("frames/s: whole run (incl. building the world in each worker) and steady (after the first task);")
-    print("cpu ms/frame: render + encode in one process (CPU time, independent of other load)")
-    header = f"{'world':20s} " + " ".join(f"{f'{w}w run':>8s} {f'{w}w steady':>10s}" for w in args.workers)
-    print(header + f" {'cpu ms/frame':>13s}")
-    for name in fields:
-        spec = load_world_spec(name)
-        cells = []
-        for workers in args.workers:
-            with tempfile.TemporaryDirectory(prefix="segmin_bench_") as tmp:
-                job = RenderJob(
-                    spec=spec, out=Path(tmp), frames=args.frames, camera=camera, workers=workers, progress=False
-                )
-                summary = render_dataset(job)
-            cells.append(f"{summary['fps']:8.1f} {summary['steady_fps']:10.1f}")
-        fr = FrameRenderer(spec, camera, spec.seed, 10, True)
-        try:
-            t = time.process_time()
-            n = min(args.frames, 40)
-            for f in range(n):
-                encode_frame(fr.render(f))
-            cpu_ms = 1000 * (time.process_time() - t) / n
-        finally:
-            fr.close()
-        print(f"{name:20s} " + " ".join(cells) + f" {cpu_ms:13.1f}", flush=True)
-
-    # Per-frame render time vs row length: culling should make it (nearly) independent of size.
-    times = {}
-    for length in (20.0, 200.0):
-        spec = load_world_spec("straight_vineyard", [f"rows.length={length}"])
-        client = p.connect(p.DIRECT)
-        try:
-            t0 = time.perf_counter()
-            world = build_world(spec, client)
-            build_s = time.perf_counter() - t0
-            renderer = Renderer(world, camera)
-            gap = world.eval_gap
-            samples, cpu = [], []
-            rng = np.random.default_rng(0)
-            for k in range(args.frames):
-                # Same poses relative to the camera in both worlds: the first 15 m of the row.
-                x, y, yaw = world.gap_pose(gap, float(rng.uniform(0.0, 15.0)))
-                t, c = time.perf_counter(), time.process_time()
-                renderer.render(x, y, yaw)
-                samples.append(time.perf_counter() - t)
-                cpu.append(time.process_time() - c)
-            times[length] = float(np.mean(cpu))
-            print(
-                f"row length {length:5.0f} m: {len(world.chunks):5d} chunks, "
-                f"{sum(len(c.bodies) for c in world.chunks):5d} bodies, build {build_s:.1f} s, "
-                f"render {1000 * times[length]:.1f} ms/frame CPU (median wall {1000 * np.median(samples):.1f} ms)",
-                flush=True,
-            )
-        finally:
-            p.disconnect(client)
-    print(f"200 m / 20 m per-frame render time ratio (CPU): {times[200.0] / times[20.0]:.2f} (target <= 1.5)")
+    bench_synth(options)
     return 0

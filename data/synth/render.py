@@ -82,6 +82,26 @@ def camera_pose(
     return pose
 
 
+def _fixed_look() -> dict:
+    """The look of a frame rendered without randomness: clear sky, the sun high, no haze or shadow."""
+    return {
+        "overcast": False,
+        "cover": 0.0,
+        "haze": 0.0,
+        "shadow": False,
+        "horizon": np.array([0.80, 0.85, 0.90]),
+        "zenith": np.array([0.35, 0.55, 0.85]),
+        "light": {
+            "lightDirection": [0.4, 0.3, 1.0],
+            "lightColor": [1.0, 1.0, 1.0],
+            "lightDistance": 100.0,
+            "lightAmbientCoeff": 0.55,
+            "lightDiffuseCoeff": 0.5,
+            "lightSpecularCoeff": 0.05,
+        },
+    }
+
+
 class Renderer:
     """Renders frames of one world with one camera model; keeps the per-body visibility state.
 
@@ -235,24 +255,9 @@ class Renderer:
 
     # ----------------------------------------------------------------- sky
     def _draw_look(self, rng: np.random.Generator | None, heading: float) -> dict:
-        """Per-frame sky, sun and haze drawn from the world's `sky` ranges (fixed without rng)."""
+        """Per-frame sky, sun and haze drawn from the world's `sky` ranges (`_fixed_look` without rng)."""
         if rng is None:
-            return {
-                "overcast": False,
-                "cover": 0.0,
-                "haze": 0.0,
-                "shadow": False,
-                "horizon": np.array([0.80, 0.85, 0.90]),
-                "zenith": np.array([0.35, 0.55, 0.85]),
-                "light": dict(
-                    lightDirection=[0.4, 0.3, 1.0],
-                    lightColor=[1.0, 1.0, 1.0],
-                    lightDistance=100.0,
-                    lightAmbientCoeff=0.55,
-                    lightDiffuseCoeff=0.5,
-                    lightSpecularCoeff=0.05,
-                ),
-            }
+            return _fixed_look()
         sky = self.world.spec.sky
         # The first draws keep the order of the original renderer (sun, colour, terms, sky colours).
         az, el = rng.uniform(0, 2 * np.pi), math.radians(rng.uniform(*sky.sun_elevation))
@@ -278,14 +283,14 @@ class Renderer:
             and self.world.spec.render.shadow_probability > 0
             and rng.uniform() < self.world.spec.render.shadow_probability
         )
-        light = dict(
-            lightDirection=[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
-            lightColor=[float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
-            lightDistance=100.0,
-            lightAmbientCoeff=ambient,
-            lightDiffuseCoeff=diffuse,
-            lightSpecularCoeff=specular,
-        )
+        light = {
+            "lightDirection": [math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
+            "lightColor": [float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
+            "lightDistance": 100.0,
+            "lightAmbientCoeff": ambient,
+            "lightDiffuseCoeff": diffuse,
+            "lightSpecularCoeff": specular,
+        }
         return {
             "overcast": overcast,
             "cover": cover,
@@ -337,15 +342,51 @@ class Renderer:
         noisy_depth: bool = False,
         pose_offset=None,
     ) -> RenderedFrame:
-        """Render the camera of a robot at (x, y, yaw); `rng` randomises light, sky and exposure."""
+        """Render the camera of a robot at (x, y, yaw); `rng` randomises light, sky and exposure.
+
+        The draws from `rng` come in a fixed order (look, sky, exposure, vignetting, depth noise):
+        it is part of every frame's bytes.
+        """
         cam = self.camera
         pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
         stats = self._cull(pose)
+        look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
+        rgb, zbuf, seg = self._shoot(pose, look)
+        hit = seg >= 0
+        ids = np.where(hit, seg & 0xFFFFFF, -1).astype(np.int32)
+        mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)]
+        near, far = cam.near, cam.far
+        depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
+        depth[~hit] = 0.0
+        if not hit.all():
+            np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
+        if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
+            fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
+            fade[~hit] = 0.0
+            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(
+                np.uint8
+            )
+        if rng is not None:
+            rgb = self._expose(rgb, rng)
+        if noisy_depth and cam.depth_noise_enabled:
+            depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
+        return RenderedFrame(
+            rgb=rgb,
+            depth=depth,
+            mask=mask,
+            camera_pose=pose,
+            robot_pose=(float(x), float(y), float(yaw)),
+            body_ids=ids,
+            stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])},
+        )
+
+    def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """TinyRenderer's image from `pose` in `look`'s light: RGB, depth buffer and segmentation."""
+        cam = self.camera
         eye = pose[:3, 3]
         view = p.computeViewMatrix(
             eye.tolist(), (eye + pose[:3, 2]).tolist(), (-pose[:3, 1]).tolist(), physicsClientId=self.client
         )
-        look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
         _, _, rgba, zbuf, seg = p.getCameraImage(
             cam.width,
             cam.height,
@@ -359,37 +400,15 @@ class Renderer:
         rgba = np.reshape(np.asarray(rgba, np.uint8), (cam.height, cam.width, 4))
         zbuf = np.reshape(np.asarray(zbuf, np.float32), (cam.height, cam.width))
         seg = np.reshape(np.asarray(seg, np.int32), (cam.height, cam.width))
-        hit = seg >= 0
-        ids = np.where(hit, seg & 0xFFFFFF, -1).astype(np.int32)
-        mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)]
-        near, far = cam.near, cam.far
-        depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
-        depth[~hit] = 0.0
-        rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
-        if not hit.all():
-            np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
-        if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
-            fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
-            fade[~hit] = 0.0
-            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(
-                np.uint8
-            )
-        if rng is not None:
-            gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
-            rgb = cv2.multiply(rgb, (float(gain[0]), float(gain[1]), float(gain[2]), 0.0))  # saturating
-            vig = self.world.spec.capture.vignetting
-            if vig[1] > 0:
-                amount = np.float32(rng.uniform(*vig))
-                falloff = 1 - amount * np.clip(self.radius, 0, 1) ** 2
-                rgb = (rgb * falloff[..., None]).astype(np.uint8)
-        if noisy_depth and cam.depth_noise_enabled:
-            depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
-        return RenderedFrame(
-            rgb=rgb,
-            depth=depth,
-            mask=mask,
-            camera_pose=pose,
-            robot_pose=(float(x), float(y), float(yaw)),
-            body_ids=ids,
-            stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])},
-        )
+        return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), zbuf, seg
+
+    def _expose(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Camera exposure: a random gain per channel (saturating), then the world's vignetting."""
+        gain = rng.uniform(0.85, 1.15) * (1 + rng.uniform(-0.04, 0.04, 3))
+        rgb = cv2.multiply(rgb, (float(gain[0]), float(gain[1]), float(gain[2]), 0.0))  # saturating
+        vig = self.world.spec.capture.vignetting
+        if vig[1] > 0:
+            amount = np.float32(rng.uniform(*vig))
+            falloff = 1 - amount * np.clip(self.radius, 0, 1) ** 2
+            rgb = (rgb * falloff[..., None]).astype(np.uint8)
+        return rgb

@@ -211,42 +211,89 @@ def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1,
 
 
 def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> World:
-    """Build `spec` into the (DIRECT) pybullet client `client_id`; `seed` overrides `spec.seed`."""
+    """Build `spec` into the (DIRECT) pybullet client `client_id`; `seed` overrides `spec.seed`.
+
+    Each part draws from a random stream of its own (terrain, plants, structures, textures,
+    ground, backdrop), so a change to one part of a spec leaves the others as they were.
+    """
     seed = spec.seed if seed is None else int(seed)
     rng_terrain, rng_plants, rng_struct, rng_tex, rng_ground = (np.random.default_rng([seed, k]) for k in range(5))
     terrain = Terrain(spec, rng_terrain)
-    margin = spec.terrain.margin
-    layout = RowLayout(spec, extend=margin + GROUND_TILE)
+    layout = RowLayout(spec, extend=spec.terrain.margin + GROUND_TILE)
     textures = TextureSet(client_id, spec.appearance, rng_tex)
+    n_chunks = int(np.ceil(spec.rows.length / spec.render.chunk_length)) + 1
+    plants, circles = _place_plants(spec, layout, terrain, rng_plants)
+
+    chunks: list[Chunk] = []
+    tris = {"plants": [0] * len(LOD_FACTORS), "structure": [0], "ground": [0, 0], "grass": [0]}
+    vegetation = _plant_chunks(spec, plants, client_id, textures, chunks, tris)
+    obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
+    _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
+    _backdrop(spec, layout, terrain, np.random.default_rng([seed, 5]), client_id, textures, chunks, tris)
+
+    centre_offsets, half_widths = _gap_geometry(spec, layout.offsets)
+    s_line = np.arange(0.0, spec.rows.length + 1e-9, CENTRELINE_STEP)
+    return World(
+        spec=spec,
+        client_id=client_id,
+        seed=seed,
+        terrain=terrain,
+        layout=layout,
+        plant_circles=np.array(circles, float).reshape(-1, 3),
+        obstacle_circles=np.array(obstacles, float).reshape(-1, 3),
+        centrelines=[layout.at(s_line, c)[0] for c in centre_offsets],
+        gap_half_widths=half_widths,
+        gap_offsets=list(map(float, centre_offsets)),
+        vegetation_ids=vegetation,
+        chunks=chunks,
+        textures=textures,
+        n_triangles=tris,
+    )
+
+
+def _place_plants(
+    spec: WorldSpec, layout: RowLayout, terrain: Terrain, rng: np.random.Generator
+) -> tuple[dict[tuple[int, int], list[Plant]], list[tuple[float, float, float]]]:
+    """The plants, row by row, keyed by chunk (row, index along the row), and each one's trunk
+    circle (x, y, radius)."""
     rs, ps = spec.rows, spec.plants
     chunk_len = spec.render.chunk_length
-    n_chunks = int(np.ceil(rs.length / chunk_len)) + 1
-
-    # Plants, row by row; chunk key = (row, index along the row).
     plants: dict[tuple[int, int], list[Plant]] = {}
     circles = []
     for row, offset in enumerate(layout.offsets):
-        s = 0.25 * ps.spacing * rng_plants.uniform()
+        s = 0.25 * ps.spacing * rng.uniform()
         while s <= rs.length:
-            pos_s = s + rng_plants.uniform(-ps.spacing_jitter, ps.spacing_jitter)
-            present = rng_plants.uniform() >= ps.gap_probability
-            lateral = offset + rng_plants.normal(0, rs.lateral_jitter) if rs.lateral_jitter > 0 else offset
+            pos_s = s + rng.uniform(-ps.spacing_jitter, ps.spacing_jitter)
+            present = rng.uniform() >= ps.gap_probability
+            lateral = offset + rng.normal(0, rs.lateral_jitter) if rs.lateral_jitter > 0 else offset
             if present and 0 <= pos_s <= rs.length:
                 xy, t = layout.at(np.array([pos_s]), lateral)
                 base = np.array([xy[0, 0], xy[0, 1], terrain.height(xy[0, 0], xy[0, 1])])
-                plant = make_plant(spec, rng_plants, base, t[0], row)
+                plant = make_plant(spec, rng, base, t[0], row)
                 plants.setdefault((row, int(pos_s // chunk_len)), []).append(plant)
                 circles.append((base[0], base[1], plant.trunk_radius))
             s += ps.spacing
+    return plants, circles
 
-    chunks: list[Chunk] = []
+
+def _plant_chunks(
+    spec: WorldSpec,
+    plants: dict[tuple[int, int], list[Plant]],
+    client: int,
+    textures: TextureSet,
+    chunks: list[Chunk],
+    tris: dict[str, list[int]],
+) -> set[int]:
+    """One chunk per row piece (two with the canopy label: leaves and wood), appended to `chunks`;
+    returns the bodies that are vegetation (1 in the mask).
+
+    Creation order is TinyRenderer's drawing order, and a pixel already covered by something
+    nearer skips shading: inner rows first (they hide the outer ones from the middle gaps),
+    then along each row from the entrance.
+    """
     vegetation: set[int] = set()
-    tris = {"plants": [0] * len(LOD_FACTORS), "structure": [0], "ground": [0, 0], "grass": [0]}
-    # Creation order is TinyRenderer's drawing order, and a pixel already covered by something
-    # nearer skips shading: inner rows first (they hide the outer ones from the middle gaps),
-    # then along each row from the entrance.
-    middle = (rs.count - 1) / 2
-    canopy_only = ps.label == "canopy"
+    middle = (spec.rows.count - 1) / 2
+    canopy_only = spec.plants.label == "canopy"
     if canopy_only:
         tris["wood"] = [0] * len(LOD_FACTORS)
     for key in sorted(plants, key=lambda k: (abs(k[0] - middle), k[0], k[1])):
@@ -262,41 +309,23 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
         for kind, levels in kinds:  # leaves first: they hide most of the wood (hidden pixels skip shading)
             if not any(m.n_triangles for m in levels):
                 continue
-            ch = _chunk(client_id, levels, kind, textures.plant[0])
+            ch = _chunk(client, levels, kind, textures.plant[0])
             chunks.append(ch)
             if kind == "plants":
                 vegetation.update(ch.bodies)
             tris[kind] = [
                 a + b for a, b in zip(tris[kind], ch.triangles + [0] * (len(LOD_FACTORS) - len(ch.triangles)))
             ]
+    return vegetation
 
-    obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
-    _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
+
+def _backdrop(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
+    """Trees, hedges, buildings and hills around the field: scenery, not vegetation in the mask."""
     tris["backdrop"] = [0]
-    for kind, mesh, texture, tint in backdrop_meshes(spec, layout, terrain, np.random.default_rng([seed, 5]), textures):
+    for kind, mesh, texture, tint in backdrop_meshes(spec, layout, terrain, rng, textures):
         if mesh.n_triangles:  # not vegetation, whatever its leaves look like
-            chunks.append(_chunk(client_id, [mesh], kind, texture, tint))
+            chunks.append(_chunk(client, [mesh], kind, texture, tint))
             tris["backdrop"][0] += mesh.n_triangles
-
-    centre_offsets, half_widths = _gap_geometry(spec, layout.offsets)
-    s_line = np.arange(0.0, rs.length + 1e-9, CENTRELINE_STEP)
-    centrelines = [layout.at(s_line, c)[0] for c in centre_offsets]
-    return World(
-        spec=spec,
-        client_id=client_id,
-        seed=seed,
-        terrain=terrain,
-        layout=layout,
-        plant_circles=np.array(circles, float).reshape(-1, 3),
-        obstacle_circles=np.array(obstacles, float).reshape(-1, 3),
-        centrelines=centrelines,
-        gap_half_widths=half_widths,
-        gap_offsets=list(map(float, centre_offsets)),
-        vegetation_ids=vegetation,
-        chunks=chunks,
-        textures=textures,
-        n_triangles=tris,
-    )
 
 
 def _wire_stations(s0: float, s1: float, step: float = 1.0) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import multiprocessing as mp
 import os
@@ -39,6 +40,8 @@ from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import WorldSpec
 
 FORMAT = "segmin-synth/1"
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -338,8 +341,6 @@ def _fingerprint(job: RenderJob) -> dict:
 def write_meta(job: RenderJob, world) -> list[Path]:
     """One meta.json per subset: the spec, camera intrinsics, seeds and every frame's poses.
     Its content depends only on the job, so shards writing it concurrently agree byte for byte."""
-    from segmin.data.synth.render import camera_pose
-
     fp = _fingerprint(job)
     written = []
     n_subsets = (job.frames - 1) // job.frames_per_subset + 1
@@ -349,47 +350,7 @@ def write_meta(job: RenderJob, world) -> list[Path]:
         sub = subset_dir(job.out, job.spec.domain, first, job.frames_per_subset)
         meta_path = sub / "meta.json"
         if meta_path.is_file() and not job.overwrite:
-            try:
-                old = json.loads(meta_path.read_text(encoding="utf-8"))
-            except (OSError, ValueError) as exc:
-                raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
-            old_fp = {key: old.get(key) for key in fp}
-            if json.loads(json.dumps(old_fp)) != json.loads(json.dumps(fp)):
-                changed = sorted(
-                    key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True)
-                )
-                raise ValueError(
-                    f"{meta_path}: was rendered with different settings ({', '.join(changed)}); "
-                    "use another --out or --overwrite"
-                )
-        frames = {}
-        for f in range(first, last):
-            plan = plan_frame(world, job.dataset_seed, f, job.appearance_every)
-            cam = frame_camera(job.camera, plan)
-            pose = camera_pose(world, cam, *plan.robot_pose, pose_offset=plan.pose_offset)
-            extra = (
-                {}
-                if plan.capture is None
-                else {
-                    "intrinsics": cam.intrinsics(),
-                    "mount_height": round(cam.mount_height, 6),
-                    "tilt_deg": round(cam.tilt_deg, 6),
-                }
-            )
-            frames[str(f)] = {
-                "gap": plan.gap,
-                "s": round(plan.s, 6),
-                "reverse": plan.reverse,
-                "robot_pose": [round(v, 6) for v in plan.robot_pose],
-                "pose_offset": [round(v, 6) for v in plan.pose_offset],
-                "camera_pose": np.round(pose, 6).tolist(),
-                "appearance_block": plan.block,
-                "files": {
-                    kind: str(p.relative_to(sub))
-                    for kind, p in frame_paths(job.out, job.spec.domain, f, job.frames_per_subset).items()
-                },
-                **extra,
-            }
+            _check_same_settings(meta_path, fp)
         meta = dict(fp)
         meta.update(
             {
@@ -399,12 +360,61 @@ def write_meta(job: RenderJob, world) -> list[Path]:
                 "world_seed": job.spec.seed,
                 "depth_units": "millimetre (uint16 PNG), 0 = invalid",
                 "mask_values": "0 = background, 255 = vegetation",
-                "frames": frames,
+                "frames": {str(f): _frame_meta(job, world, f, sub) for f in range(first, last)},
             }
         )
         write_json(meta_path, meta)
         written.append(meta_path)
     return written
+
+
+def _check_same_settings(meta_path: Path, fp: dict) -> None:
+    """A rerun continues a subset only when its meta.json was written with the same settings."""
+    try:
+        old = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{meta_path}: unreadable meta file ({exc}); use --overwrite to start over") from exc
+    old_fp = {key: old.get(key) for key in fp}
+    if json.loads(json.dumps(old_fp)) != json.loads(json.dumps(fp)):
+        changed = sorted(
+            key for key in fp if json.dumps(old_fp[key], sort_keys=True) != json.dumps(fp[key], sort_keys=True)
+        )
+        raise ValueError(
+            f"{meta_path}: was rendered with different settings ({', '.join(changed)}); "
+            "use another --out or --overwrite"
+        )
+
+
+def _frame_meta(job: RenderJob, world, frame: int, sub: Path) -> dict:
+    """One frame's entry: where the robot and the camera were, its appearance block and its files."""
+    from segmin.data.synth.render import camera_pose
+
+    plan = plan_frame(world, job.dataset_seed, frame, job.appearance_every)
+    cam = frame_camera(job.camera, plan)
+    pose = camera_pose(world, cam, *plan.robot_pose, pose_offset=plan.pose_offset)
+    extra = (
+        {}
+        if plan.capture is None
+        else {
+            "intrinsics": cam.intrinsics(),
+            "mount_height": round(cam.mount_height, 6),
+            "tilt_deg": round(cam.tilt_deg, 6),
+        }
+    )
+    return {
+        "gap": plan.gap,
+        "s": round(plan.s, 6),
+        "reverse": plan.reverse,
+        "robot_pose": [round(v, 6) for v in plan.robot_pose],
+        "pose_offset": [round(v, 6) for v in plan.pose_offset],
+        "camera_pose": np.round(pose, 6).tolist(),
+        "appearance_block": plan.block,
+        "files": {
+            kind: str(p.relative_to(sub))
+            for kind, p in frame_paths(job.out, job.spec.domain, frame, job.frames_per_subset).items()
+        },
+        **extra,
+    }
 
 
 # --------------------------------------------------------------------------------- run
@@ -427,10 +437,12 @@ def render_dataset(job: RenderJob) -> dict:
     """
     check_writable(job.out)
     with writer_lock(lock_path(job), f"dataset {job.out / job.spec.domain}") as previous:
-        if previous and job.progress:
-            print(
-                f"{lock_path(job)}: taking over the lock of pid {previous.get('pid')} on "
-                f"{previous.get('host')}, which has stopped; resuming its work"
+        if previous:
+            log.warning(
+                "%s: taking over the lock of pid %s on %s, which has stopped; resuming its work",
+                lock_path(job),
+                previous.get("pid"),
+                previous.get("host"),
             )
         return _render_locked(job)
 
@@ -462,6 +474,7 @@ def check_frame_count(job: RenderJob) -> None:
 
 
 def _render_locked(job: RenderJob) -> dict:
+    """render_dataset's work, under the writer lock: meta files, then this shard's missing frames."""
     domain = job.spec.domain
     shard, n_shards = job.shard
     if job.overwrite and n_shards == 1 and (job.out / domain).exists():
@@ -473,66 +486,85 @@ def _render_locked(job: RenderJob) -> dict:
         return frame % n_shards == shard
 
     clean_stale(job.out, domain, owns)
-    # Ground truth for the meta files, from a world built in a private client of this process.
+    _write_world_meta(job)
+    mine = [f for f in range(job.frames) if owns(f)]
+    todo = [f for f in mine if job.overwrite or not frame_done(frame_paths(job.out, domain, f, job.frames_per_subset))]
+    rate = _Rate(_progress(len(todo), job.progress))
+    if todo:
+        _render_tasks(job, _tasks(todo, job.appearance_every), rate.tick)
+    return rate.summary(skipped=len(mine) - len(todo), out=str(job.out / domain))
+
+
+def _write_world_meta(job: RenderJob) -> None:
+    """The meta files' ground truth, from a world built in a private client of this process."""
     import pybullet as p
 
     from segmin.data.synth.world import build_world
 
     client = p.connect(p.DIRECT)
     try:
-        world = build_world(job.spec, client)
-        write_meta(job, world)
+        write_meta(job, build_world(job.spec, client))
     finally:
         p.disconnect(client)
 
-    mine = [f for f in range(job.frames) if owns(f)]
-    todo = [f for f in mine if job.overwrite or not frame_done(frame_paths(job.out, domain, f, job.frames_per_subset))]
-    skipped = len(mine) - len(todo)
-    # Tasks follow appearance blocks, so a worker re-draws the look once per task at most.
+
+def _tasks(todo: list[int], appearance_every: int) -> list[list[int]]:
+    """Up to 16 frames a task, never across appearance blocks: a worker re-draws the look once per task at most."""
     tasks: list[list[int]] = []
     for f in todo:
-        if tasks and tasks[-1][-1] // job.appearance_every == f // job.appearance_every and len(tasks[-1]) < 16:
+        if tasks and tasks[-1][-1] // appearance_every == f // appearance_every and len(tasks[-1]) < 16:
             tasks[-1].append(f)
         else:
             tasks.append([f])
-    bar = _progress(len(todo), job.progress)
-    start = time.perf_counter()
-    done = 0
-    first: tuple[float, int] | None = None  # (time, frames) when the first task came back
+    return tasks
 
-    def tick(n: int) -> None:
-        nonlocal done, first
-        done += n
-        bar.update(n)
-        if first is None:
-            first = (time.perf_counter(), done)
 
-    if todo:
-        if job.workers == 1:
-            _worker_init(job)
-            try:
-                for task in tasks:
-                    tick(_worker_run(task))
-            finally:
-                _WORKER.pop("renderer").close()
-        else:
-            ctx = mp.get_context("fork")
-            with ctx.Pool(min(job.workers, len(tasks)), initializer=_worker_init, initargs=(job,)) as pool:
-                for n in pool.imap_unordered(_worker_run, tasks):
-                    tick(n)
-    bar.close()
-    end = time.perf_counter()
-    seconds = end - start
-    # Steady rate: after the workers have built their worlds and returned a first task.
-    steady = (done - first[1]) / (end - first[0]) if first and done > first[1] and end > first[0] else 0.0
-    return {
-        "written": done,
-        "skipped": skipped,
-        "seconds": seconds,
-        "fps": done / seconds if seconds > 0 and done else 0.0,
-        "steady_fps": steady,
-        "out": str(job.out / domain),
-    }
+def _render_tasks(job: RenderJob, tasks: list[list[int]], tick) -> None:
+    """Render every task, in this process or on a pool of `job.workers`; `tick(n)` as each ends."""
+    if job.workers == 1:
+        _worker_init(job)
+        try:
+            for task in tasks:
+                tick(_worker_run(task))
+        finally:
+            _WORKER.pop("renderer").close()
+    else:
+        ctx = mp.get_context("fork")
+        with ctx.Pool(min(job.workers, len(tasks)), initializer=_worker_init, initargs=(job,)) as pool:
+            for n in pool.imap_unordered(_worker_run, tasks):
+                tick(n)
+
+
+class _Rate:
+    """Frames written over time: the whole run's rate, and the steady rate after the workers
+    have built their worlds and returned a first task."""
+
+    def __init__(self, bar) -> None:
+        self.bar = bar
+        self.start = time.perf_counter()
+        self.done = 0
+        self.first: tuple[float, int] | None = None  # (time, frames) when the first task came back
+
+    def tick(self, n: int) -> None:
+        self.done += n
+        self.bar.update(n)
+        if self.first is None:
+            self.first = (time.perf_counter(), self.done)
+
+    def summary(self, *, skipped: int, out: str) -> dict:
+        """render_dataset's summary (closes the progress bar)."""
+        self.bar.close()
+        end = time.perf_counter()
+        seconds, done, first = end - self.start, self.done, self.first
+        steady = (done - first[1]) / (end - first[0]) if first and done > first[1] and end > first[0] else 0.0
+        return {
+            "written": done,
+            "skipped": skipped,
+            "seconds": seconds,
+            "fps": done / seconds if seconds > 0 and done else 0.0,
+            "steady_fps": steady,
+            "out": out,
+        }
 
 
 def _progress(total: int, enabled: bool):

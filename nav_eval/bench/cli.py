@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from segmin.common.cli_args import overrides_of
 from segmin.nav_eval.evaluation.cli import add_scenario_options
 
 
@@ -42,9 +43,22 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from segmin.nav_eval.bench.closed_loop import bench_nav_eval
+    from segmin.nav_eval.bench.closed_loop import NavEvalBenchOptions, bench_nav_eval
+    from segmin.nav_eval.sim.config import load_nav_config
 
-    bench_nav_eval(args)
+    options = NavEvalBenchOptions(
+        config=load_nav_config(args.config, overrides_of(args)),
+        model=args.model,
+        field=args.field,
+        method=args.method,
+        seconds=args.seconds,
+        threads=args.threads,
+        seed=args.seed,
+        matrix=args.matrix,
+        workers=args.workers,
+        out=args.out,
+    )
+    bench_nav_eval(options)
     return 0
 
 

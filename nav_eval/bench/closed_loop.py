@@ -3,22 +3,54 @@
 One run on one field with the ONNX segmenter on one thread (what each of 2 workers gets on the
 2-core machine), timed per stage: rendering, segmentation (on a helper thread, overlapping the
 next render), navigator, and the rest. The figure of merit is simulated seconds per wall-clock
-second (target >= 3x). The full matrix (5 fields x 3 methods x 3 runs) is estimated from it, or
-measured with `--matrix`.
+second; the full matrix (5 fields x 3 methods x 3 runs) is estimated from it, or measured with
+`--matrix`. Both are printed against `TARGETS`.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from segmin.common.cli_args import overrides_of
+from segmin.common.speed_targets import SpeedTarget, verdict_lines
+from segmin.nav_eval.sim.config import NavEvalConfig
+
+TARGETS: tuple[SpeedTarget, ...] = (
+    SpeedTarget("realtime_factor", "closed loop", 3.0, "x real time", at_least=True),
+    SpeedTarget("matrix_minutes", "full matrix estimate", 20.0, "min"),
+)
+# Simulated seconds of the full matrix: SegMin / SegMinD need ~42 s for 20 m at ~0.48 m/s (45 s
+# with the start), SegZeros may run to its 60 s limit; 5 fields x 3 runs each.
+MATRIX_SIM_S = 5 * 3 * (2 * 45.0) + 5 * 3 * 60.0
+
+
+@dataclass(frozen=True)
+class NavEvalBenchOptions:
+    """What `segmin bench nav-eval` takes (nav_eval/bench/cli.py has the command-line help)."""
+
+    config: NavEvalConfig
+    model: str | None = None  # .onnx file or 'oracle'; None: an untrained model exported for timing
+    field: str = "straight_vineyard"
+    method: str = "segmind"
+    seconds: float = 20.0  # simulated seconds to drive
+    threads: int = 1  # onnxruntime threads
+    seed: int = 0
+    matrix: bool = False  # also run and time the full matrix
+    workers: int = 2  # for the matrix (estimated and measured)
+    out: Path | None = None  # the matrix's outputs (default: a temporary folder)
+
+    def __post_init__(self) -> None:
+        if not self.seconds > 0:
+            raise ValueError(f"--seconds {self.seconds}: must be > 0")
+        for name in ("threads", "workers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name} {getattr(self, name)}: must be >= 1")
 
 
 class _Timed:
@@ -112,62 +144,75 @@ def bench_one_run(
     }
 
 
-def bench_nav_eval(args: argparse.Namespace) -> None:
-    from segmin.nav_eval.evaluation.evaluate import run_evaluation
-    from segmin.nav_eval.sim.config import load_nav_config
-
-    config = load_nav_config(args.config, overrides_of(args))
+def bench_nav_eval(options: NavEvalBenchOptions) -> dict[str, Any]:
+    """Time one run, print its breakdown, the matrix estimate and the targets; returns the run's figures."""
     with tempfile.TemporaryDirectory() as tmp:
-        model = args.model
-        if model is None:
-            t0 = time.perf_counter()
-            model = str(untrained_onnx(Path(tmp)))
-            print(f"no --model: exported an untrained model for timing ({time.perf_counter() - t0:.1f} s)")
-        r = bench_one_run(model, args.field, args.method, args.seconds, config, args.threads, args.seed)
-        print(
-            f"field {r['field']}, method {r['method']}, model {Path(r['model']).name}, {r['resolution']}, "
-            f"onnxruntime threads {args.threads}"
+        model = options.model or _untrained_for_timing(Path(tmp))
+        r = bench_one_run(
+            model, options.field, options.method, options.seconds, options.config, options.threads, options.seed
         )
-        print(f"world build: {r['world_build_s']:.2f} s")
+        _print_run(r, options.threads)
+        estimate = MATRIX_SIM_S / (r["realtime_factor"] * options.workers) / 60.0
         print(
-            f"simulated {r['sim_s']:.1f} s in {r['wall_s']:.1f} s wall: {r['realtime_factor']:.2f}x real time "
-            f"(target >= 3x); run ended: {r['reason']}"
+            f"full matrix estimate (5 fields x 3 methods x 3 runs, ~{MATRIX_SIM_S / 60:.0f} simulated min, "
+            f"{options.workers} workers, perfect scaling): {estimate:.1f} min"
         )
-        print(
-            f"per frame: render {r['render_ms']:.1f} ms x {r['frames']} frames, segment {r['segment_ms']:.1f} ms "
-            f"(wall time on the helper thread, overlapping the next render; it includes waiting for "
-            f"the GIL); navigator {r['navigator_ms']:.2f} ms x "
-            f"{r['commands']} commands; robot, checks and unhidden segmentation "
-            f"{r['other_ms_per_sim_s']:.1f} ms per simulated s"
-        )
-        render_bound = 1000.0 / (r["render_ms"] * r["frames"] / max(r["sim_s"], 1e-9))
-        print(f"rendering alone would allow {render_bound:.2f}x real time at these rates")
-        # Matrix estimate: SegMin/SegMinD need ~42 s for 20 m at ~0.48 m/s; SegZeros may run to the limit.
-        sim_total = 5 * 3 * (2 * 45.0) + 5 * 3 * 60.0
-        workers = max(args.workers, 1)
-        est = sim_total / (r["realtime_factor"] * workers) / 60.0
-        print(
-            f"full matrix estimate (5 fields x 3 methods x 3 runs, ~{sim_total / 60:.0f} simulated min, "
-            f"{workers} workers, perfect scaling): {est:.1f} min (target < 20 min)"
-        )
-        if args.matrix:
-            out = args.out or Path(tmp) / "matrix"
-            t0 = time.perf_counter()
-            results = run_evaluation(
-                model,
-                "all",
-                "segmin,segmind,segzeros",
-                3,
-                out,
-                workers,
-                config,
-                seed=args.seed,
-                progress=True,
-                plots=False,
-            )
-            wall = time.perf_counter() - t0
-            sim = float(np.nansum([r.sim_time for r in results]))
-            print(
-                f"full matrix measured: {len(results)} runs, {sim / 60:.1f} simulated min in {wall / 60:.1f} min wall "
-                f"on {workers} workers ({sim / wall:.2f}x real time overall)"
-            )
+        for line in verdict_lines(TARGETS, {"realtime_factor": r["realtime_factor"], "matrix_minutes": estimate}):
+            print(line)
+        if options.matrix:
+            _time_matrix(model, options, options.out or Path(tmp) / "matrix")
+    return r
+
+
+def _untrained_for_timing(folder: Path) -> str:
+    t0 = time.perf_counter()
+    model = str(untrained_onnx(folder))
+    print(f"no --model: exported an untrained model for timing ({time.perf_counter() - t0:.1f} s)")
+    return model
+
+
+def _print_run(r: dict[str, Any], threads: int) -> None:
+    """The run's figures, stage by stage."""
+    print(
+        f"field {r['field']}, method {r['method']}, model {Path(r['model']).name}, {r['resolution']}, "
+        f"onnxruntime threads {threads}"
+    )
+    print(f"world build: {r['world_build_s']:.2f} s")
+    print(
+        f"simulated {r['sim_s']:.1f} s in {r['wall_s']:.1f} s wall: {r['realtime_factor']:.2f}x real time; "
+        f"run ended: {r['reason']}"
+    )
+    print(
+        f"per frame: render {r['render_ms']:.1f} ms x {r['frames']} frames, segment {r['segment_ms']:.1f} ms "
+        f"(wall time on the helper thread, overlapping the next render; it includes waiting for "
+        f"the GIL); navigator {r['navigator_ms']:.2f} ms x "
+        f"{r['commands']} commands; robot, checks and unhidden segmentation "
+        f"{r['other_ms_per_sim_s']:.1f} ms per simulated s"
+    )
+    render_bound = 1000.0 / (r["render_ms"] * r["frames"] / max(r["sim_s"], 1e-9))
+    print(f"rendering alone would allow {render_bound:.2f}x real time at these rates")
+
+
+def _time_matrix(model: str, options: NavEvalBenchOptions, out: Path) -> None:
+    """Run the full matrix on `options.workers` and print what it took."""
+    from segmin.nav_eval.evaluation.evaluate import run_evaluation
+
+    t0 = time.perf_counter()
+    results = run_evaluation(
+        model,
+        "all",
+        "segmin,segmind,segzeros",
+        3,
+        out,
+        options.workers,
+        options.config,
+        seed=options.seed,
+        progress=True,
+        plots=False,
+    )
+    wall = time.perf_counter() - t0
+    sim = float(np.nansum([r.sim_time for r in results]))
+    print(
+        f"full matrix measured: {len(results)} runs, {sim / 60:.1f} simulated min in {wall / 60:.1f} min wall "
+        f"on {options.workers} workers ({sim / wall:.2f}x real time overall)"
+    )

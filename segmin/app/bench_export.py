@@ -31,19 +31,19 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    from segmin.export.bench import run_benchmark
+    from segmin.export.bench import ExportBenchOptions, run_benchmark
     from segmin.nav_eval.bench.runtime import perception_step_candidates
 
-    run_benchmark(
+    options = ExportBenchOptions(
         checkpoint=args.checkpoint,
-        onnx_path=args.onnx,
+        onnx=args.onnx,
         size=args.size,
         threads=args.threads,
         runs=args.runs,
         int8=not args.no_int8,
         compare_exporters=args.compare_exporters,
         calib_data=args.calib_data,
-        json_path=args.json,
-        step_candidates=perception_step_candidates,
+        json=args.json,
     )
+    run_benchmark(options, step_candidates=perception_step_candidates)
     return 0

@@ -20,15 +20,35 @@ from segmin.common.atomic import atomic_path, write_text
 
 
 def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCache, log) -> dict[str, str]:
-    """Write run_dir/report.md and run_dir/report.html; returns their paths."""
-    from segmin.common.machine import machine_summary
-    from segmin.common.provenance import git_commit
-    from segmin.nav_eval.evaluation.report import table3_markdown
+    """Write run_dir/report.md and run_dir/report.html; returns their paths.
 
+    The report's sections in order, each built by its own function from what the stages left.
+    """
     families = list(config.families)
     curves = run_dir / "report" / "training_curves.png"
     _training_curves(run_dir, families, curves)
+    model_results, oracle_results = _nav_eval_results(config, run_dir, families)
+    lines = [
+        *_title_and_stages(config, cache, families),
+        *_rendered_data(run_dir, cache),
+        *_training(cache, families, curves),
+        *_export(cache, families),
+        "",
+        *_real_photos(config, cache, families),
+        *_closed_loop(model_results, oracle_results),
+        *_figures(run_dir, families),
+    ]
+    markdown_text = "\n".join(lines) + "\n"
+    md_path = run_dir / "report.md"
+    write_text(md_path, markdown_text)
+    html_path = run_dir / "report.html"
+    write_text(html_path, to_html(markdown_text, run_dir, title=f"segmin pipeline report ({config.profile})"))
+    log(f"report: {md_path} and {html_path}")
+    return {"markdown": str(md_path), "html": str(html_path)}
 
+
+def _nav_eval_results(config: PipelineConfig, run_dir: Path, families: list[str]) -> tuple[list[Any], list[Any]]:
+    """The exported models' closed-loop results (every family's), and the oracle's."""
     model_results = []
     for family in families:
         path = run_dir / "nav-eval" / family / "results.json"
@@ -36,6 +56,13 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
             model_results += load_results(path)
     oracle_path = run_dir / "nav-eval" / "oracle" / "results.json"
     oracle_results = load_results(oracle_path) if config.nav.oracle and oracle_path.is_file() else []
+    return model_results, oracle_results
+
+
+def _title_and_stages(config: PipelineConfig, cache: StageCache, families: list[str]) -> list[str]:
+    """Title, date, commit and machine, and the table of stages with their times and input hashes."""
+    from segmin.common.machine import machine_summary
+    from segmin.common.provenance import git_commit
 
     lines = [
         f"# segmin pipeline report: `{config.profile}` profile",
@@ -62,7 +89,12 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
             "",
             "The families' training stages ran side by side (one process and one thread each): their times overlap.",
         ]
-    lines += ["", "## 1. Data: rendered training worlds", ""]
+    return lines
+
+
+def _rendered_data(run_dir: Path, cache: StageCache) -> list[str]:
+    """Section 1: frames rendered per family and split, and the contact sheet."""
+    lines = ["", "## 1. Data: rendered training worlds", ""]
     render = cache.record("render")
     if render and render.outputs:
         for family, domains in render.outputs["domains"].items():
@@ -78,7 +110,12 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
             "![contact sheet](render/contact_sheet.png)",
             "",
         ]
-    lines += [
+    return lines
+
+
+def _training(cache: StageCache, families: list[str], curves: Path) -> list[str]:
+    """Section 2: one row per family's training, and the training curves."""
+    lines = [
         "## 2. Training",
         "",
         "| family | epochs | image size | backbone | best val IoU | pixel acc | exported | its val IoU | time s |",
@@ -102,7 +139,12 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
     ]
     if curves.is_file():
         lines += ["![training curves](report/training_curves.png)", ""]
-    lines += [
+    return lines
+
+
+def _export(cache: StageCache, families: list[str]) -> list[str]:
+    """Section 3: each family's export, its verification against PyTorch and its latency."""
+    lines = [
         "## 3. Export (ONNX, verified against PyTorch)",
         "",
         "| family | max abs prob diff | mask agreement | onnxruntime latency median / p95 ms (2 threads) |",
@@ -116,15 +158,22 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
                 f"| {family} | {v['max_abs_diff']:.2e} | {100 * v['mask_agreement']:.3f} % | "
                 f"{t['median']:.2f} / {t['p95']:.2f} |"
             )
-    lines += ["", *_real_photos(config, cache, families)]
-    lines += [
+    return lines
+
+
+def _closed_loop(model_results: list[Any], oracle_results: list[Any]) -> list[str]:
+    """Section 5: Table 3 with the exported models, with the oracle, and the comparison with the paper."""
+    from segmin.nav_eval.evaluation.report import table3_markdown
+
+    lines = [
         "## 5. Closed loop in the five test fields",
         "",
         "With the exported models (trees model: high trees and pear; vineyards model: the three vineyards). "
         "Ours: mean ± std over runs; the paper's Table 3 value (Gazebo) in brackets.",
         "",
+        table3_markdown(model_results) if model_results else "(no results)",
+        "",
     ]
-    lines += [table3_markdown(model_results) if model_results else "(no results)", ""]
     if oracle_results:
         lines += [
             "With the oracle segmenter (the simulator's exact mask), which separates control from perception:",
@@ -132,19 +181,17 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
             table3_markdown(oracle_results),
             "",
         ]
-    lines += ["### Comparison with the paper", "", *_comparison(model_results), ""]
-    lines += ["## 6. Figures", ""]
+    return [*lines, "### Comparison with the paper", "", *_comparison(model_results), ""]
+
+
+def _figures(run_dir: Path, families: list[str]) -> list[str]:
+    """Section 6: every family's trajectory and histogram figures."""
+    lines = ["## 6. Figures", ""]
     for family in families:
         folder = run_dir / "nav-eval" / family
         for figure in sorted(folder.glob("*_trajectories.png")) + sorted(folder.glob("*_histograms.png")):
             lines += [f"![{figure.stem}]({figure.relative_to(run_dir).as_posix()})", ""]
-    markdown_text = "\n".join(lines) + "\n"
-    md_path = run_dir / "report.md"
-    write_text(md_path, markdown_text)
-    html_path = run_dir / "report.html"
-    write_text(html_path, to_html(markdown_text, run_dir, title=f"segmin pipeline report ({config.profile})"))
-    log(f"report: {md_path} and {html_path}")
-    return {"markdown": str(md_path), "html": str(html_path)}
+    return lines
 
 
 # Known figures on the shipped vineyard photos (issue 12; data/real/vineyard_rows/README.md).
@@ -159,11 +206,11 @@ def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str])
     """Section 4: synthetic validation IoU beside the real-photo figures, per family, with contact sheets."""
     lines = ["## 4. Real photos (segmentation, held-out test set)", ""]
     if not config.real_eval.enabled:
-        return lines + ["Disabled in this profile (`real_eval.enabled: false`).", ""]
+        return [*lines, "Disabled in this profile (`real_eval.enabled: false`).", ""]
     records = {f: cache.record(f"real-eval/{f}") for f in families}
     records = {f: r for f, r in records.items() if r is not None and r.outputs}
     if not records:
-        return lines + ["(no results)", ""]
+        return [*lines, "(no results)", ""]
     data = next(iter(records.values())).outputs["data"]
     shipped = config.real_eval.data is None
     lines += [

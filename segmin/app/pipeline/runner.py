@@ -48,28 +48,46 @@ class PipelineRunner:
         self.ran: list[str] = []
 
     def run(self) -> Path:
-        """Run every stage; returns the path of report.md."""
+        """Run every stage; returns the path of report.md.
+
+        render -> train -> export -> real-eval -> nav-eval -> report. `upstream` collects each
+        stage's input hash as it is known; the report's own hash chains them all.
+        """
         check_output_dir(self.run_dir, "--out")
         config = self.config
         self.preflight()
         backbone = stages.resolve_backbone(config, self.log)
-
         # Checked before anything runs: a missing photo folder should not wait for training to fail.
         real_fingerprint = (
             stages.dataset_fingerprint(config.real_eval.resolved_data()) if config.real_eval.enabled else None
         )
         make_dirs(self.run_dir, "--out")  # only now: a refused run leaves no empty folder
-        render_hash = hash_inputs("render", *stages.render_inputs(config))
-        render = self._stage(
+        upstream: dict[str, str] = {}
+        render = self._render(upstream)
+        nav_config = stages.nav_config(config)
+        models = self._train_and_export(render, backbone, upstream)
+        if config.real_eval.enabled:
+            self._real_eval(models, real_fingerprint, upstream)
+        self._nav_eval(models, nav_config, upstream)
+        return self._report(upstream)
+
+    def _render(self, upstream: dict[str, str]) -> dict[str, Any]:
+        """The rendered training and validation worlds (the render stage's outputs)."""
+        config = self.config
+        upstream["render"] = hash_inputs("render", *stages.render_inputs(config))
+        return self._stage(
             "render",
             "render",
-            render_hash,
+            upstream["render"],
             lambda folder, fresh: stages.render_stage(config, folder, overwrite=fresh, log=self.log),
         )
 
-        nav_config = stages.nav_config(config)
-        upstream: dict[str, str] = {"render": render_hash}
-        models: dict[str, tuple[str, str]] = {}
+    def _train_and_export(
+        self, render: dict[str, Any], backbone: Any, upstream: dict[str, str]
+    ) -> dict[str, tuple[str, str]]:
+        """Train every family (maybe side by side), then export each; {family: (onnx path, export hash)}."""
+        config = self.config
+        render_hash = upstream["render"]
         jobs: dict[str, tuple[Any, str]] = {}
         for family, plan in config.families.items():
             train_config = stages.train_config_for(
@@ -77,6 +95,7 @@ class PipelineRunner:
             )
             jobs[family] = (train_config, hash_inputs("train", render_hash, to_dict(train_config)))
         trained_all = self._train_families(jobs)
+        models: dict[str, tuple[str, str]] = {}
         for family, (_, train_hash) in jobs.items():
             trained = trained_all[family]
             export_hash = hash_inputs("export", train_hash, to_dict(config.export))
@@ -91,21 +110,27 @@ class PipelineRunner:
             )
             models[family] = (exported["onnx"], export_hash)
             upstream.update({f"train/{family}": train_hash, f"export/{family}": export_hash})
+        return models
 
-        if config.real_eval.enabled:
-            real_common = (to_dict(config.real_eval), real_fingerprint)
-            for family in config.families:
-                onnx_path, export_hash = models[family]
-                key = f"real-eval/{family}"
-                upstream[key] = hash_inputs("real-eval", export_hash, real_common)
-                self._stage(
-                    "real-eval",
-                    key,
-                    upstream[key],
-                    lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log),
-                    reads=(f"export/{family}",),
-                )
+    def _real_eval(self, models: dict[str, tuple[str, str]], fingerprint: Any, upstream: dict[str, str]) -> None:
+        """Score every exported model on the labelled real photos."""
+        config = self.config
+        real_common = (to_dict(config.real_eval), fingerprint)
+        for family in config.families:
+            onnx_path, export_hash = models[family]
+            key = f"real-eval/{family}"
+            upstream[key] = hash_inputs("real-eval", export_hash, real_common)
+            self._stage(
+                "real-eval",
+                key,
+                upstream[key],
+                lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log),
+                reads=(f"export/{family}",),
+            )
 
+    def _nav_eval(self, models: dict[str, tuple[str, str]], nav_config: Any, upstream: dict[str, str]) -> None:
+        """Drive each family's fields with its exported model, then every field with the oracle."""
+        config = self.config
         for family, plan in config.families.items():
             onnx_path, export_hash = models[family]
             key = f"nav-eval/{family}"
@@ -131,14 +156,15 @@ class PipelineRunner:
                 lambda folder, fresh: stages.nav_stage(config, "oracle", fields, folder, self.log),
             )
 
+    def _report(self, upstream: dict[str, str]) -> Path:
         from segmin.app.pipeline.report import write_pipeline_report
 
-        report_hash = hash_inputs("report", upstream, to_dict(config))
+        report_hash = hash_inputs("report", upstream, to_dict(self.config))
         report = self._stage(
             "report",
             "report",
             report_hash,
-            lambda folder, fresh: write_pipeline_report(config, self.run_dir, self.cache, self.log),
+            lambda folder, fresh: write_pipeline_report(self.config, self.run_dir, self.cache, self.log),
             reads=tuple(upstream),
         )
         return Path(report["markdown"])

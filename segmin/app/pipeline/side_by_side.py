@@ -28,7 +28,6 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
     Returns each family's stage outputs, or the exception that ended it.
     """
     import multiprocessing
-    import queue as queues
 
     from tqdm import tqdm
 
@@ -41,7 +40,6 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
         )
         for family, (config, folder, resume) in todo.items()
     }
-    outcomes: dict[str, Any] = {}
     with tqdm(total=total, unit="epoch", desc="train") as bar:
         for process in processes.values():
             process.start()
@@ -53,28 +51,7 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
             )
         )
         try:
-            while len(outcomes) < len(processes):
-                try:
-                    family, outputs = results.get(timeout=5.0)
-                    outcomes[family] = outputs
-                except queues.Empty:
-                    ended = [f for f, p in processes.items() if f not in outcomes and p.exitcode is not None]
-                    while ended:  # a result sent just before the end may still be in the pipe
-                        try:
-                            family, outputs = results.get_nowait()
-                            outcomes[family] = outputs
-                        except queues.Empty:
-                            break
-                    for family in ended:  # killed, or died without a word
-                        outcomes.setdefault(
-                            family,
-                            RuntimeError(
-                                f"train/{family}: the training process ended with exit code "
-                                f"{processes[family].exitcode} and no result; see {todo[family][1] / 'train.log'}"
-                            ),
-                        )
-                epochs = sum(len(stages.read_metrics_csv(folder / "metrics.csv")) for _, folder, _ in todo.values())
-                bar.update(epochs - bar.n)
+            return _wait_for_outcomes(results, processes, todo, bar)
         except KeyboardInterrupt:
             for process in processes.values():
                 if process.is_alive():
@@ -83,7 +60,47 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
         finally:
             for process in processes.values():
                 process.join()
+
+
+def _wait_for_outcomes(
+    results: Any, processes: dict[str, Any], todo: dict[str, tuple[Any, Path, bool]], bar
+) -> dict[str, Any]:
+    """Every family's outcome as it arrives; the bar follows the epochs the runs have logged."""
+    import queue as queues
+
+    outcomes: dict[str, Any] = {}
+    while len(outcomes) < len(processes):
+        try:
+            family, outputs = results.get(timeout=5.0)
+            outcomes[family] = outputs
+        except queues.Empty:
+            _collect_ended(results, processes, todo, outcomes)
+        epochs = sum(len(stages.read_metrics_csv(folder / "metrics.csv")) for _, folder, _ in todo.values())
+        bar.update(epochs - bar.n)
     return outcomes
+
+
+def _collect_ended(
+    results: Any, processes: dict[str, Any], todo: dict[str, tuple[Any, Path, bool]], outcomes: dict[str, Any]
+) -> None:
+    """After a quiet wait: the outcomes of processes that have ended, or an error naming their log."""
+    import queue as queues
+
+    ended = [f for f, p in processes.items() if f not in outcomes and p.exitcode is not None]
+    while ended:  # a result sent just before the end may still be in the pipe
+        try:
+            family, outputs = results.get_nowait()
+            outcomes[family] = outputs
+        except queues.Empty:
+            break
+    for family in ended:  # killed, or died without a word
+        outcomes.setdefault(
+            family,
+            RuntimeError(
+                f"train/{family}: the training process ended with exit code "
+                f"{processes[family].exitcode} and no result; see {todo[family][1] / 'train.log'}"
+            ),
+        )
 
 
 def _train_family(results: Any, family: str, config: Any, folder: Path, resume: bool) -> None:
