@@ -346,7 +346,7 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
     if pole_s[-1] < rs.length - 0.5:
         pole_s = np.append(pole_s, rs.length)
     top_h = st.pergola_height if st.pergola else st.pole_height
-    for row, offset in enumerate(layout.offsets):
+    for offset in layout.offsets:
         xy, _ = layout.at(pole_s, offset + 0.0)
         z = terrain.height(xy[:, 0], xy[:, 1])
         for k, s in enumerate(pole_s):
@@ -366,7 +366,7 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
     if st.pergola:
         # Cross beams over every gap at each pole station and wires along the rows overhead.
         for g in range(len(layout.offsets) - 1):
-            for k, s in enumerate(pole_s):
+            for s in pole_s:
                 a, _ = layout.at(np.array([s]), layout.offsets[g])
                 b, _ = layout.at(np.array([s]), layout.offsets[g + 1])
                 za = terrain.height(a[0, 0], a[0, 1]) + st.pergola_height
