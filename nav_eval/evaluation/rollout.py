@@ -54,8 +54,11 @@ def run_episode(
     *,
     video: bool = False,
     pose: tuple[float, float, float] | None = None,
+    recorder: Any = None,
 ) -> Episode:
-    """Drive one run to its end with `follower` (its segmenter may be the oracle)."""
+    """Drive one run to its end with `follower` (its segmenter may be the oracle).
+
+    `recorder` (a `sim.bag_recorder.RunRecorder`) is given every camera frame and every command."""
     follower.reset()
     obs, info = env.reset(seed=seed, options=None if pose is None else {"pose": pose})
     period = env.camera_period
@@ -68,6 +71,8 @@ def run_episode(
             t = float(obs["t"])
             rendered = info["rendered"]
             mask = background.submit(_Frame(obs["rgb"], obs["depth"], info["mask"])) if rendered else None
+            if recorder is not None:
+                recorder.frame(env, obs, info)
             out = follower.step(
                 obs["rgb"] if rendered else None, obs["depth"], t, mask=mask, attitude=obs["attitude"] if imu else None
             )
@@ -75,6 +80,8 @@ def run_episode(
                 cmd = out.command
                 column = cmd.target_column
                 commands.append((t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
+                if recorder is not None:
+                    recorder.command(t, float(cmd.v), float(cmd.omega))
                 if video:
                     frames_out.append(overlay(obs["rgb"], out.fused, column))
             env.skip_next_render = not follower.needs_frame(t + period, t + 2 * period)
