@@ -164,3 +164,13 @@ def test_nav_eval_writes_a_bag_per_field_and_method(tmp_path, capsys) -> None:
     assert imu.linear_acceleration.z > 9.0
     assert len(messages[topics.CMD_VEL]) >= 3
     assert not list(out.rglob("*.partial"))
+
+
+def test_a_run_that_raises_leaves_no_bag(tmp_path) -> None:
+    class Broken(GreenSegmenter):
+        def segment(self, rgb: np.ndarray) -> np.ndarray:
+            raise RuntimeError("inference failed")
+
+    with pytest.raises(RuntimeError, match="inference failed"):
+        _episode(Broken(), bag=tmp_path / "run")
+    assert list(tmp_path.iterdir()) == []

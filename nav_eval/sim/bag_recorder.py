@@ -19,7 +19,7 @@ depth-noise generator of its own, so the run's frames, noise and commands are un
 
 Stamps are simulated time from 0 s, header stamp = log time. The bag's metadata (custom_data)
 holds the field, method, model, seed, depth threshold and rates of the run. The bag is written
-to `<path>.partial` and renamed when complete, so a folder at `path` is always a whole run.
+inside `<path>.partial/` and moved to `path` when complete, so a folder at `path` is always a whole run.
 """
 
 from __future__ import annotations
@@ -98,14 +98,15 @@ class RunRecorder:
         from rosbags.typesys import Stores, get_typestore
 
         self.path = Path(path)
+        # Written inside <path>.partial/ under the bag's own name (rosbag2 names its file after it).
         self._partial = self.path.with_name(self.path.name + ".partial")
         shutil.rmtree(self._partial, ignore_errors=True)
-        self._partial.parent.mkdir(parents=True, exist_ok=True)
+        self._partial.mkdir(parents=True)
         self._store = get_typestore(Stores.ROS2_HUMBLE)
         self._types = self._store.types
         self.camera = camera
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x0BA6]))
-        self._writer = Writer(self._partial, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer = Writer(self._partial / self.path.name, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         for key, value in (metadata or {}).items():
             self._writer.set_custom_data(f"segmin.{key}", str(value))
@@ -175,7 +176,8 @@ class RunRecorder:
         self._writer.close()
         if self.path.exists():
             shutil.rmtree(self.path)
-        self._partial.rename(self.path)
+        (self._partial / self.path.name).rename(self.path)
+        self._partial.rmdir()
         return self.path
 
     def abort(self) -> None:
