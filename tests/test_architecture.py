@@ -216,10 +216,11 @@ def test_the_checks_fail_on_an_import_against_the_flow(tmp_path: Path) -> None:
 # The bare install (`pip install segmin`, the robot) has these besides the standard library.
 BARE_DEPENDENCIES = {"numpy", "cv2", "onnxruntime", "yaml"}
 # Sub-packages a robot runs; their module-level imports, followed through segmin, stay bare.
-BARE_PACKAGES = ("segmin.nav_eval.runtime", "segmin.nav_eval.replay", "segmin.nav_eval.demo")
-# Figure modules inside them, loaded only when their extra is installed (replay skips its plot and
-# says so on the bare install).
-OPTIONAL_MODULES = {"segmin.nav_eval.replay.plot": {"matplotlib"}}
+BARE_PACKAGES = ("segmin.nav_eval.runtime", "segmin.nav_eval.replay", "segmin.nav_eval.ros2", "segmin.nav_eval.demo")
+# Modules inside them that load more, only when it is there: replay's figure (the [sim] extra; replay
+# skips its plot and says so on the bare install) and the ROS 2 node (the robot's own rclpy).
+ROS2_MODULES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_srvs", "diagnostic_msgs"}
+OPTIONAL_MODULES = {"segmin.nav_eval.replay.plot": {"matplotlib"}, "segmin.nav_eval.ros2.node": ROS2_MODULES}
 
 
 def module_level_imports(path: Path, module: str) -> set[str]:
