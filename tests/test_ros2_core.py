@@ -208,6 +208,21 @@ def test_a_depth_frame_without_a_colour_partner_is_logged_and_counted(run) -> No
     assert core.status(t)["unpaired depth frames"] == "1"
 
 
+def test_on_the_timer_only_the_timer_publishes_the_command_in_force(run) -> None:
+    frames, commands = run
+    core, out = _core(publish_on_timer=True)
+    for t, colour, depth in frames[:13]:  # commands at 0, 0.2, 0.4
+        core.on_colour(colour, t)
+        core.on_depth(depth, t)
+    assert out.sent == []
+    now = frames[12][0] + 0.01
+    core.tick(now, now)
+    core.tick(now + 0.2, now + 0.2)  # every period, the command in force (no quiet time)
+    assert [(o.command.v, _stamp_s(o.stamp)) for o in out.sent] == [(commands[2][1], pytest.approx(0.4))] * 2
+    core.tick(now + 0.6, now + 0.6)
+    assert out.sent[-1].command.v == 0.0 and out.sent[-1].reason.startswith("frame_timeout")
+
+
 def test_without_a_depth_topic_colour_drives_alone(run) -> None:
     frames, _ = run
     core, out = _core(method="segmin", depth_topic="")

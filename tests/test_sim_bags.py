@@ -174,3 +174,12 @@ def test_a_run_that_raises_leaves_no_bag(tmp_path) -> None:
     with pytest.raises(RuntimeError, match="inference failed"):
         _episode(Broken(), bag=tmp_path / "run")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_replay_bench_compares_bag_and_folders(exported, tmp_path, capsys) -> None:
+    episode, _ = _episode(OnnxSegmenter(exported[0], threads=1), bag=tmp_path / "run")
+    argv = ["bench", "replay-bag", "--model", str(exported[0]), "--bag", str(tmp_path / "run"), "--threads", "1"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "replay --bag:" in out and "frames/s" in out
+    assert f"same commands: True ({len(episode.commands)} commands)" in out

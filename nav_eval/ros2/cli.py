@@ -48,6 +48,19 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     params.add_argument("--node-name", default=NODE_NAME, help=f"node name of the section (default {NODE_NAME})")
     params.set_defaults(func=_params)
 
+    b = bench.add_parser(
+        "ros2",
+        help="the node fed a bag at 30 Hz: latency, command jitter, memory (needs rclpy; a loopback-only namespace)",
+    )
+    b.add_argument("--model", type=Path, required=True, help="exported .onnx file")
+    b.add_argument("--bag", type=Path, required=True, help="a bag with segmin's camera topics (nav-eval --bag)")
+    b.add_argument("--seconds", type=float, default=60.0, help="how long to feed the node (default 60)")
+    b.add_argument("--threads", type=int, default=2, help="onnxruntime threads of the node (default 2)")
+    b.add_argument("--method", default="segmind", choices=("segmin", "segmind", "segzeros"))
+    b.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
+    b.add_argument("--timer", action="store_true", help="the node publishes from its timer only (publish_on_timer)")
+    b.set_defaults(func=_bench)
+
 
 def _follow(args: argparse.Namespace) -> int:
     from segmin.nav_eval.ros2.params import load_params_file
@@ -61,6 +74,18 @@ def _follow(args: argparse.Namespace) -> int:
         print(f"segmin: error: {RCLPY_MISSING} (module {exc.name!r} is missing)", file=sys.stderr)
         return 2
     return node.run(name, values, args.params.resolve().parent, args.ros_args)
+
+
+def _bench(args: argparse.Namespace) -> int:
+    try:
+        import rclpy  # noqa: F401
+    except ModuleNotFoundError:
+        print(f"segmin: error: {RCLPY_MISSING.replace('ros2 follow', 'bench ros2')}", file=sys.stderr)
+        return 2
+    from segmin.nav_eval.ros2.bench import bench_ros2
+
+    print(bench_ros2(args.model, args.bag, args.seconds, args.threads, args.method, args.depth_threshold, args.timer))
+    return 0
 
 
 def _params(args: argparse.Namespace) -> int:

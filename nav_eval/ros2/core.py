@@ -6,10 +6,11 @@ are tested in the normal suite and the bench can drive it.
 
 - Colour and depth messages are decoded (`replay.ros_images`) and paired by header stamp within
   `slop_s` (`replay.stamp_pairing`); a pair is one `RowFollower.step` at the colour stamp.
-- A fresh command is published at once (the latency from image to `cmd_vel` is the step's own);
-  the `tick(now)` watchdog, called at `command_hz`, publishes `command_at(now)` whenever no
-  command went out for 1.5 periods: the command in force while frames come late, a stop once
-  none came for `frame_timeout_s`.
+- A fresh command is published at once (the latency from image to `cmd_vel` is the step's own,
+  the period jitters with it); the `tick(now)` watchdog, called at `command_hz`, publishes
+  `command_at(now)` whenever no command went out for 1.5 periods: the command in force while
+  frames come late, a stop once none came for `frame_timeout_s`. With `publish_on_timer`, only
+  `tick` publishes, every period: a regular period, commands up to one period older.
 - Any bad frame (an encoding the decoder refuses, mismatched sizes, a stamp out of order) is a
   log line naming the topic (at most one per topic every LOG_EVERY_S), the frame is dropped,
   and while enabled a stop goes out at once and the watchdog keeps the robot stopped until the
@@ -139,7 +140,7 @@ class FollowerCore:
             with self._lock:
                 self.fault = None
                 self._stamp = stamp
-                send = self.enabled
+                send = self.enabled and not self.params.node.publish_on_timer
                 if send:
                     self._last_sent = now
             if send:
@@ -174,8 +175,10 @@ class FollowerCore:
         """Watchdog at command_hz: `now` is the node clock, `stamp_now` the same instant in the
         images' time base (ROS time; sim time when the node runs on a bag's clock)."""
         period = 1.0 / self.params.runtime.command_hz
+        on_timer = self.params.node.publish_on_timer
         with self._lock:
-            if not self.enabled or (self._last_sent is not None and now - self._last_sent < WATCHDOG_PERIODS * period):
+            quiet = self._last_sent is not None and now - self._last_sent < WATCHDOG_PERIODS * period
+            if not self.enabled or (quiet and not on_timer):
                 return
             self._last_sent = now
             fault, stamp = self.fault, self._stamp

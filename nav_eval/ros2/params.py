@@ -47,6 +47,7 @@ class NodeSettings:
     depth_topic: str = topics.DEPTH
     cmd_vel_topic: str = topics.CMD_VEL
     twist_stamped: bool = False
+    publish_on_timer: bool = False
     base_frame: str = topics.BASE_FRAME
     slop_s: float = 0.01
     publish_overlay: bool = False
@@ -98,6 +99,9 @@ DESCRIPTIONS: dict[str, str] = {
     "cmd_vel_topic": "where commands go",
     "twist_stamped": "publish geometry_msgs/TwistStamped (stamped with the image that gave the command) "
     "instead of Twist",
+    "publish_on_timer": "false: a fresh command goes out as soon as it is computed (lowest latency; its period "
+    "jitters with the inference time); true: commands go out only from the command_hz timer (regular period, "
+    "up to one period older)",
     "base_frame": "frame id of TwistStamped commands",
     "slop_s": "colour and depth pair when their stamps differ by at most this, s",
     "publish_overlay": "publish ~/overlay: the camera image with the fused mask and the chosen column",
@@ -106,6 +110,7 @@ DESCRIPTIONS: dict[str, str] = {
 GROUPS = (
     ("driving", ("enabled", "method", "model", "depth_threshold", "threads")),
     ("topics", ("colour_topic", "depth_topic", "cmd_vel_topic", "twist_stamped", "base_frame", "slop_s")),
+    ("timing", ("publish_on_timer",)),
     ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
     ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
     ("outputs", ("publish_overlay", "publish_diagnostics")),
