@@ -64,14 +64,14 @@ class FollowerCore:
         segmenter: Any,
         publish: Callable[[Outgoing], None],
         log: Callable[[str], None],
-        clock: Callable[[], float] = time.monotonic,
+        timer: Callable[[], float] = time.perf_counter,
     ) -> None:
         self.params = params
         self.publish = publish
         self.log = log
         self.follower = RowFollower(segmenter, Navigator(params.navigator), params.runtime)
         self.pairer = StampPairer(params.node.slop_s, max_pending=2)
-        self._wall = clock
+        self._wall = timer  # times the steps (wall clock, also when the node runs on a bag's clock)
         self._lock = threading.Lock()
         self.enabled = params.node.enabled
         self.fault: str | None = None  # why the robot is held stopped (bad input), until a fresh command

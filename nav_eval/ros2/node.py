@@ -74,7 +74,7 @@ class RowFollowerNode(Node):
                 key, value, ParameterDescriptor(description=DESCRIPTIONS[key], read_only=key in STARTUP_ONLY)
             )
         settings = params.node
-        self.core = FollowerCore(params, segmenter, self._publish, self.get_logger().warning, clock=self._seconds)
+        self.core = FollowerCore(params, segmenter, self._publish, self.get_logger().warning)
         self._pending: tuple[NodeParams, Any] | None = None
         self._pending_lock = threading.Lock()
         images, control = MutuallyExclusiveCallbackGroup(), MutuallyExclusiveCallbackGroup()
