@@ -1,6 +1,6 @@
 """segmin's layers and their one-way data flow, checked on the source.
 
-common -> data -> models -> train -> export -> robot runtime -> replay / demo / photo scoring ->
+common -> data -> models -> train -> export -> robot runtime -> replay / ROS 2 node / demo / photo scoring ->
 simulator -> closed-loop evaluation -> sweeps -> benches -> app: a module may import its own layer
 and the layers before it, never one after it, and no set of modules may import one another in a
 cycle. Imports inside functions count: a lazy import is still a dependency. The robot runtime is
@@ -35,6 +35,7 @@ LAYERS: tuple[str, ...] = (
     "segmin.export",
     "segmin.nav_eval.runtime",
     "segmin.nav_eval.replay",
+    "segmin.nav_eval.ros2",
     "segmin.nav_eval.demo",
     "segmin.nav_eval.seg_eval",
     "segmin.nav_eval.sim",
@@ -164,7 +165,8 @@ def test_no_import_cycles(graph: dict[str, set[str]]) -> None:
 def test_nothing_imports_the_old_top_level_names() -> None:
     offenders = {}
     for path in sorted(ROOT.rglob("*.py")):
-        if ".venv" in path.parts or "build" in path.parts:
+        relative = path.relative_to(ROOT).parts  # hidden folders (.venv, .ros-venv) hold installed packages
+        if any(part.startswith(".") for part in relative) or "build" in relative:
             continue
         tops = {name.split(".")[0] for name in imported_names(path, "x")} & OLD_TOP_LEVELS
         if tops:
@@ -216,10 +218,11 @@ def test_the_checks_fail_on_an_import_against_the_flow(tmp_path: Path) -> None:
 # The bare install (`pip install segmin`, the robot) has these besides the standard library.
 BARE_DEPENDENCIES = {"numpy", "cv2", "onnxruntime", "yaml"}
 # Sub-packages a robot runs; their module-level imports, followed through segmin, stay bare.
-BARE_PACKAGES = ("segmin.nav_eval.runtime", "segmin.nav_eval.replay", "segmin.nav_eval.demo")
-# Figure modules inside them, loaded only when their extra is installed (replay skips its plot and
-# says so on the bare install).
-OPTIONAL_MODULES = {"segmin.nav_eval.replay.plot": {"matplotlib"}}
+BARE_PACKAGES = ("segmin.nav_eval.runtime", "segmin.nav_eval.replay", "segmin.nav_eval.ros2", "segmin.nav_eval.demo")
+# Modules inside them that load more, only when it is there: replay's figure (the [sim] extra; replay
+# skips its plot and says so on the bare install) and the ROS 2 node (the robot's own rclpy).
+ROS2_MODULES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_srvs", "diagnostic_msgs"}
+OPTIONAL_MODULES = {"segmin.nav_eval.replay.plot": {"matplotlib"}, "segmin.nav_eval.ros2.node": ROS2_MODULES}
 
 
 def module_level_imports(path: Path, module: str) -> set[str]:

@@ -1,5 +1,5 @@
-"""`segmin bench nav-eval` (simulated seconds per wall second) and `segmin bench navigator`
-(the navigators and the runtime per frame)."""
+"""`segmin bench nav-eval` (simulated seconds per wall second), `segmin bench navigator`
+(the navigators and the runtime per frame) and `segmin bench replay-bag` (bag replay frames/s)."""
 
 from __future__ import annotations
 
@@ -41,6 +41,16 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     nav.add_argument("--threads", type=int, default=2, help="onnxruntime threads for the full step (default 2)")
     nav.set_defaults(func=_bench_navigator)
 
+    bag = bench.add_parser(
+        "replay-bag", help="segmin replay --bag against segmin replay on the same frames as folders (frames/s)"
+    )
+    bag.add_argument("--model", type=Path, required=True, help="exported .onnx file")
+    bag.add_argument("--bag", type=Path, required=True, help="a bag with segmin's camera topics (nav-eval --bag)")
+    bag.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    bag.add_argument("--method", default="segmind", choices=("segmin", "segmind", "segzeros"))
+    bag.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
+    bag.set_defaults(func=_bench_replay_bag)
+
 
 def _bench(args: argparse.Namespace) -> int:
     from segmin.nav_eval.bench.closed_loop import NavEvalBenchOptions, bench_nav_eval
@@ -59,6 +69,13 @@ def _bench(args: argparse.Namespace) -> int:
         out=args.out,
     )
     bench_nav_eval(options)
+    return 0
+
+
+def _bench_replay_bag(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.bench.replay_bag import bench_replay_bag
+
+    print(bench_replay_bag(args.model, args.bag, args.threads, args.method, args.depth_threshold))
     return 0
 
 

@@ -42,6 +42,12 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         action="store_true",
         help="MP4 (else GIF) of the camera view, mask and chosen column for run 0 of each field and method",
     )
+    parser.add_argument(
+        "--bag",
+        action="store_true",
+        help="rosbag2 (MCAP) of run 0 of each field and method in OUT/bags/: camera, depth, IMU, odometry, "
+        "ground truth, cmd_vel, TF (needs the [ros] extra; replay it with segmin replay --bag)",
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_scenario_options(parser)
@@ -58,6 +64,8 @@ def _nav_eval(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     check_results_absent(args.out, RESULT_FILES, args.force, "nav-eval")
+    if args.bag:
+        import rosbags.rosbag2  # noqa: F401  (a missing [ros] extra is named now, not in every run)
     results = run_evaluation(
         args.model,
         args.fields,
@@ -68,6 +76,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
         config,
         seed=args.seed,
         video=args.video,
+        bag=args.bag,
         progress=not args.no_progress,
         plots=not args.no_plots,
     )

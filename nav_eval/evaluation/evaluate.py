@@ -13,6 +13,7 @@ only, so every method starts from the same pose with the same noise (a paired co
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import math
@@ -126,6 +127,7 @@ class Job:
     run: int
     seed: int
     video_path: str = ""
+    bag_path: str = ""  # write the run as a rosbag2 (MCAP) folder here (sim.bag_recorder)
     # The run's own NavEvalConfig as plain data (`to_dict`), when it is not the worker's: a sweep
     # runs many configs on one pool. None: the worker's config.
     config: dict | None = None
@@ -285,7 +287,10 @@ class Worker:
             result.gap = simulator.gap
             segmenter = with_dropout(self.segmenter, config.perception, job.seed)
             follower = make_follower(job.method, result.depth_threshold, config)
-            episode = run_episode(simulator, follower, segmenter, job.seed, video=bool(job.video_path))
+            with _recorder(job, self.model, config, ctx, result.depth_threshold) as recorder:
+                episode = run_episode(
+                    simulator, follower, segmenter, job.seed, video=bool(job.video_path), recorder=recorder
+                )
             metrics = compute_metrics(
                 episode.trajectory,
                 simulator.centreline,
@@ -313,6 +318,30 @@ class Worker:
         return result
 
 
+def _recorder(job: Job, model: str, config: NavEvalConfig, ctx: FieldContext, depth_threshold: float) -> Any:
+    """The run's bag recorder when the job asks for a bag (a null context otherwise)."""
+    if not job.bag_path:
+        return contextlib.nullcontext()
+    from segmin import __version__
+    from segmin.nav_eval.sim.bag_recorder import RunRecorder
+
+    rates = config.rates
+    metadata = {
+        "version": __version__,
+        "field": field_label(job.field),
+        "method": job.method,
+        "run": job.run,
+        "seed": job.seed,
+        "model": model,
+        "depth_threshold": depth_threshold,
+        "camera_hz": rates.camera_hz,
+        "segment_hz": rates.segment_hz,
+        "command_hz": rates.command_hz,
+        "fuse_frames": config.perception.fuse_frames,
+    }
+    return RunRecorder(job.bag_path, ctx.camera, job.seed, metadata)
+
+
 # ---------------------------------------------------------------------------------------------
 # The matrix
 # ---------------------------------------------------------------------------------------------
@@ -329,6 +358,7 @@ def run_evaluation(
     *,
     seed: int = 0,
     video: bool = False,
+    bag: bool = False,
     progress: bool = True,
     plots: bool = True,
 ) -> list[RunResult]:
@@ -336,7 +366,8 @@ def run_evaluation(
 
     With `out_dir`, writes results.csv/json (rewritten atomically after every finished run, so
     an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
-    workers <= 1 runs in this process; more uses spawned processes.
+    workers <= 1 runs in this process; more uses spawned processes. `video` / `bag`: run 0 of
+    each field and method as a video in out/videos, as a rosbag2 (MCAP) in out/bags.
     """
     config = config or load_nav_config()
     if str(model) != "oracle" and not Path(model).is_file():
@@ -351,10 +382,12 @@ def run_evaluation(
     for f in field_list:
         for r in range(runs):
             for m in method_list:
-                path = ""
+                path = bag_path = ""
                 if video and out is not None and r == 0:
                     path = str(out / "videos" / f"{field_label(f)}_{m}.mp4")
-                jobs.append(Job(f, m, r, run_seed(seed, f, r), path))
+                if bag and out is not None and r == 0:
+                    bag_path = str(out / "bags" / f"{field_label(f)}_{m}")
+                jobs.append(Job(f, m, r, run_seed(seed, f, r), path, bag_path))
     meta = {
         "model": str(model),
         "fields": [field_label(f) for f in field_list],

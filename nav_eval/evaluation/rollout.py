@@ -15,6 +15,7 @@ Gymnasium env adapts, and adds only the simulator's two economies, which change 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -49,9 +50,11 @@ def run_episode(
     *,
     video: bool = False,
     pose: tuple[float, float, float] | None = None,
+    recorder: Any = None,
 ) -> Episode:
     """Drive one run to its end with `follower`, its masks from `segmenter` (the oracle, or a
-    model on the rendered images); `pose` replaces the seeded start."""
+    model on the rendered images); `pose` replaces the seeded start. `recorder` (a
+    `sim.bag_recorder.RunRecorder`) is given every camera frame and every command."""
     follower.reset()
     info = simulator.reset(seed, pose)
     period = simulator.camera_period
@@ -67,6 +70,8 @@ def run_episode(
     with BackgroundSegmenter(segmenter) as background:
         while not ended:
             t = simulator.t
+            if recorder is not None:
+                recorder.frame(simulator, t, simulator.frame() if render else None)
             if render:
                 frame = simulator.frame()
                 out = follower.step(
@@ -82,6 +87,8 @@ def run_episode(
                 cmd = out.command
                 column = cmd.target_column
                 commands.append((t, float(cmd.v), float(cmd.omega), None if column is None else float(column)))
+                if recorder is not None:
+                    recorder.command(t, float(cmd.v), float(cmd.omega))
                 if video:
                     frames_out.append(overlay(frame.rgb if render else blank_rgb, out.fused, column))
             render = follower.needs_frame(t + period, t + 2 * period)

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from segmin.nav_eval.replay.run import FrameSource
 
 
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
@@ -12,15 +16,21 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         help="run the robot runtime over a recorded sequence (frames or video): commands.csv, plot, overlay video",
         description="Runs RowFollower (the runtime a robot runs, at the paper's 20 Hz masks / 5 Hz commands) "
         "over a folder of RGB frames (with optional aligned uint16 millimetre depth PNGs or float metre .npy "
-        "named alike) or a video, and writes commands.csv, overlay.mp4 and commands.png (the plot needs the "
+        "named alike), a video, or the colour (and depth) topics of a ROS bag (times from the header stamps), and writes commands.csv, overlay.mp4 and commands.png (the plot needs the "
         "[sim] extra). Without depth SegMin runs on the mask alone; SegMinD needs depth.",
     )
     replay.add_argument("--model", required=True, help="exported .onnx file")
+    source = replay.add_mutually_exclusive_group(required=True)
+    source.add_argument(
+        "--rgb", type=Path, help="folder of RGB frames (natural name order: f_2 before f_10) or a video file"
+    )
+    source.add_argument(
+        "--bag", type=Path, help="ROS 1 .bag file or rosbag2 folder (sqlite3 or MCAP; needs the [ros] extra)"
+    )
+    replay.add_argument("--rgb-topic", help="with --bag: colour topic (sensor_msgs Image or CompressedImage)")
+    replay.add_argument("--depth-topic", help="with --bag: aligned depth topic (16UC1 mm, 32FC1 m, compressedDepth)")
     replay.add_argument(
-        "--rgb",
-        type=Path,
-        required=True,
-        help="folder of RGB frames (natural name order: f_2 before f_10) or a video file",
+        "--slop", type=float, default=None, help="with --bag: colour/depth stamp pairing tolerance in s (default 0.01)"
     )
     replay.add_argument(
         "--depth",
@@ -44,6 +54,25 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     replay.set_defaults(func=_replay)
 
 
+def _bag_source(args: argparse.Namespace) -> FrameSource | None:
+    """The bag's `FrameSource` for --bag (None without); the bag-only options are checked here."""
+    if args.bag is None:
+        for option in ("rgb_topic", "depth_topic", "slop"):
+            if getattr(args, option) is not None:
+                raise ValueError(f"--{option.replace('_', '-')} goes with --bag")
+        return None
+    for option, value in (("--depth", args.depth), ("--fps", args.fps), ("--timestamps", args.timestamps)):
+        if value is not None:
+            raise ValueError(f"{option} does not go with --bag (times and depth come from the bag's topics)")
+    if not args.rgb_topic:
+        raise ValueError("--bag needs --rgb-topic (the colour topic)")
+    if args.method == "segmind" and args.depth_topic is None:
+        raise ValueError("--method segmind needs --depth-topic (depth frames); without depth use segmin (mask alone)")
+    from segmin.nav_eval.replay.bags import DEFAULT_SLOP_S, bag_frames
+
+    return bag_frames(args.bag, args.rgb_topic, args.depth_topic, DEFAULT_SLOP_S if args.slop is None else args.slop)
+
+
 def _replay(args: argparse.Namespace) -> int:
     from segmin.nav_eval.replay.run import replay
     from segmin.nav_eval.runtime.follower import RuntimeConfig
@@ -52,6 +81,7 @@ def _replay(args: argparse.Namespace) -> int:
         args.model,
         args.rgb,
         args.out,
+        source=_bag_source(args),
         method=args.method,
         depth_threshold=args.depth_threshold,
         depth=args.depth,

@@ -29,6 +29,7 @@ No torch, pybullet or matplotlib at import: this runs on the bare robot install.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,7 @@ import numpy as np
 
 from segmin.common.atomic import write_text
 from segmin.common.outputs import check_output_dir
-from segmin.nav_eval.replay.sequence import read_sequence
+from segmin.nav_eval.replay.sequence import RecordedSequence, read_sequence
 from segmin.nav_eval.replay.video import overlay, write_video
 from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
@@ -53,6 +54,37 @@ class ReplayResult:
     frames: int = 0
 
 
+@dataclass
+class FrameSource:
+    """A sequence to replay from elsewhere than a folder or a video (a ROS bag: `replay.bags`).
+
+    `frames` yields (name, t, rgb, depth metres or None, had non-finite depth) like
+    `iter_sequence`; `notes` is read once they ran (what the source skipped, say).
+    """
+
+    count: int
+    frames: Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]
+    has_depth: bool
+    notes: Callable[[], list[str]] = list
+
+
+def _sequence(
+    rgb: str | Path | None,
+    depth: str | Path | None,
+    fps: float | None,
+    timestamps: str | Path | None,
+    source: FrameSource | None,
+) -> RecordedSequence:
+    """The frames to replay: a bag's `source`, else the folder or video `rgb` (with `depth`)."""
+    if source is not None:
+        return RecordedSequence(count=source.count, frames=source.frames)
+    if rgb is None:
+        raise ValueError("give --rgb (a folder of frames or a video) or --bag")
+    return read_sequence(
+        Path(rgb), None if depth is None else Path(depth), fps, None if timestamps is None else Path(timestamps)
+    )
+
+
 def check_out_dir(out: Path, force: bool) -> None:
     """Refuse a file in the way, and a non-empty output folder unless `force` (nothing is
     overwritten silently); before the model runs."""
@@ -63,7 +95,7 @@ def check_out_dir(out: Path, force: bool) -> None:
 
 def replay(
     model: str | Path,
-    rgb: str | Path,
+    rgb: str | Path | None,
     out: str | Path,
     *,
     method: str,
@@ -75,18 +107,20 @@ def replay(
     runtime: RuntimeConfig | None = None,
     threads: int = 2,
     segmenter: Any = None,
+    source: FrameSource | None = None,
 ) -> ReplayResult:
-    """Run the runtime over the sequence and write the outputs (see the module docstring)."""
+    """Run the runtime over the sequence and write the outputs (see the module docstring).
+
+    The sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then)."""
     if str(model) == "oracle":
         raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
     navigator_config = NavigatorConfig(method=method, depth_threshold=depth_threshold)
-    if depth is None and method == "segmind":
+    has_depth = source.has_depth if source is not None else depth is not None
+    if not has_depth and method == "segmind":
         raise ValueError("--method segmind needs --depth (depth frames); without depth use segmin (mask alone)")
     out = Path(out)
     check_out_dir(out, force)
-    sequence = read_sequence(
-        Path(rgb), None if depth is None else Path(depth), fps, None if timestamps is None else Path(timestamps)
-    )
+    sequence = _sequence(rgb, depth, fps, timestamps, source)
     if segmenter is None:
         from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
@@ -120,7 +154,9 @@ def replay(
         )
     else:
         result.files.append(plot)
-    if depth is None:
+    if source is not None:
+        result.notes.extend(source.notes())
+    if not has_depth:
         result.notes.append(f"no depth: {method} ran on the mask alone (every vegetation pixel counts as near)")
     if non_finite:
         result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")

@@ -192,6 +192,11 @@ class RowFollower:
             return STOP
         return self._command
 
+    @property
+    def last_frame_t(self) -> float | None:
+        """Timestamp of the latest frame taken (None before the first or after a reset)."""
+        return None if self._last is None else self._last.t
+
     def needs_frame(self, t: float, t_next: float) -> bool:
         """Whether a frame at `t`, followed by one at `t_next`, would be segmented for a command.
 

@@ -176,12 +176,18 @@ def imu_attitude(state: RobotState) -> tuple[float, float]:
     forward the heading projected onto the ground. On a slope crossing the heading the forward
     axis turns slightly (by about a b), so the angles are read off these axes, not the slopes.
     """
+    forward, left, n = body_axes(state)
+    return math.atan2(float(left[2]), float(n[2])), -math.asin(max(-1.0, min(1.0, float(forward[2]))))
+
+
+def body_axes(state: RobotState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The body's forward, left and up axes in the heading frame (x along the yaw, z up): up along
+    the ground normal, forward the heading projected onto the ground (see `imu_attitude`)."""
     a, b = math.tan(state.pitch), math.tan(state.roll)
     n = np.array([-a, -b, 1.0]) / math.sqrt(1.0 + a * a + b * b)
     forward = np.array([1.0, 0.0, 0.0]) - n[0] * n
     forward /= np.linalg.norm(forward)
-    left = np.cross(n, forward)
-    return math.atan2(float(left[2]), float(n[2])), -math.asin(max(-1.0, min(1.0, float(forward[2]))))
+    return forward, np.cross(n, forward), n
 
 
 def _actuate(current: float, target: float, dt: float, tau: float, max_acc: float) -> float:

@@ -268,10 +268,16 @@ class RowEnv:
         the runs a worker did before it).
         """
         if self._frame is None or self._frame[0] != self._tick:
-            _, x, y, yaw = self._rows[self._tick][:4]
-            rendered = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
-            depth = rendered.depth
-            if self.config.perception.depth_noise and self._depth_camera is not None:
-                depth = self._depth_camera.apply_depth_noise(depth, self._noise_rng)
-            self._frame = (self._tick, CameraFrame(rendered.rgb, depth, rendered.mask))
+            self._frame = (self._tick, self.render(self._noise_rng))
         return self._frame[1]
+
+    def render(self, noise_rng: np.random.Generator) -> CameraFrame:
+        """The camera frame at the current tick's pose, uncached, its depth noise drawn from
+        `noise_rng`. A recorder that wants the frames the run skips renders them here with a
+        generator of its own, leaving the run's frames and noise as they are."""
+        _, x, y, yaw = self._rows[self._tick][:4]
+        rendered = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
+        depth = rendered.depth
+        if self.config.perception.depth_noise and self._depth_camera is not None:
+            depth = self._depth_camera.apply_depth_noise(depth, noise_rng)
+        return CameraFrame(rendered.rgb, depth, rendered.mask)

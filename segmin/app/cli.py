@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.app.bench_export",
     "segmin.nav_eval.demo.cli",
     "segmin.nav_eval.replay.cli",
+    "segmin.nav_eval.ros2.cli",
     "segmin.nav_eval.seg_eval.cli",
     "segmin.nav_eval.evaluation.cli",
     "segmin.nav_eval.sweeps.cli",

@@ -1,7 +1,8 @@
 """Which install extra brings which optional dependency, so a missing one is named, not a traceback.
 
 `pip install segmin` is the robot runtime (numpy, OpenCV, onnxruntime, PyYAML). Simulation and
-figures come with `[sim]`, training and export with `[train]`; `[all]` is both. The table must
+figures come with `[sim]`, training and export with `[train]`, ROS bags (replay and recording)
+with `[ros]`; `[all]` is all three. The table must
 follow pyproject.toml's extras (a test checks it).
 """
 
@@ -20,6 +21,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "onnx": "train",
     "onnxscript": "train",
     "tensorboard": "train",
+    "rosbags": "ros",
 }
 
 

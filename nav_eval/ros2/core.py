@@ -1,0 +1,238 @@
+"""The row-follower node without ROS: image messages in, commands out, every fault a stop.
+
+`FollowerCore` owns the `RowFollower` (nothing of the runtime is re-implemented) and decides
+what the node publishes; `node.py` only wires it to rclpy. Kept free of ROS so that its rules
+are tested in the normal suite and the bench can drive it.
+
+- Colour and depth messages are decoded (`replay.ros_images`) and paired by header stamp within
+  `slop_s` (`replay.stamp_pairing`); a pair is one `RowFollower.step` at the colour stamp.
+- A fresh command is published at once (the latency from image to `cmd_vel` is the step's own,
+  the period jitters with it); the `tick(now)` watchdog, called at `command_hz`, publishes
+  `command_at(now)` whenever no command went out for 1.5 periods: the command in force while
+  frames come late, a stop once none came for `frame_timeout_s`. With `publish_on_timer`, only
+  `tick` publishes, every period: a regular period, commands up to one period older.
+- Any bad frame (an encoding the decoder refuses, mismatched sizes, a stamp out of order) is a
+  log line naming the topic (at most one per topic every LOG_EVERY_S), the frame is dropped,
+  and while enabled a stop goes out at once and the watchdog keeps the robot stopped until the
+  runtime gives a fresh command. The node stays up. Frames without a partner (a depth frame
+  with no colour frame within `slop_s`) are logged and counted but stop nothing by themselves:
+  a robot that gets no pairs any more is stopped by the frame timeout.
+- `enabled` (off at start-up): while off the runtime still runs (diagnostics, overlay) but no
+  command is published; switching off publishes one stop.
+
+Thread safety: the image callbacks run one at a time (one callback group); the watchdog and the
+enable service run in another group, so inference never delays them. They share a few
+attributes under `_lock`, which is never held during inference.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth, stamp_seconds
+from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
+from segmin.nav_eval.ros2.params import NodeParams
+from segmin.nav_eval.runtime.follower import STOP, FollowerOutput, RowFollower
+from segmin.nav_eval.runtime.navigator import Command, Navigator
+
+WATCHDOG_PERIODS = 1.5  # the watchdog speaks after this many command periods of silence
+LOG_EVERY_S = 5.0  # a topic's bad frames are logged at most this often (30 Hz of warnings helps no one)
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """A command to publish, with the stamp it answers (the image's, or the clock's for a stop)."""
+
+    command: Command
+    stamp: Any  # a builtin_interfaces Time of the image that gave the command, or None: now
+    reason: str | None = None  # why this is a stop
+
+
+class FollowerCore:
+    """See the module docstring. `publish(Outgoing)` and `log(str)` (a warning) are the node's."""
+
+    def __init__(
+        self,
+        params: NodeParams,
+        segmenter: Any,
+        publish: Callable[[Outgoing], None],
+        log: Callable[[str], None],
+        timer: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        self.params = params
+        self.publish = publish
+        self.log = log
+        self.follower = RowFollower(segmenter, Navigator(params.navigator), params.runtime)
+        self.pairer = StampPairer(params.node.slop_s, max_pending=2)
+        self._wall = timer  # times the steps (wall clock, also when the node runs on a bag's clock)
+        self._lock = threading.Lock()
+        self.enabled = params.node.enabled
+        self.fault: str | None = None  # why the robot is held stopped (bad input), until a fresh command
+        self._last_sent: float | None = None  # node clock of the last publication
+        self._stamp: Any = None  # stamp of the image that gave the command in force
+        self._logged: dict[str, float] = {}  # topic -> node clock of its last warning
+        self.frames = 0
+        self.rejected = 0
+        self._unpaired = 0
+        self.step_s: deque[float] = deque(maxlen=100)
+        self.last_output: FollowerOutput | None = None
+        self.last_rgb: np.ndarray | None = None
+
+    # ---- the image callbacks -------------------------------------------------------------------
+    def on_colour(self, message: Any, now: float) -> FollowerOutput | None:
+        """A colour message; returns the runtime's output when it stepped."""
+        topic = self.params.node.colour_topic
+        try:
+            t = stamp_seconds(message)
+            rgb = decode_colour(message, topic)
+            if not self.params.node.depth_topic:
+                return self._step(rgb, None, t, message.header.stamp, now)
+            pairs = self.pairer.add_colour(t, (rgb, message.header.stamp))
+        except (ImageMessageError, StampOrderError) as exc:
+            return self._reject(f"{topic}: {exc}" if isinstance(exc, StampOrderError) else str(exc), now)
+        return self._run_pairs(pairs, now)
+
+    def on_depth(self, message: Any, now: float) -> FollowerOutput | None:
+        """A depth message; returns the runtime's output when it completed a pair that stepped."""
+        topic = self.params.node.depth_topic
+        try:
+            pairs = self.pairer.add_depth(stamp_seconds(message), decode_depth(message, topic)[0])
+        except (ImageMessageError, StampOrderError) as exc:
+            return self._reject(f"{topic}: {exc}" if isinstance(exc, StampOrderError) else str(exc), now)
+        return self._run_pairs(pairs, now)
+
+    def _run_pairs(self, pairs: list, now: float) -> FollowerOutput | None:
+        unpaired = self.pairer.dropped_colour + self.pairer.dropped_depth
+        if unpaired > self._unpaired:  # logged, not a stop: the frame timeout stops a robot that gets no pairs
+            self._unpaired = unpaired
+            node = self.params.node
+            self._warn(
+                f"{node.colour_topic}+{node.depth_topic}: {unpaired} frame(s) so far had no partner within "
+                f"slop_s={node.slop_s} s",
+                now,
+                "unpaired frames dropped",
+            )
+        output = None
+        for colour, depth in pairs:
+            rgb, stamp = colour.item
+            output = self._step(rgb, depth.item, colour.t, stamp, now) or output
+        return output
+
+    def _step(
+        self, rgb: np.ndarray, depth: np.ndarray | None, t: float, stamp: Any, now: float
+    ) -> FollowerOutput | None:
+        start = self._wall()
+        try:
+            output = self.follower.step(rgb, depth, t)
+        except ValueError as exc:
+            return self._reject(f"{self.params.node.colour_topic}: {exc}", now)
+        self.step_s.append(self._wall() - start)
+        self.frames += 1
+        self.last_output, self.last_rgb = output, rgb
+        if output.fresh:
+            with self._lock:
+                self.fault = None
+                self._stamp = stamp
+                send = self.enabled and not self.params.node.publish_on_timer
+                if send:
+                    self._last_sent = now
+            if send:
+                self.publish(Outgoing(output.command, stamp, None if output.command.valid else output.stopped))
+        return output
+
+    def _reject(self, why: str, now: float) -> None:
+        """Drop a frame: a log line (throttled per topic), the robot stopped until a fresh command."""
+        self.rejected += 1
+        self._warn(why, now, "frame dropped, robot stopped")
+        self.hold(why, now)
+
+    def hold(self, why: str, now: float) -> None:
+        """Stop the robot now (when enabled) and keep it stopped until the runtime gives a fresh command."""
+        with self._lock:
+            self.fault = why
+            send = self.enabled
+            if send:
+                self._last_sent = now
+        if send:
+            self.publish(Outgoing(STOP, None, why))
+
+    def _warn(self, why: str, now: float, what: str) -> None:
+        """Log `what: why`, at most once per LOG_EVERY_S for each topic (`why` starts with it)."""
+        topic = why.split(":", maxsplit=1)[0]
+        if now - self._logged.get(topic, -float("inf")) >= LOG_EVERY_S:
+            self._logged[topic] = now
+            self.log(f"{what}: {why}")
+
+    # ---- the watchdog and the switch -----------------------------------------------------------
+    def tick(self, now: float, stamp_now: float) -> None:
+        """Watchdog at command_hz: `now` is the node clock, `stamp_now` the same instant in the
+        images' time base (ROS time; sim time when the node runs on a bag's clock)."""
+        period = 1.0 / self.params.runtime.command_hz
+        on_timer = self.params.node.publish_on_timer
+        with self._lock:
+            quiet = self._last_sent is not None and now - self._last_sent < WATCHDOG_PERIODS * period
+            if not self.enabled or (quiet and not on_timer):
+                return
+            self._last_sent = now
+            fault, stamp = self.fault, self._stamp
+        command = STOP if fault else self.follower.command_at(stamp_now)
+        reason = fault or (None if command.valid else self.stop_reason(stamp_now))
+        self.publish(Outgoing(command, stamp if command.valid else None, reason))
+
+    def reconfigure(self, params: NodeParams, segmenter: Any) -> None:
+        """New parameters (checked by the node): a fresh runtime, masks and EMA cleared.
+
+        Called from the image callbacks' group, between two frames."""
+        self.params = params
+        self.follower = RowFollower(segmenter, Navigator(params.navigator), params.runtime)
+        self.pairer = StampPairer(params.node.slop_s, max_pending=2)
+        self._unpaired = 0
+        if params.node.enabled != self.enabled:
+            self.log(self.set_enabled(params.node.enabled))
+
+    def set_enabled(self, enabled: bool) -> str:
+        """Start or stop driving; returns what happened (the service's answer, the node's log line)."""
+        with self._lock:
+            before, self.enabled = self.enabled, bool(enabled)
+            self._last_sent = None
+        if before and not enabled:
+            self.publish(Outgoing(STOP, None, "disabled"))
+        return f"driving {'enabled' if enabled else 'disabled'}" + ("" if before != enabled else " (unchanged)")
+
+    # ---- what the diagnostics say --------------------------------------------------------------
+    def stop_reason(self, stamp_now: float) -> str | None:
+        """Why the robot is stopped now, or None when it drives."""
+        if not self.enabled:
+            return "disabled"
+        if self.fault:
+            return self.fault
+        last = self.follower.last_frame_t
+        if last is None:
+            return "no frame yet"
+        if stamp_now - last > self.params.runtime.frame_timeout_s:
+            return f"frame_timeout: no paired frame for {stamp_now - last:.2f} s"
+        command = self.follower.command_at(stamp_now)
+        if not command.valid:
+            return (self.last_output.stopped if self.last_output else None) or "no target in the mask"
+        return None
+
+    def status(self, stamp_now: float) -> dict[str, str]:
+        """Key -> value for the diagnostics."""
+        steps = np.asarray(self.step_s, dtype=float)
+        return {
+            "frames stepped": str(self.frames),
+            "frames rejected": str(self.rejected),
+            "unpaired colour frames": str(self.pairer.dropped_colour),
+            "unpaired depth frames": str(self.pairer.dropped_depth),
+            "step time median ms": f"{1e3 * np.median(steps):.1f}" if steps.size else "-",
+            "step time max ms": f"{1e3 * steps.max():.1f}" if steps.size else "-",
+            "enabled": str(self.enabled),
+            "stopped because": self.stop_reason(stamp_now) or "-",
+        }

@@ -1,0 +1,230 @@
+"""The ROS 2 row-follower node: `FollowerCore` wired to rclpy. Started by `segmin ros2 follow`.
+
+Subscribes (sensor-data QoS: best effort, keep last 1, so a late frame is replaced, never
+queued behind) to the colour image and the aligned depth (`Image`, or `CompressedImage` on a
+topic ending in /compressed or /compressedDepth, as image_transport names them). Publishes
+`Twist` (or `TwistStamped`) on `cmd_vel`, optionally `~/overlay` (the mask and the chosen
+column on the image) and `/diagnostics`. The service `~/enable` (std_srvs/SetBool) and the
+parameter `enabled` start and stop driving; both are off at start-up.
+
+Two callback groups on a multi-threaded executor: the images (segmentation runs there) and the
+control side (watchdog timer at command_hz, diagnostics, the service, parameter changes), so
+inference never blocks the watchdog. A parameter set while running is checked as at start-up
+(`params.node_params`): a bad value is refused with its reason, logged, and the robot stopped;
+a good one is applied at the next frame (the runtime restarts: masks and EMA cleared). Topics
+and outputs are read-only after start-up.
+
+rclpy and the message packages are those of the environment: a robot's sourced ROS 2, or the
+community wheels (`.ci/ros_env.sh`). Nothing here is imported by the rest of segmin.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Twist, TwistStamped
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CompressedImage, Image
+from std_srvs.srv import SetBool
+
+from segmin.nav_eval.replay.video import overlay
+from segmin.nav_eval.ros2.core import FollowerCore, Outgoing
+from segmin.nav_eval.ros2.params import DESCRIPTIONS, STARTUP_ONLY, NodeParams, as_values, node_params
+from segmin.nav_eval.runtime.follower import FollowerOutput
+
+SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+def load_segmenter(params: NodeParams) -> Any:
+    """The ONNX segmenter of `params` (ValueError naming the parameter when it cannot be loaded)."""
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+    if not params.node.model:
+        raise ValueError("parameter model: not set (give the exported .onnx file)")
+    try:
+        return OnnxSegmenter(params.node.model, threads=params.node.threads)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"parameter model: {exc}") from None
+
+
+def _image_type(topic: str) -> type:
+    return CompressedImage if topic.rstrip("/").endswith(("/compressed", "/compressedDepth")) else Image
+
+
+class RowFollowerNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, name: str, params: NodeParams, segmenter: Any, use_sim_time: bool = False) -> None:
+        super().__init__(name, parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
+        self.params = params
+        self.segmenter = segmenter
+        for key, value in as_values(params).items():
+            self.declare_parameter(
+                key, value, ParameterDescriptor(description=DESCRIPTIONS[key], read_only=key in STARTUP_ONLY)
+            )
+        settings = params.node
+        self.core = FollowerCore(params, segmenter, self._publish, self.get_logger().warning)
+        self._pending: tuple[NodeParams, Any] | None = None
+        self._pending_lock = threading.Lock()
+        images, control = MutuallyExclusiveCallbackGroup(), MutuallyExclusiveCallbackGroup()
+        self.create_subscription(
+            _image_type(settings.colour_topic),
+            settings.colour_topic,
+            self._on_colour,
+            SENSOR_QOS,
+            callback_group=images,
+        )
+        if settings.depth_topic:
+            self.create_subscription(
+                _image_type(settings.depth_topic),
+                settings.depth_topic,
+                self._on_depth,
+                SENSOR_QOS,
+                callback_group=images,
+            )
+        self._cmd = self.create_publisher(TwistStamped if settings.twist_stamped else Twist, settings.cmd_vel_topic, 10)
+        self._overlay = self.create_publisher(Image, "~/overlay", 1) if settings.publish_overlay else None
+        self._diagnostics = (
+            self.create_publisher(DiagnosticArray, "/diagnostics", 10) if settings.publish_diagnostics else None
+        )
+        self.create_timer(1.0 / params.runtime.command_hz, self._watchdog, callback_group=control)
+        if self._diagnostics is not None:
+            self.create_timer(1.0, self._diagnose, callback_group=control)
+        self.create_service(SetBool, "~/enable", self._on_enable, callback_group=control)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._frames_at_diagnosis = 0
+        self.get_logger().info(
+            f"{params.navigator.method} on {settings.colour_topic}"
+            + (f" + {settings.depth_topic}" if settings.depth_topic else " (no depth)")
+            + f" -> {settings.cmd_vel_topic}; driving {'enabled' if settings.enabled else 'disabled (call ~/enable)'}"
+        )
+
+    def _seconds(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # ---- images --------------------------------------------------------------------------------
+    def _on_colour(self, message: Any) -> None:
+        self._apply_pending()
+        self._overlay_out(self.core.on_colour(message, self._seconds()), message)
+
+    def _on_depth(self, message: Any) -> None:
+        self._apply_pending()
+        self._overlay_out(self.core.on_depth(message, self._seconds()), None)
+
+    def _overlay_out(self, output: FollowerOutput | None, message: Any) -> None:
+        if self._overlay is None or output is None or not output.fresh or self.core.last_rgb is None:
+            return
+        image = overlay(self.core.last_rgb, output.fused, output.command.target_column)
+        out = Image()
+        if message is not None:
+            out.header = message.header
+        out.height, out.width = image.shape[:2]
+        out.encoding, out.step = "rgb8", 3 * image.shape[1]
+        out.data = np.ascontiguousarray(image).tobytes()
+        self._overlay.publish(out)
+
+    # ---- commands ------------------------------------------------------------------------------
+    def _publish(self, outgoing: Outgoing) -> None:
+        twist = Twist()
+        twist.linear.x, twist.angular.z = float(outgoing.command.v), float(outgoing.command.omega)
+        if not self.params.node.twist_stamped:
+            self._cmd.publish(twist)
+            return
+        stamped = TwistStamped()
+        stamped.header.frame_id = self.params.node.base_frame
+        stamped.header.stamp = outgoing.stamp if outgoing.stamp is not None else self.get_clock().now().to_msg()
+        stamped.twist = twist
+        self._cmd.publish(stamped)
+
+    def _watchdog(self) -> None:
+        now = self._seconds()
+        self.core.tick(now, now)
+
+    def _on_enable(self, request: Any, response: Any) -> Any:
+        response.message = self.core.set_enabled(bool(request.data))
+        response.success = True
+        self.get_logger().info(response.message)
+        return response
+
+    # ---- parameters ----------------------------------------------------------------------------
+    def _on_set_parameters(self, changes: list[Parameter]) -> SetParametersResult:
+        values = as_values(self.params)
+        values.update({p.name: p.value for p in changes if p.name != "use_sim_time"})
+        try:
+            params = node_params(values)
+            segmenter = self.segmenter
+            if (params.node.model, params.node.threads) != (self.params.node.model, self.params.node.threads):
+                segmenter = load_segmenter(params)
+        except ValueError as exc:
+            self.get_logger().error(f"refused, robot stopped: {exc}")
+            self.core.hold(str(exc), self._seconds())
+            return SetParametersResult(successful=False, reason=str(exc))
+        unchanged = dataclasses.replace(params, node=dataclasses.replace(params.node, enabled=self.params.node.enabled))
+        if unchanged == self.params:  # only `enabled`: at once, from here
+            self.get_logger().info(self.core.set_enabled(params.node.enabled))
+        else:
+            with self._pending_lock:
+                self._pending = (params, segmenter)
+        self.params = params
+        return SetParametersResult(successful=True)
+
+    def _apply_pending(self) -> None:
+        """A parameter change takes effect here, on the image side, between two frames."""
+        with self._pending_lock:
+            pending, self._pending = self._pending, None
+        if pending is not None:
+            params, self.segmenter = pending
+            self.core.reconfigure(params, self.segmenter)
+            self.get_logger().info("parameters applied: the runtime restarts")
+
+    # ---- diagnostics ---------------------------------------------------------------------------
+    def _diagnose(self) -> None:
+        now = self._seconds()
+        values = self.core.status(now)
+        frames = self.core.frames
+        values["frame rate Hz"] = f"{frames - self._frames_at_diagnosis:.0f}"
+        self._frames_at_diagnosis = frames
+        why = self.core.stop_reason(now)
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK
+            if why is None
+            else (DiagnosticStatus.ERROR if self.core.fault else DiagnosticStatus.WARN),
+            name=f"{self.get_name()}: row following",
+            message="driving" if why is None else f"stopped: {why}",
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        assert self._diagnostics is not None
+        self._diagnostics.publish(array)
+
+
+def run(name: str, values: dict[str, Any], base: Path | None, ros_args: list[str]) -> int:
+    """Start the node; a bad parameter or model refuses before rclpy starts (ValueError, one line)."""
+    use_sim_time = bool(values.pop("use_sim_time", False))
+    params = node_params(values, base)
+    segmenter = load_segmenter(params)
+    rclpy.init(args=["segmin", "--ros-args", *ros_args] if ros_args else None)
+    node = RowFollowerNode(name, params, segmenter, use_sim_time)
+    executor = MultiThreadedExecutor(num_threads=3)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,223 @@
+"""The row-follower node's parameters: names, defaults, checks, and the ROS 2 parameter file.
+
+The navigator's and the runtime's parameters keep the names of `NavigatorConfig` and
+`RuntimeConfig` (taken from the dataclasses, so they cannot drift apart); the node adds its own
+(`NodeSettings`: model, topics, pairing, outputs, `enabled`). A parameter file is the standard
+one ROS 2 reads:
+
+    segmin_row_follower:
+      ros__parameters:
+        method: segmind
+        ...
+
+`load_params_file` reads it and `node_params` checks every value (unknown names, wrong types,
+out-of-range values: ValueError naming the parameter) before the node starts; the same check
+answers a `ros2 param set` while it runs. `defaults_yaml` writes the defaults, commented. No ROS
+import: the checks run, and are tested, without rclpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.runtime.follower import RuntimeConfig
+from segmin.nav_eval.runtime.methods import PAPER_METHODS
+from segmin.nav_eval.runtime.navigator import NavigatorConfig
+
+NODE_NAME = "segmin_row_follower"
+# ROS's own parameters a node always has: passed through to rclpy, not checked here.
+ROS_PARAMETERS = ("use_sim_time",)
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """What the node adds to the navigator and the runtime (see the docs of each in `DESCRIPTIONS`)."""
+
+    model: str = ""
+    threads: int = 2
+    enabled: bool = False
+    colour_topic: str = topics.COLOUR
+    depth_topic: str = topics.DEPTH
+    cmd_vel_topic: str = topics.CMD_VEL
+    twist_stamped: bool = False
+    publish_on_timer: bool = False
+    base_frame: str = topics.BASE_FRAME
+    slop_s: float = 0.01
+    publish_overlay: bool = False
+    publish_diagnostics: bool = True
+
+    def __post_init__(self) -> None:
+        if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
+            raise ValueError(f"threads must be an integer >= 1, got {self.threads!r}")
+        if not (math.isfinite(self.slop_s) and 0 <= self.slop_s < 0.5):
+            raise ValueError(f"slop_s must be a number of seconds within [0, 0.5), got {self.slop_s!r}")
+        for name in ("colour_topic", "cmd_vel_topic"):
+            if not getattr(self, name):
+                raise ValueError(f"{name} must name a topic")
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    """Every checked parameter of the node, as the objects the runtime takes."""
+
+    navigator: NavigatorConfig
+    runtime: RuntimeConfig
+    node: NodeSettings
+
+
+DESCRIPTIONS: dict[str, str] = {
+    "method": f"navigation method: {', '.join(PAPER_METHODS)} (segmind needs depth_topic)",
+    "depth_threshold": "depth cut d_th in metres (paper: 5 vineyards, 8 pear rows and pergolas, 10 tall trees)",
+    "fuse_frames": "masks ORed per command (paper: 3)",
+    "smooth_window": "columns of the histogram's moving average (odd)",
+    "v_max": "top forward speed, m/s",
+    "omega_max": "top turn rate, rad/s",
+    "omega_gain": "turn rate per pixel of target offset, rad/s/px",
+    "ema_lambda": "EMA weight of a new command, (0, 1]",
+    "zeros_min_width": "SegZeros: narrowest free run of columns",
+    "zeros_startup_border": "SegZeros: share of each image border ignored at start-up",
+    "zeros_track_tolerance": "SegZeros: tracking tolerance, share of the width",
+    "segment_hz": "segmentation rate on the latest frame (paper: 20)",
+    "command_hz": "command rate, divides segment_hz (paper: 5); the stop watchdog runs at this rate too",
+    "max_mask_age_s": "a mask older than this at a command is not fused, s",
+    "frame_timeout_s": "no paired frame for this long: the robot is stopped, s",
+    "model": "exported .onnx file (a relative path is read from the parameter file's folder)",
+    "threads": "onnxruntime threads",
+    "enabled": "drive: publish commands. Off at start-up (a robot must not move because a node came up); "
+    "switch with the ~/enable service (std_srvs/SetBool) or this parameter",
+    "colour_topic": "sensor_msgs Image (rgb8, bgr8, rgba8, bgra8) or CompressedImage (jpeg, png): "
+    "a CompressedImage topic ends in /compressed",
+    "depth_topic": "aligned depth: Image 16UC1 (mm) or 32FC1 (m), or CompressedImage (png, compressedDepth) on "
+    "a topic ending in /compressed or /compressedDepth; empty: no depth (segmin, segzeros only)",
+    "cmd_vel_topic": "where commands go",
+    "twist_stamped": "publish geometry_msgs/TwistStamped (stamped with the image that gave the command) "
+    "instead of Twist",
+    "publish_on_timer": "false: a fresh command goes out as soon as it is computed (lowest latency; its period "
+    "jitters with the inference time); true: commands go out only from the command_hz timer (regular period, "
+    "up to one period older)",
+    "base_frame": "frame id of TwistStamped commands",
+    "slop_s": "colour and depth pair when their stamps differ by at most this, s",
+    "publish_overlay": "publish ~/overlay: the camera image with the fused mask and the chosen column",
+    "publish_diagnostics": "publish /diagnostics (diagnostic_msgs/DiagnosticArray) once a second",
+}
+GROUPS = (
+    ("driving", ("enabled", "method", "model", "depth_threshold", "threads")),
+    ("topics", ("colour_topic", "depth_topic", "cmd_vel_topic", "twist_stamped", "base_frame", "slop_s")),
+    ("timing", ("publish_on_timer",)),
+    ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
+    ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
+    ("outputs", ("publish_overlay", "publish_diagnostics")),
+)
+# The file's defaults; depth_threshold has none in NavigatorConfig on purpose: the paper's vineyards'.
+DEFAULTS: dict[str, Any] = {
+    **{f.name: f.default for f in dataclasses.fields(NodeSettings)},
+    **{f.name: f.default for f in dataclasses.fields(NavigatorConfig) if f.default is not dataclasses.MISSING},
+    **{f.name: f.default for f in dataclasses.fields(RuntimeConfig)},
+    "method": "segmind",
+    "depth_threshold": 5.0,
+}
+# Parameters fixed at start-up (subscriptions and publishers are made from them).
+STARTUP_ONLY = (
+    "colour_topic",
+    "depth_topic",
+    "cmd_vel_topic",
+    "twist_stamped",
+    "publish_overlay",
+    "publish_diagnostics",
+)
+
+
+def _typed(name: str, value: Any) -> Any:
+    """`value` as the type of the default (an integer where a float is due is taken: YAML writes 5 for 5.0)."""
+    default = DEFAULTS[name]
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    else:
+        ok = isinstance(value, str)
+    if not ok:
+        raise ValueError(f"parameter {name}: expected {type(default).__name__}, got {value!r}")
+    return value
+
+
+def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
+    """Check `values` (any subset of the parameters; the rest default) and build the configs.
+
+    ValueError names the first bad parameter. A relative `model` is taken from `base`."""
+    unknown = sorted(set(values) - set(DEFAULTS) - set(ROS_PARAMETERS))
+    if unknown:
+        raise ValueError(f"parameter {unknown[0]}: unknown (known: {', '.join(sorted(DEFAULTS))})")
+    merged = {name: _typed(name, values[name]) if name in values else default for name, default in DEFAULTS.items()}
+    if merged["method"] not in PAPER_METHODS:
+        raise ValueError(f"parameter method: {merged['method']!r} is not one of {', '.join(PAPER_METHODS)}")
+    if merged["model"] and base is not None and not Path(merged["model"]).is_absolute():
+        merged["model"] = str(base / merged["model"])
+
+    def build(cls: type) -> Any:
+        names = [f.name for f in dataclasses.fields(cls) if f.init]
+        try:
+            return cls(**{name: merged[name] for name in names})
+        except ValueError as exc:
+            named = next((n for n in names if str(exc).startswith(n)), None)
+            raise ValueError(f"parameter {named}: {exc}" if named else f"parameters: {exc}") from None
+
+    params = NodeParams(build(NavigatorConfig), build(RuntimeConfig), build(NodeSettings))
+    if params.navigator.method == "segmind" and not params.node.depth_topic:
+        raise ValueError("parameter depth_topic: segmind needs depth (or use segmin, which runs on the mask alone)")
+    return params
+
+
+def as_values(params: NodeParams) -> dict[str, Any]:
+    """The parameters as plain name -> value (what the node declares)."""
+    values = {**dataclasses.asdict(params.node), **dataclasses.asdict(params.runtime)}
+    values.update({k: v for k, v in dataclasses.asdict(params.navigator).items() if k in DEFAULTS})
+    return values
+
+
+def load_params_file(path: str | Path) -> tuple[str, dict[str, Any]]:
+    """(node name, parameters) of a ROS 2 parameter file (`name: ros__parameters: {...}`; `/**` allowed)."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not YAML ({' '.join(str(exc).split())})") from None
+    shape = f"{path}: expected one node section, '{NODE_NAME}: ros__parameters: {{...}}'"
+    if not isinstance(data, dict) or len(data) != 1:
+        raise ValueError(shape)
+    ((name, section),) = data.items()
+    if (
+        not isinstance(section, dict)
+        or set(section) != {"ros__parameters"}
+        or not isinstance(section["ros__parameters"], dict)
+    ):
+        raise ValueError(shape)
+    node = NODE_NAME if str(name) in ("/**", "**") else str(name).lstrip("/")
+    return node, dict(section["ros__parameters"])
+
+
+def defaults_yaml(node: str = NODE_NAME) -> str:
+    """A parameter file of the defaults, each parameter with its description."""
+    lines = [
+        "# segmin row-follower node: `segmin ros2 follow --params THIS_FILE`.",
+        "# Names are those of NavigatorConfig / RuntimeConfig and the node's own settings.",
+        f"{node}:",
+        "  ros__parameters:",
+    ]
+    for title, names in GROUPS:
+        lines.append(f"    # --- {title}")
+        for name in names:
+            value = yaml.safe_dump({name: DEFAULTS[name]}, default_flow_style=True).strip()[1:-1]
+            lines.append(f"    # {DESCRIPTIONS[name]}")
+            lines.append(f"    {value}")
+    return "\n".join(lines) + "\n"

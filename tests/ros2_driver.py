@@ -1,0 +1,223 @@
+"""Drives the row-follower node under a real rclpy; run by test_ros2_node.py in the ROS environment.
+
+Usage (inside a network namespace holding only loopback, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST):
+
+    ROSENV/bin/python tests/ros2_driver.py BAG PARAMS OUT.json [RATE]
+
+RATE (default 1) scales the playback speed; /clock follows the bag's time whatever the rate, so
+the node's runtime sees the same stamps and the same clock (a loaded CI machine plays slower, so
+that the node's queue of one frame drops none).
+
+Starts `segmin ros2 follow --params PARAMS` as a child process (use_sim_time: this script owns
+/clock), then, in phases, with colour + depth from BAG (a simulated run, restamped by an
+offset so that each phase's stamps come after the last):
+
+1. disabled: the bag's first second of frames -> the node must publish nothing;
+2. ~/enable true; the whole bag at its recorded rate (times RATE) -> TwistStamped commands (stamped with the
+   image that gave them) to compare with the bag's /cmd_vel;
+3. stall: no frames, the clock runs on -> the watchdog stops the robot after frame_timeout_s;
+4. good frames, one colour frame with a wrong encoding, good frames -> an immediate stop, and
+   commands again after it (the node alive);
+5. a bad parameter (v_max = -1) -> refused with its reason, the node alive;
+6. ~/enable false -> one stop, then silence.
+
+Writes what it saw as JSON; the test asserts on it. rclpy is imported only here, never by pytest.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from geometry_msgs.msg import TwistStamped
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from rosbags.highlevel import AnyReader
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image
+from std_srvs.srv import SetBool
+
+COLOUR, DEPTH = "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw"
+NODE = "segmin_row_follower"
+NS = 10**9
+
+
+def read_bag(path: Path) -> tuple[list[tuple[int, str, bytes]], list[tuple[int, float, float]]]:
+    frames, commands = [], []
+    with AnyReader([path]) as reader:
+        for connection, t, raw in reader.messages():
+            if connection.topic in (COLOUR, DEPTH):
+                frames.append((t, connection.topic, bytes(raw)))
+            elif connection.topic == "/cmd_vel":
+                twist = reader.deserialize(raw, connection.msgtype)
+                commands.append((t, twist.linear.x, twist.angular.z))
+    return frames, commands
+
+
+class Driver(Node):
+    def __init__(self) -> None:
+        super().__init__("segmin_test_driver")
+        sensor = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.pub = {
+            COLOUR: self.create_publisher(Image, COLOUR, sensor),
+            DEPTH: self.create_publisher(Image, DEPTH, sensor),
+        }
+        self.clock_pub = self.create_publisher(Clock, "/clock", 10)
+        self.received: list[tuple[float, int, float, float]] = []  # (wall, stamp ns, v, omega)
+        self.create_subscription(TwistStamped, "/cmd_vel", self._on_cmd, 100)
+        self.enable = self.create_client(SetBool, f"/{NODE}/enable")
+        self.set_params = self.create_client(SetParameters, f"/{NODE}/set_parameters")
+        self.clock_ns = 1000 * NS
+        self.rate = 1.0
+
+    def _on_cmd(self, message: TwistStamped) -> None:
+        stamp = message.header.stamp.sec * NS + message.header.stamp.nanosec
+        self.received.append((time.monotonic(), stamp, message.twist.linear.x, message.twist.angular.z))
+
+    def spin_for(self, seconds: float, clock_advance: bool = True) -> None:
+        """Spin, advancing /clock with the wall clock (100 Hz)."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if clock_advance:
+                self.set_clock(self.clock_ns + 10_000_000)
+            rclpy.spin_once(self, timeout_sec=0.01)
+
+    def set_clock(self, ns: int) -> None:
+        self.clock_ns = max(self.clock_ns, ns)
+        clock = Clock()
+        clock.clock.sec, clock.clock.nanosec = divmod(self.clock_ns, NS)
+        self.clock_pub.publish(clock)
+
+    def play(self, frames: list[tuple[int, str, bytes]], offset_ns: int, encoding: str | None = None) -> None:
+        """Publish frames at their recorded rate, stamps (and /clock) shifted by offset_ns."""
+        start_wall, start_t = time.monotonic(), frames[0][0]
+        for t, topic, raw in frames:
+            while (time.monotonic() - start_wall) * self.rate < (t - start_t) / NS:
+                rclpy.spin_once(self, timeout_sec=0.002)
+            self.set_clock(t + offset_ns)
+            message = deserialize_message(raw, Image)
+            stamp = message.header.stamp.sec * NS + message.header.stamp.nanosec + offset_ns
+            message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, NS)
+            if encoding is not None and topic == COLOUR:
+                message.encoding = encoding
+            self.pub[topic].publish(message)
+            rclpy.spin_once(self, timeout_sec=0)
+
+    def call(self, client, request, timeout: float = 10.0):
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise RuntimeError(f"service {client.srv_name} not available")
+        future = client.call_async(request)
+        end = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < end:
+            self.spin_for(0.01)
+        return future.result()
+
+
+def disabled_then_bag(driver: Driver, frames: list, result: dict) -> None:
+    """Phases 1 and 2: frames while disabled, the enable service, the whole bag."""
+    phase = result["phases"]
+    driver.play([f for f in frames if f[0] < frames[0][0] + NS], driver.clock_ns + NS - frames[0][0])
+    driver.spin_for(0.6)
+    phase["disabled"] = len(driver.received)
+    response = driver.call(driver.enable, SetBool.Request(data=True))
+    phase["enable_response"] = [response.success, response.message]
+    offset = driver.clock_ns + NS - frames[0][0]
+    result["bag_offset_ns"] = offset
+    first = len(driver.received)
+    driver.play(frames, offset)
+    phase["bag"] = [first, len(driver.received)]
+    result["last_frame_ns"] = frames[-1][0] + offset
+
+
+def stall_and_bad_input(driver: Driver, frames: list, result: dict) -> None:
+    """Phases 3 to 5: a stalled camera, a frame of a wrong encoding, a bad parameter."""
+    phase = result["phases"]
+    start = len(driver.received)
+    driver.spin_for(1.5)
+    phase["stall"] = [start, len(driver.received)]
+    good = [f for f in frames if f[0] < frames[0][0] + NS // 2]
+    start = len(driver.received)
+    driver.play(good, driver.clock_ns + NS - frames[0][0])
+    driver.spin_for(0.1)
+    before_bad = len(driver.received)
+    driver.play(good[:2], driver.clock_ns + NS // 10 - good[0][0], encoding="yuv422")
+    driver.spin_for(0.1)
+    after_bad = len(driver.received)
+    driver.play(good, driver.clock_ns + NS // 10 - good[0][0])
+    driver.spin_for(0.3)
+    phase["bad_encoding"] = [start, before_bad, after_bad, len(driver.received)]
+    value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0)
+    answer = driver.call(driver.set_params, SetParameters.Request(parameters=[ParameterMsg(name="v_max", value=value)]))
+    phase["bad_parameter"] = [answer.results[0].successful, answer.results[0].reason]
+    driver.spin_for(0.3)
+
+
+def disable(driver: Driver, frames: list, result: dict) -> None:
+    """Phase 6: one stop, then silence while frames still come."""
+    start = len(driver.received)
+    response = driver.call(driver.enable, SetBool.Request(data=False))
+    driver.spin_for(0.3)
+    middle = len(driver.received)
+    good = [f for f in frames if f[0] < frames[0][0] + NS // 2]
+    driver.play(good, driver.clock_ns + NS // 10 - good[0][0])
+    driver.spin_for(0.5)
+    result["phases"]["disable"] = [start, middle, len(driver.received), response.message]
+
+
+def stop(node: subprocess.Popen) -> tuple[int, str]:
+    """Ctrl-C the node; its exit code and its log."""
+    if node.poll() is None:
+        node.send_signal(signal.SIGINT)
+        try:
+            node.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            node.kill()
+    code = node.wait()
+    return code, node.stdout.read() if node.stdout else ""
+
+
+def main() -> int:
+    bag, params, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+    rate = float(sys.argv[4]) if len(sys.argv) > 4 else 1.0
+    frames, bag_commands = read_bag(bag)
+    segmin = Path(sys.executable).with_name("segmin")
+    node = subprocess.Popen(
+        [str(segmin), "ros2", "follow", "--params", str(params)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    rclpy.init()
+    driver = Driver()
+    driver.rate = rate
+    result: dict = {"bag_commands": bag_commands, "phases": {}, "rate": rate}
+    try:
+        if not driver.enable.wait_for_service(timeout_sec=60):
+            raise RuntimeError("the node's ~/enable service never appeared")
+        driver.spin_for(0.5)
+        disabled_then_bag(driver, frames, result)
+        stall_and_bad_input(driver, frames, result)
+        disable(driver, frames, result)
+        result["alive"] = node.poll() is None
+    finally:
+        result["received"] = driver.received
+        driver.destroy_node()
+        rclpy.try_shutdown()
+        result["node_exit"], result["node_log"] = stop(node)
+        out.write_text(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    sys.exit(main())

@@ -1,0 +1,239 @@
+"""The row-follower node's rules without ROS: its parameters and `FollowerCore` (what it publishes).
+
+Messages are the `rosbags` message objects of bag_helpers, which have the fields rclpy's have.
+The node under a real rclpy is tested in test_ros2_node.py (`make test-ros2`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bag_helpers import depth_message, image_message
+from test_replay_bags import GreenSegmenter
+from test_sim_bags import _episode
+
+from segmin.app.cli import main
+from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.ros2.core import LOG_EVERY_S, FollowerCore, Outgoing
+from segmin.nav_eval.ros2.params import DEFAULTS, DESCRIPTIONS, GROUPS, defaults_yaml, load_params_file, node_params
+from segmin.nav_eval.runtime.navigator import NavigatorConfig
+
+# ---- parameters ----------------------------------------------------------------------------
+
+
+def test_the_defaults_file_lists_every_parameter_once_and_reads_back(tmp_path, capsys) -> None:
+    grouped = [name for _, names in GROUPS for name in names]
+    assert sorted(grouped) == sorted(DEFAULTS) == sorted(DESCRIPTIONS)
+    assert main(["ros2", "params", "--out", str(tmp_path / "p.yaml")]) == 0
+    name, values = load_params_file(tmp_path / "p.yaml")
+    assert name == "segmin_row_follower" and values == DEFAULTS
+    params = node_params(values)
+    assert params.navigator == NavigatorConfig(method="segmind", depth_threshold=5.0)
+    assert params.node.enabled is False  # a robot must not move because a node came up
+    assert main(["ros2", "params"]) == 0
+    assert capsys.readouterr().out.count("\n") > 2 * len(DEFAULTS)
+
+
+def test_parameter_names_follow_the_runtime_configs() -> None:
+    navigator = {f.name for f in dataclasses.fields(NavigatorConfig)}
+    assert navigator <= set(DEFAULTS)
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"gain": 1.0}, "parameter gain: unknown"),
+        ({"v_max": -1.0}, "parameter v_max: v_max must be a finite number > 0"),
+        ({"fuse_frames": 2.5}, "parameter fuse_frames: expected int"),
+        ({"enabled": "yes"}, "parameter enabled: expected bool"),
+        ({"method": "segmax"}, "parameter method: 'segmax' is not one of"),
+        ({"command_hz": 3}, "parameter segment_hz: segment_hz (20) must be a multiple of command_hz (3)"),
+        ({"depth_topic": ""}, "parameter depth_topic: segmind needs depth"),
+        ({"slop_s": 0.6}, "parameter slop_s: slop_s must be"),
+    ],
+)
+def test_bad_parameters_are_named(values, message) -> None:
+    with pytest.raises(ValueError, match=r"^" + message.replace("(", r"\(").replace(")", r"\)")):
+        node_params(values)
+
+
+def test_parameter_files_the_way_ros_writes_them(tmp_path) -> None:
+    path = tmp_path / "p.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    v_max: 1\n    model: m.onnx\n    use_sim_time: true\n")
+    name, values = load_params_file(path)
+    assert name == "segmin_row_follower"
+    params = node_params(values, base=tmp_path)
+    assert params.navigator.v_max == 1.0 and params.node.model == str(tmp_path / "m.onnx")
+    for text in (
+        "v_max: 1\n",
+        "a:\n  ros__parameters: {}\nb:\n  ros__parameters: {}\n",
+        "a:\n  params: {}\n",
+        "a: [\n",
+    ):
+        path.write_text(text)
+        with pytest.raises(ValueError, match=str(path)):
+            load_params_file(path)
+
+
+# ---- FollowerCore --------------------------------------------------------------------------
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.sent: list[Outgoing] = []
+        self.logged: list[str] = []
+
+
+def _core(enabled: bool = True, **values: object) -> tuple[FollowerCore, Recorder]:
+    out = Recorder()
+    params = node_params({"enabled": enabled, **values})
+    return FollowerCore(params, GreenSegmenter(), out.sent.append, out.logged.append), out
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> tuple[list, list]:
+    """(frames as (t, colour message, depth message), the simulator's commands) of a recorded run."""
+    from rosbags.highlevel import AnyReader
+
+    bag = tmp_path_factory.mktemp("core") / "run"
+    episode, _ = _episode(GreenSegmenter(), bag=bag)
+    by_t: dict[int, dict] = {}
+    with AnyReader([bag]) as reader:
+        wanted = [c for c in reader.connections if c.topic in (topics.COLOUR, topics.DEPTH)]
+        for connection, t, raw in reader.messages(connections=wanted):
+            by_t.setdefault(t, {})[connection.topic] = reader.deserialize(raw, connection.msgtype)
+    frames = [(t / 1e9, m[topics.COLOUR], m[topics.DEPTH]) for t, m in sorted(by_t.items())]
+    return frames, episode.commands
+
+
+def _stamp_s(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def test_the_core_publishes_the_simulators_commands_at_once(run) -> None:
+    frames, commands = run
+    core, out = _core()
+    for i, (t, colour, depth) in enumerate(frames):
+        first, second = (depth, colour) if i % 2 else (colour, depth)  # either may come first
+        (core.on_depth if first is depth else core.on_colour)(first, t)
+        (core.on_colour if second is colour else core.on_depth)(second, t)
+    sent = [(_stamp_s(o.stamp), o.command.v, o.command.omega) for o in out.sent]
+    assert [s[1:] for s in sent] == [c[1:3] for c in commands]
+    assert [s[0] for s in sent] == pytest.approx([c[0] for c in commands], abs=1e-9)
+    assert out.logged == [] and core.rejected == 0
+
+
+def test_disabled_publishes_nothing_and_disabling_sends_one_stop(run) -> None:
+    frames, _ = run
+    core, out = _core(enabled=False)
+    for t, colour, depth in frames[:12]:
+        core.on_colour(colour, t)
+        core.on_depth(depth, t)
+        core.tick(t, t)
+    assert out.sent == [] and core.frames == 12
+    assert core.set_enabled(True) == "driving enabled"
+    core.on_colour(frames[12][1], frames[12][0])
+    core.on_depth(frames[12][2], frames[12][0])
+    assert core.set_enabled(False) == "driving disabled"
+    assert out.sent[-1].command.v == 0.0 and out.sent[-1].reason == "disabled"
+    count = len(out.sent)
+    core.tick(10.0, 10.0)
+    assert len(out.sent) == count
+
+
+def test_the_watchdog_holds_the_command_then_stops_a_stalled_camera(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    for t, colour, depth in frames[:13]:  # 0.4 s: commands at 0, 0.2, 0.4
+        core.on_colour(colour, t)
+        core.on_depth(depth, t)
+    last = frames[12][0]
+    in_force = out.sent[-1]
+    core.tick(last + 0.2, last + 0.2)  # within 1.5 periods of the last command: silent
+    assert out.sent[-1] is in_force
+    core.tick(last + 0.35, last + 0.35)  # late frames: the command in force, with its image's stamp
+    assert out.sent[-1].command == in_force.command and out.sent[-1].stamp == in_force.stamp
+    core.tick(last + 0.7, last + 0.7)  # past frame_timeout_s: stop
+    assert out.sent[-1].command.v == 0.0 and out.sent[-1].reason.startswith("frame_timeout")
+    assert core.stop_reason(last + 0.7).startswith("frame_timeout")
+
+
+def test_bad_frames_stop_the_robot_at_once_log_once_and_the_runtime_goes_on(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    for t, colour, depth in frames[:4]:
+        core.on_colour(colour, t)
+        core.on_depth(depth, t)
+    t = frames[4][0]
+    for k in range(3):  # a camera sending the wrong encoding
+        bad = image_message(np.zeros((48, 48, 3), np.uint8), t + k * 0.01, "rgb8")
+        bad.encoding = "yuv422"
+        core.on_colour(bad, t + k * 0.01)
+    assert [o.command.v for o in out.sent[-3:]] == [0.0, 0.0, 0.0]
+    assert out.sent[-1].reason.startswith(f"{topics.COLOUR}: colour encoding 'yuv422'")
+    assert len(out.logged) == 1 and "frame dropped, robot stopped" in out.logged[0]
+    core.tick(t + 0.5, t + 0.1)  # the watchdog keeps it stopped
+    assert out.sent[-1].command.v == 0.0
+    for t, colour, depth in frames[4:10]:
+        core.on_colour(colour, t)
+        core.on_depth(depth, t)
+    assert out.sent[-1].command.valid and core.fault is None  # a fresh command clears the fault
+    # A stamp out of order and a depth frame of another size: dropped, named, robot stopped.
+    core.on_colour(frames[2][1], frames[12][0])
+    assert out.sent[-1].reason.startswith(f"{topics.COLOUR}: stamp") and out.sent[-1].command.v == 0.0
+    t = frames[11][0]
+    core.on_colour(frames[11][1], t)
+    core.on_depth(depth_message(np.zeros((24, 48), np.uint16), t, "16UC1"), t)
+    assert "depth is 48x24, rgb is 48x48" in out.sent[-1].reason
+    assert core.rejected == 5
+    assert core.status(t)["frames rejected"] == "5"
+    logged = len(out.logged)
+    bad.header.stamp.sec += 100
+    core.on_colour(bad, t + LOG_EVERY_S)  # the colour topic's warnings come again after LOG_EVERY_S
+    assert len(out.logged) == logged + 1
+
+
+def test_a_depth_frame_without_a_colour_partner_is_logged_and_counted(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    t, colour, depth = frames[0]
+    core.on_depth(depth_message(np.zeros((48, 48), np.uint16), t - 0.5, "16UC1"), t)
+    core.on_colour(colour, t)
+    core.on_depth(depth, t)
+    assert core.pairer.dropped_depth == 1 and core.frames == 1
+    assert len(out.logged) == 1 and "had no partner" in out.logged[0]
+    assert core.status(t)["unpaired depth frames"] == "1"
+
+
+def test_on_the_timer_only_the_timer_publishes_the_command_in_force(run) -> None:
+    frames, commands = run
+    core, out = _core(publish_on_timer=True)
+    for t, colour, depth in frames[:13]:  # commands at 0, 0.2, 0.4
+        core.on_colour(colour, t)
+        core.on_depth(depth, t)
+    assert out.sent == []
+    now = frames[12][0] + 0.01
+    core.tick(now, now)
+    core.tick(now + 0.2, now + 0.2)  # every period, the command in force (no quiet time)
+    assert [(o.command.v, _stamp_s(o.stamp)) for o in out.sent] == [(commands[2][1], pytest.approx(0.4))] * 2
+    core.tick(now + 0.6, now + 0.6)
+    assert out.sent[-1].command.v == 0.0 and out.sent[-1].reason.startswith("frame_timeout")
+
+
+def test_without_a_depth_topic_colour_drives_alone(run) -> None:
+    frames, _ = run
+    core, out = _core(method="segmin", depth_topic="")
+    for t, colour, _ in frames[:7]:
+        core.on_colour(colour, t)
+    assert len(out.sent) == 2 and core.frames == 7
+
+
+def test_follow_without_rclpy_names_what_to_install(tmp_path, capsys) -> None:
+    path = Path(tmp_path / "p.yaml")
+    path.write_text(defaults_yaml())
+    assert main(["ros2", "follow", "--params", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ros-rclpy[fastrtps]" in err[0] and "module 'rclpy' is missing" in err[0]

@@ -1,0 +1,199 @@
+"""Simulated runs written as rosbag2 (MCAP), and the loop closed through the bag.
+
+- recording changes nothing of the run (same commands, same trajectory) although the recorder
+  renders the frames the run skips;
+- the bag holds every camera frame with standard types, frame ids and consistent TF;
+- replaying the bag (`segmin replay --bag`) gives the commands the simulator's runtime issued:
+  v, omega and the target column bit-identical, times within a nanosecond (stamps are ns);
+- `segmin nav-eval --bag` writes one bag per field and method in a real pybullet field.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
+from test_replay_bags import GreenSegmenter
+
+from segmin.app.cli import main
+from segmin.nav_eval.evaluation.rollout import run_episode
+from segmin.nav_eval.replay.bags import bag_frames
+from segmin.nav_eval.replay.run import read_commands_csv, replay
+from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+from segmin.nav_eval.sim.bag_recorder import RunRecorder, quaternion
+from segmin.nav_eval.sim.factories import make_follower, nav_camera
+from segmin.nav_eval.sim.protocols import FrameSegmenter
+from segmin.nav_eval.sim.row_env import RowEnv
+
+LENGTH_M = 1.5
+
+
+class _ImageFrames(FrameSegmenter):
+    """An image segmenter (`segment(rgb)`, as the robot's) on the simulator's frames."""
+
+    name = "image"
+
+    def __init__(self, segmenter) -> None:
+        self.segmenter = segmenter
+
+    def segment_frame(self, frame) -> np.ndarray:
+        return np.asarray(self.segmenter.segment(frame.rgb), dtype=bool)
+
+
+def _episode(segmenter, method: str = "segmind", bag: Path | None = None):
+    world = FakeWorld()
+    config = _config(length_m=LENGTH_M)
+    renderer = FakeRenderer(world)
+    simulator = RowEnv(world, renderer, config)
+    follower = make_follower(method, 5.0, config)
+    frames = _ImageFrames(segmenter)
+    if bag is None:
+        return run_episode(simulator, follower, frames, seed=3), renderer
+    with RunRecorder(bag, nav_camera(config), seed=3, metadata={"method": method}) as recorder:
+        episode = run_episode(simulator, follower, frames, seed=3, recorder=recorder)
+    return episode, renderer
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    bag = tmp_path_factory.mktemp("sim") / "run"
+    plain, plain_renderer = _episode(GreenSegmenter())
+    episode, renderer = _episode(GreenSegmenter(), bag=bag)
+    return bag, plain, plain_renderer, episode, renderer
+
+
+def _read(bag: Path) -> dict[str, list]:
+    from rosbags.highlevel import AnyReader
+
+    out: dict[str, list] = {}
+    with AnyReader([bag]) as reader:
+        for connection, t, raw in reader.messages():
+            out.setdefault(connection.topic, []).append((t, reader.deserialize(raw, connection.msgtype)))
+        types = {name: info.msgtype for name, info in reader.topics.items()}
+    out["types"] = [types]
+    return out
+
+
+def test_recording_changes_nothing_of_the_run(recorded) -> None:
+    _, plain, plain_renderer, episode, renderer = recorded
+    assert episode.reason == "success", episode.reason
+    assert episode.commands == plain.commands
+    assert np.array_equal(episode.trajectory.x, plain.trajectory.x)
+    assert np.array_equal(episode.trajectory.yaw, plain.trajectory.yaw)
+    assert renderer.calls > plain_renderer.calls  # the skipped frames were rendered for the bag
+
+
+def test_the_bag_holds_every_frame_in_standard_messages(recorded) -> None:
+    bag, _, _, episode, _ = recorded
+    messages = _read(bag)
+    types = messages["types"][0]
+    assert types[topics.COLOUR] == "sensor_msgs/msg/Image" and types[topics.ODOM] == "nav_msgs/msg/Odometry"
+    frames = messages[topics.COLOUR]
+    assert len(frames) == len(messages[topics.DEPTH]) == len(messages[topics.IMU]) == len(messages[topics.TF])
+    period = np.diff([t for t, _ in frames])
+    assert np.allclose(period, 1e9 / 30, atol=1)  # every camera frame, 30 Hz
+    assert len(messages[topics.CMD_VEL]) == len(episode.commands)
+    assert [m.linear.x for _, m in messages[topics.CMD_VEL]] == [c[1] for c in episode.commands]
+    t0, colour = frames[0]
+    assert colour.encoding == "rgb8" and colour.header.frame_id == topics.OPTICAL_FRAME
+    assert colour.header.stamp.sec * 10**9 + colour.header.stamp.nanosec == t0
+    depth = messages[topics.DEPTH][0][1]
+    assert depth.encoding == "32FC1" and depth.step == 4 * depth.width
+    info = messages[topics.COLOUR_INFO][0][1]
+    k = nav_camera(_config()).intrinsics()
+    assert list(info.k) == [k["fx"], 0.0, k["cx"], 0.0, k["fy"], k["cy"], 0.0, 0.0, 1.0]
+    static = messages[topics.TF_STATIC][0][1].transforms
+    assert [(s.header.frame_id, s.child_frame_id) for s in static] == [
+        (topics.MAP_FRAME, topics.ODOM_FRAME),
+        (topics.BASE_FRAME, topics.CAMERA_FRAME),
+        (topics.CAMERA_FRAME, topics.OPTICAL_FRAME),
+        (topics.BASE_FRAME, topics.IMU_FRAME),
+    ]
+    # REP 105: map -> odom (static) composed with odom -> base_link is the ground truth.
+    start = static[0].transform
+    odom = messages[topics.ODOM][-1][1].pose.pose.position
+    truth = messages[topics.GROUND_TRUTH][-1][1].pose.pose.position
+    yaw = 2 * math.atan2(start.rotation.z, start.rotation.w)
+    x = start.translation.x + math.cos(yaw) * odom.x - math.sin(yaw) * odom.y
+    y = start.translation.y + math.sin(yaw) * odom.x + math.cos(yaw) * odom.y
+    assert (x, y) == pytest.approx((truth.x, truth.y), abs=1e-9)
+    first = messages[topics.GROUND_TRUTH][0][1].pose.pose.position
+    assert (first.x, first.y) == pytest.approx(episode.start_pose[:2], abs=1e-12)
+
+
+def test_replaying_the_bag_gives_the_commands_of_the_simulator(recorded, tmp_path) -> None:
+    bag, _, _, episode, _ = recorded
+    result = replay(
+        "model.onnx",
+        None,
+        tmp_path / "out",
+        method="segmind",
+        depth_threshold=5.0,
+        source=bag_frames(bag, topics.COLOUR, topics.DEPTH),
+        segmenter=GreenSegmenter(),
+    )
+    assert len(result.commands) == len(episode.commands) > 5
+    assert [(v, w, c) for _, v, w, c, _ in result.commands] == [(v, w, c) for _, v, w, c in episode.commands]
+    assert [r[0] for r in result.commands] == pytest.approx([c[0] for c in episode.commands], abs=1e-9)
+
+
+def test_the_round_trip_holds_with_the_onnx_model(exported, tmp_path) -> None:
+    model = exported[0]
+    episode, _ = _episode(OnnxSegmenter(model, threads=1), bag=tmp_path / "run")
+    argv = ["replay", "--model", str(model), "--bag", str(tmp_path / "run"), "--rgb-topic", topics.COLOUR]
+    argv += ["--depth-topic", topics.DEPTH, "--depth-threshold", "5", "--out", str(tmp_path / "out")]
+    assert main(argv) == 0
+    rows = read_commands_csv(tmp_path / "out" / "commands.csv")
+    assert [(v, w, c) for _, v, w, c, _ in rows] == [(v, w, c) for _, v, w, c in episode.commands]
+
+
+def test_quaternions_of_rotations() -> None:
+    for yaw in (0.0, 1.0, math.pi - 1e-3, -2.5):
+        c, s = math.cos(yaw), math.sin(yaw)
+        q = quaternion(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]))
+        assert q == pytest.approx((0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)), abs=1e-12) or q == pytest.approx(
+            (0.0, 0.0, -math.sin(yaw / 2), -math.cos(yaw / 2)), abs=1e-12
+        )
+    flip = quaternion(np.diag([1.0, -1.0, -1.0]))  # half a turn about x
+    assert abs(flip[0]) == pytest.approx(1.0)
+
+
+def test_nav_eval_writes_a_bag_per_field_and_method(tmp_path, capsys) -> None:
+    out = tmp_path / "eval"
+    argv = ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--methods", "segmin", "--runs", "2"]
+    argv += ["--no-plots", "--no-progress", "--bag", "--out", str(out), "--set", "perception.width=64"]
+    argv += ["perception.height=48", "run.length_m=1.0", "run.time_limit_s=8"]
+    assert main(argv) == 0, capsys.readouterr().err
+    bags = sorted((out / "bags").iterdir())
+    assert [b.name for b in bags] == ["straight_vineyard_segmin"]  # run 0 only, like --video
+    messages = _read(bags[0])
+    colour = messages[topics.COLOUR][0][1]
+    assert (colour.width, colour.height) == (64, 48)
+    imu = messages[topics.IMU][0][1]
+    assert math.hypot(imu.linear_acceleration.x, imu.linear_acceleration.y) < 9.80665 * 0.2  # gentle slopes
+    assert imu.linear_acceleration.z > 9.0
+    assert len(messages[topics.CMD_VEL]) >= 3
+    assert not list(out.rglob("*.partial"))
+
+
+def test_a_run_that_raises_leaves_no_bag(tmp_path) -> None:
+    class Broken(GreenSegmenter):
+        def segment(self, rgb: np.ndarray) -> np.ndarray:
+            raise RuntimeError("inference failed")
+
+    with pytest.raises(RuntimeError, match="inference failed"):
+        _episode(Broken(), bag=tmp_path / "run")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_replay_bench_compares_bag_and_folders(exported, tmp_path, capsys) -> None:
+    episode, _ = _episode(OnnxSegmenter(exported[0], threads=1), bag=tmp_path / "run")
+    argv = ["bench", "replay-bag", "--model", str(exported[0]), "--bag", str(tmp_path / "run"), "--threads", "1"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "replay --bag:" in out and "frames/s" in out
+    assert f"same commands: True ({len(episode.commands)} commands)" in out
