@@ -237,3 +237,17 @@ def test_follow_without_rclpy_names_what_to_install(tmp_path, capsys) -> None:
     assert main(["ros2", "follow", "--params", str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "ros-rclpy[fastrtps]" in err[0] and "module 'rclpy' is missing" in err[0]
+
+
+def test_the_shipped_jackal_parameter_file_is_complete_and_valid() -> None:
+    """Every parameter of the node is in the Jackal file (a new one must be added there too), and
+    its values pass the node's checks."""
+    from segmin.common.shipped import resolve_config
+    from segmin.nav_eval.ros2.params import DEFAULTS, load_params_file, node_params
+
+    path = resolve_config("ros2", "jackal_d435")
+    name, values = load_params_file(path)
+    assert name == "segmin_row_follower" and set(values) == set(DEFAULTS)
+    params = node_params(values, path.parent)
+    assert params.navigator.method == "segmind" and params.runtime.command_hz == 5
+    assert values["enabled"] is False

@@ -144,16 +144,7 @@ def replay(
             cmd = output.command
             result.commands.append((t, cmd.v, cmd.omega, cmd.target_column, cmd.valid))
             video.append(overlay_panel(image, output, depth_threshold))
-    result.files.append(_write_csv(out / "commands.csv", result.commands))
-    result.files.append(write_video(out / "overlay.mp4", video, fps=follower.config.command_hz))
-    plot = _try_plot(out / "commands.png", result.commands)
-    if plot is None:
-        result.notes.append(
-            "commands.png skipped: the plot needs the [sim] extra's matplotlib "
-            "(pip install 'segmin[sim]'); commands.csv and the video are written"
-        )
-    else:
-        result.files.append(plot)
+    _write_outputs(out, result, video, follower.config.command_hz)
     if source is not None:
         result.notes.extend(source.notes())
     if not has_depth:
@@ -166,6 +157,20 @@ def replay(
             "the runtime stopped and restarted there"
         )
     return result
+
+
+def _write_outputs(out: Path, result: ReplayResult, video: list[np.ndarray], command_hz: float) -> None:
+    """commands.csv, overlay.mp4 and (with matplotlib) commands.png, named in `result`."""
+    result.files.append(_write_csv(out / "commands.csv", result.commands))
+    result.files.append(write_video(out / "overlay.mp4", video, fps=command_hz))
+    plot = _try_plot(out / "commands.png", result.commands)
+    if plot is None:
+        result.notes.append(
+            "commands.png skipped: the plot needs the [sim] extra's matplotlib "
+            "(pip install 'segmin[sim]'); commands.csv and the video are written"
+        )
+    else:
+        result.files.append(plot)
 
 
 def _write_csv(path: Path, rows: list[tuple[float, float, float, float | None, bool]]) -> Path:

@@ -21,6 +21,7 @@ KINDS: dict[str, str] = {
     "nav": "closed-loop settings for `segmin nav-eval`",
     "pipeline": "profiles for `segmin pipeline`",
     "sweeps": "robustness sweeps for `segmin robustness`",
+    "ros2": "parameter files for `segmin ros2 follow`",
 }
 # What one config of each kind is called in error messages.
 _SINGULAR = {
@@ -29,6 +30,7 @@ _SINGULAR = {
     "nav": "nav config",
     "pipeline": "pipeline profile",
     "sweeps": "sweep",
+    "ros2": "ROS 2 parameter file",
 }
 
 
