@@ -84,10 +84,12 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _bench_iou_bound(args: argparse.Namespace) -> int:
-    from segmin.train.resolution_bound import iou_bound, load_masks, resize_masks
+    from segmin.train.resolution_bound import check_size, iou_bound, load_masks, resize_masks
 
     if args.steps < 0:
         raise ValueError(f"--steps {args.steps}: must be >= 0")
+    for size in args.sizes:
+        check_size(size)
     masks = load_masks(args.root, args.domains, args.frames)
     print(
         f"IoU ceilings of LR-ASPP (logits at 1/8 resolution, bilinear upsampling) on {args.root}"

@@ -65,12 +65,18 @@ def load_masks(root: str | Path, domains: Sequence[str] | None, limit: int) -> l
     return [read_mask(frame.mask_path) for frame in frames]
 
 
+def check_size(size: int) -> None:
+    """Refuse an input side the logit grid cannot be computed for (callers check every size before
+    printing a table, so an error never follows a header)."""
+    if size < 8:
+        raise ValueError(f"size={size}: need an input side of at least 8 pixels")
+
+
 def resize_masks(masks: Sequence[np.ndarray], size: int) -> np.ndarray:
     """N x size x size float masks, resized with nearest neighbour as the training loader does."""
     import cv2
 
-    if size < 8:
-        raise ValueError(f"size={size}: need an input side of at least 8 pixels")
+    check_size(size)
     resized = [cv2.resize(m, (size, size), interpolation=cv2.INTER_NEAREST_EXACT) for m in masks]
     return np.stack(resized).astype(np.float32)
 

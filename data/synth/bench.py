@@ -17,7 +17,7 @@ import numpy as np
 
 from segmin.common.speed_targets import SpeedTarget
 from segmin.data.synth.camera import CameraModel
-from segmin.data.synth.spec import TEST_FIELDS
+from segmin.data.synth.spec import TEST_FIELDS, WorldSpec
 
 TARGETS: tuple[SpeedTarget, ...] = (SpeedTarget("length_ratio", "200 m / 20 m per-frame render time", 1.5),)
 ROW_LENGTHS = (20.0, 200.0)  # metres: the short and the long straight vineyard of the culling check
@@ -43,7 +43,9 @@ def bench_synth(options: SynthBenchOptions) -> dict[str, float]:
     """Print the table and the row-length check as they are measured; returns the per-frame CPU
     seconds of each row length and their ratio."""
     from segmin.common.machine import load_average
+    from segmin.data.synth.spec import load_world_spec
 
+    specs = {name: load_world_spec(name) for name in options.fields}  # a bad name fails before the table
     camera = options.camera
     print(
         f"segmin bench synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
@@ -53,8 +55,8 @@ def bench_synth(options: SynthBenchOptions) -> dict[str, float]:
     print("cpu ms/frame: render + encode in one process (CPU time, independent of other load)")
     header = f"{'world':20s} " + " ".join(f"{f'{w}w run':>8s} {f'{w}w steady':>10s}" for w in options.workers)
     print(header + f" {'cpu ms/frame':>13s}")
-    for name in options.fields:
-        print(_world_row(name, options), flush=True)
+    for name, spec in specs.items():
+        print(_world_row(name, spec, options), flush=True)
     seconds = {length: _render_seconds_at_length(length, options) for length in ROW_LENGTHS}
     ratio = seconds[ROW_LENGTHS[1]] / seconds[ROW_LENGTHS[0]]
     print(f"200 m / 20 m per-frame render time ratio (CPU): {ratio:.2f}")
@@ -63,12 +65,10 @@ def bench_synth(options: SynthBenchOptions) -> dict[str, float]:
     return {**{f"{length:g} m": s for length, s in seconds.items()}, "length_ratio": ratio}
 
 
-def _world_row(name: str, options: SynthBenchOptions) -> str:
+def _world_row(name: str, spec: WorldSpec, options: SynthBenchOptions) -> str:
     """One table row: frames/s per worker count, and the CPU cost of one frame."""
-    from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.writer import FrameRenderer, RenderJob, encode_frame, render_dataset
 
-    spec = load_world_spec(name)
     cells = []
     for workers in options.workers:
         with tempfile.TemporaryDirectory(prefix="segmin_bench_") as tmp:
