@@ -103,7 +103,10 @@ def render_scene(
     tilt_deg: float = 15.0,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Return (mask bool, depth float32 metres, 0 = no return) for the scene."""
+    """Return (mask bool, depth float32 metres, 0 = no return) for the scene.
+
+    One projection loop per kind of scene element (rows, gaps, canopy, ground), in one function so
+    the painter's order of the elements is visible in one place."""
     focal = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
     centre = (size - 1) / 2
     cols, rows = np.meshgrid(np.arange(size), np.arange(size))

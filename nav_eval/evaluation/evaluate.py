@@ -368,6 +368,8 @@ def run_evaluation(
     an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
     workers <= 1 runs in this process; more uses spawned processes. `video` / `bag`: run 0 of
     each field and method as a video in out/videos, as a rosbag2 (MCAP) in out/bags.
+    Reads top to bottom as plan -> resume -> run (in process or in workers) -> write; kept as one
+    function so the resume rules and the rewrite after every run stay side by side.
     """
     config = config or load_nav_config()
     if str(model) != "oracle" and not Path(model).is_file():

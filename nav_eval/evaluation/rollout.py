@@ -54,7 +54,10 @@ def run_episode(
 ) -> Episode:
     """Drive one run to its end with `follower`, its masks from `segmenter` (the oracle, or a
     model on the rendered images); `pose` replaces the seeded start. `recorder` (a
-    `sim.bag_recorder.RunRecorder`) is given every camera frame and every command."""
+    `sim.bag_recorder.RunRecorder`) is given every camera frame and every command.
+
+    The loop stays whole: rendering, background segmentation, the runtime step and the simulator
+    step interleave per frame, and splitting it would pass that per-frame state around."""
     follower.reset()
     info = simulator.reset(seed, pose)
     period = simulator.camera_period

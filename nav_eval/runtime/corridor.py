@@ -282,7 +282,8 @@ def fit_parallel_rows(
     bends that row's quadratic alone, and in straight rows the extra freedom only follows noise
     (a straight vineyard with 15 % missing plants was left through a gap with per-row quadratics).
     Returns None with too few points or no spread in x. Coordinates are centred first, so the
-    normal equations stay well conditioned.
+    normal equations stay well conditioned. One function: the trim loop and the bend test share
+    the design matrix and the per-row bookkeeping, which smaller pieces would pass back and forth.
     """
     counts = [xs.shape[0] for xs, _ in sides]
     if min(counts, default=0) == 0:

@@ -128,7 +128,10 @@ def _deep_copy(raw: dict[str, Any]) -> dict[str, Any]:
 
 
 def _coerce(hint: Any, value: Any, where: str) -> Any:
-    """Check `value` against a type hint, converting only where the conversion is lossless."""
+    """Check `value` against a type hint, converting only where the conversion is lossless.
+
+    One branch per kind of hint (Optional, Literal, tuple, list, dict, dataclass, scalars) kept in
+    one place on purpose: the rules of what a config accepts read as one table."""
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
     if hint is Any:
