@@ -395,7 +395,7 @@ def test_conv_flops_counts_grouped_and_strided_convolutions(tmp_path) -> None:
 def test_a_malformed_model_info_is_refused_naming_the_file(
     workdir, checkpoint, frames_dir, capsys, model_info, field
 ) -> None:
-    """Issue 13.10: `model_info` a list crashed export with a traceback."""
+    """`model_info` a list crashed export with a traceback."""
     import torch
 
     from segmin.models.lraspp import ARCHITECTURE

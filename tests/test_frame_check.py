@@ -1,4 +1,4 @@
-"""Frames are verified once before training; a worker's error is one line naming the file (issue 13.9)."""
+"""Frames are verified once before training; a worker's error is one line naming the file."""
 
 from __future__ import annotations
 

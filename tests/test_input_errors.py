@@ -1,4 +1,4 @@
-"""Bad inputs fail with one clear message naming the file or the field (issue 13.11)."""
+"""Bad inputs fail with one clear message naming the file or the field."""
 
 from __future__ import annotations
 

@@ -408,7 +408,7 @@ def test_scanning_and_readers_import_without_torch():
 
 
 def test_inspect_decodes_depth_files_and_quick_only_pairs_names(tmp_path, capsys):
-    """Issue 13.5: random bytes or a wrong-size depth file passed `data inspect`."""
+    """Random bytes or a wrong-size depth file passed `data inspect`."""
     from segmin.app.cli import main
 
     sub = make_formatted(tmp_path, "vineyard", ids=(1, 2, 3), depth=True)
@@ -426,7 +426,7 @@ def test_inspect_decodes_depth_files_and_quick_only_pairs_names(tmp_path, capsys
 
 
 def test_inspect_reports_a_half_written_rendered_dataset(tmp_path, capsys):
-    """Issue 13.5: a killed render (meta.json lists every planned frame) reported "no problems"."""
+    """A killed render (meta.json lists every planned frame) reported "no problems"."""
     import json
 
     from segmin.app.cli import main

@@ -1,4 +1,4 @@
-"""nav-eval: broken setups fail before the first run; runs that raise are errors, not results (issue 13.3)."""
+"""Nav-eval: broken setups fail before the first run; runs that raise are errors, not results."""
 
 from __future__ import annotations
 

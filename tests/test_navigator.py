@@ -393,7 +393,7 @@ def test_ema_converges_to_the_constant_command(frame, method, lam) -> None:
     ],
 )
 def test_a_mask_that_is_not_binary_is_refused_with_the_hint(mask, message) -> None:
-    """Issue 13.4: a probability map was taken as a mask (every pixel > 0 counted as vegetation)."""
+    """A probability map was taken as a mask (every pixel > 0 counted as vegetation)."""
     with pytest.raises(ValueError, match=message):
         Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0)).step(mask, depth_frame())
 

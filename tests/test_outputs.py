@@ -1,5 +1,5 @@
 """Output locations are checked before any work: a path below a regular file fails at once,
-naming the path (issue 13.7 / 13.10). The CLI maps these OSErrors to one line, exit 2; the tests
+naming the path. The CLI maps these OSErrors to one line, exit 2; the tests
 call each command's function so they hold before and after that mapping."""
 
 from __future__ import annotations

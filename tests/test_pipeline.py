@@ -289,7 +289,7 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
     ],
 )
 def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:
-    """Issue 13.12: these failed only when their stage ran, after render and training."""
+    """These failed only when their stage ran, after render and training."""
     with pytest.raises(ConfigError, match=message):
         load_pipeline_config("micro", [override])
 

@@ -89,7 +89,7 @@ def test_overrides_and_default_domain(tmp_path):
 
 
 def test_a_sharp_corner_between_long_segments_is_refused():
-    """Issue 13.6: the turn check averaged the segment lengths, so a 60 degree corner between
+    """The turn check averaged the segment lengths, so a 60 degree corner between
     30 m segments passed although the rows cross at the corner."""
     corner = [[0, 0], [30, 0], [30 + 30 * math.cos(math.pi / 3), 30 * math.sin(math.pi / 3)]]
     with pytest.raises(ConfigError, match=r"rows.polyline: turns by 60.0 deg at point 1"):
@@ -99,7 +99,7 @@ def test_a_sharp_corner_between_long_segments_is_refused():
 
 
 def test_a_gap_narrower_than_the_robot_is_refused():
-    """Issue 13.6: rows.spacing=0.3 (less than the robot's width) was accepted."""
+    """Rows.spacing=0.3 (less than the robot's width) was accepted."""
     from segmin.data.synth.spec import MIN_GAP_WIDTH
     from segmin.nav_eval.sim.robot import RobotConfig
 

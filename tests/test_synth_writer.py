@@ -165,7 +165,7 @@ def test_rerun_with_other_settings_is_refused_unless_overwrite(tmp_path):
 
 
 def test_a_second_writer_is_refused_and_a_dead_writers_lock_is_taken_over(tmp_path, caplog):
-    """Issue 13.14: a second render on the same --out deleted the first one's staging folders.
+    """A second render on the same --out deleted the first one's staging folders.
 
     Taking over a dead writer's lock is logged as a warning (whether or not a progress bar shows)."""
     from segmin.common.lock import LockHeldError
@@ -223,7 +223,7 @@ def test_a_killed_writers_lock_is_free_while_its_forked_workers_still_live(tmp_p
 
 
 def test_a_rerun_with_fewer_frames_is_refused_and_more_frames_extend(tmp_path):
-    """Issue 13.2: --frames 3 after --frames 5 exited 0 and rewrote meta.json for 3 frames."""
+    """--frames 3 after --frames 5 exited 0 and rewrote meta.json for 3 frames."""
     domain = tmp_path / "synth_tiny_vineyard"
     render_dataset(_job(tmp_path, frames=5))
     meta = domain / "synth_tiny_vineyard_1" / "meta.json"

@@ -424,7 +424,7 @@ def test_bench_iou_bound_rejects_bad_input_with_one_line(dataset_root, capsys, e
 
 
 def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp_path, capsys):
-    """Issue 13.1: a rerun on an existing --out used to overwrite best.pt/last.pt/metrics.csv silently."""
+    """A rerun on an existing --out used to overwrite best.pt/last.pt/metrics.csv silently."""
     import yaml
 
     from segmin.app.cli import main
@@ -476,7 +476,7 @@ def _interrupt_with_sigint_after(monkeypatch, step: int) -> None:
 def test_ctrl_c_inside_a_step_finishes_the_step_and_resume_is_exact(
     dataset_root, tmp_path, monkeypatch, sigint_delivered
 ):
-    """Issue 13.13: a SIGINT landing after the optimizer update but before the step was counted
+    """A SIGINT landing after the optimizer update but before the step was counted
     used to save "k steps done" with the weights of k+1, so --resume ran a step twice.
 
     metrics.csv must match too: the interrupted epoch's train_loss is a mean over all its steps,
@@ -514,7 +514,7 @@ def test_resume_after_ctrl_c_continues_a_cosine_schedule_exactly(dataset_root, t
 
 
 def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp_path, monkeypatch):
-    """Issue 13.13: a kill -9 during the first epoch left nothing to resume from."""
+    """A kill -9 during the first epoch left nothing to resume from."""
     import segmin.train.loop as loop_module
     from segmin.train.run import fit
 
@@ -551,13 +551,13 @@ def test_mid_epoch_checkpoints_let_a_killed_run_resume_exactly(dataset_root, tmp
     ],
 )
 def test_bad_runtime_settings_are_refused_by_the_config(override, message):
-    """Issue 13.8: threads=-1 and device=gpu failed (or not) deep inside torch."""
+    """Threads=-1 and device=gpu failed (or not) deep inside torch."""
     with pytest.raises(ConfigError, match=message):
         load_train_config(CONFIGS / "quick.yaml", [override])
 
 
 def test_missing_imagenet_weights_are_reported_before_any_data_is_read(tmp_path, monkeypatch, capsys):
-    """Issue 13.8: the shipped trees/vineyards configs use imagenet; without the cached file the
+    """The shipped trees/vineyards configs use imagenet; without the cached file the
     run scanned and checked the whole dataset first, then failed with a traceback."""
     from segmin.app.cli import main
 

@@ -194,7 +194,7 @@ def _figures(run_dir: Path, families: list[str]) -> list[str]:
     return lines
 
 
-# Known figures on the shipped vineyard photos (issue 12; data/real/vineyard_rows/README.md).
+# Known figures on the shipped vineyard photos (data/real/vineyard_rows/README.md).
 REAL_REFERENCES = (
     "the SegMin paper's released vineyard model (ImageNet-pretrained, trained on AgriSeg) scores "
     "mean IoU 0.545 (precision 0.67, recall 0.78) with its own preprocessing; the repository's demo "
