@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from segmin.nav_eval.evaluation.metrics import compute_metrics, heading_average, lateral_mae_mse, mean_std
+from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics, mean_std
 from segmin.nav_eval.sim.robot import Robot, RobotConfig, collides, footprint_distances
 from segmin.nav_eval.sim.track import Trajectory, point_on_polyline, project_onto_polyline
 
@@ -22,9 +22,17 @@ def _arc(radius: float = 8.0, n: int = 400) -> np.ndarray:
     return np.stack([radius * np.sin(a), radius - radius * np.cos(a)], axis=1)
 
 
+def _metrics(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, centreline: np.ndarray) -> dict:
+    """The metric row of a trajectory through the points (x, y) with headings yaw."""
+    ones = np.ones_like(x)
+    traj = Trajectory(t=np.arange(x.size) * 0.1, x=x, y=y, yaw=yaw, v=ones, omega=0 * ones, plant_distance=ones)
+    return compute_metrics(traj, centreline, success=True, clearance_time=1.0, collisions=0)
+
+
 def test_straight_offset_gives_mae_01_mse_001() -> None:
     x = np.linspace(0.5, 19.5, 300)
-    mae, mse = lateral_mae_mse(x, np.full_like(x, 0.1), _straight())
+    row = _metrics(x, np.full_like(x, 0.1), np.zeros_like(x), _straight())
+    mae, mse = row["mae"], row["mse"]
     assert mae == pytest.approx(0.1, abs=1e-9)
     assert mse == pytest.approx(0.01, abs=1e-9)
 
@@ -34,14 +42,15 @@ def test_curved_offset_gives_mae_01_mse_001() -> None:
     a = np.linspace(0.05, 20.0 / radius - 0.05, 500)
     r = radius - 0.1  # 0.1 m to the inside (left) of the arc
     x, y = r * np.sin(a), radius - r * np.cos(a)
-    mae, mse = lateral_mae_mse(x, y, _arc(radius))
+    row = _metrics(x, y, a, _arc(radius))
+    mae, mse = row["mae"], row["mse"]
     assert mae == pytest.approx(0.1, abs=2e-4)
     assert mse == pytest.approx(0.01, abs=5e-5)
     _, lat, tangent = project_onto_polyline(np.stack([x, y], 1), _arc(radius))
     assert np.all(lat > 0)  # inside of a left turn is to the left
     assert np.allclose(tangent, a, atol=0.01)
     # Heading along the arc tangent: zero heading error.
-    assert heading_average(x, y, a, _arc(radius)) == pytest.approx(0.0, abs=0.01)
+    assert row["heading_avg"] == pytest.approx(0.0, abs=0.01)
 
 
 def test_projection_arc_length_and_sign() -> None:
@@ -70,6 +79,7 @@ def test_compute_metrics_row() -> None:
     assert row["v_avg"] == pytest.approx(0.5) and row["omega_std"] == pytest.approx(0.1)
     assert row["min_plant_distance"] == pytest.approx(0.3)
     assert row["clearance_time"] == pytest.approx(9.9)
+    assert tuple(row) == METRIC_KEYS  # the results table's columns follow this order
     failed = compute_metrics(traj, _straight(), success=False, clearance_time=None, collisions=1)
     assert math.isnan(failed["clearance_time"]) and failed["collisions"] == 1
     assert mean_std([1.0, 3.0, float("nan")]) == (2.0, pytest.approx(math.sqrt(2)), 2)
@@ -82,7 +92,6 @@ def test_heading_error_wraps_across_plus_minus_pi() -> None:
     t = np.arange(0, 10, 0.1)
     x = 19.5 - 0.5 * t
     yaw = np.where(np.arange(t.size) % 2, math.pi - 0.05, -math.pi + 0.05)
-    assert heading_average(x, np.zeros_like(x), yaw, centreline) == pytest.approx(0.05, abs=1e-12)
     traj = Trajectory(
         t=t,
         x=x,
@@ -132,3 +141,11 @@ def test_robot_follows_terrain_slope() -> None:
     assert s.z == pytest.approx(0.1) and s.pitch == pytest.approx(math.atan(slope)) and s.roll == pytest.approx(0.0)
     s = robot.reset(1.0, 0.0, math.pi / 2)  # facing +y: the slope rises to the right
     assert s.pitch == pytest.approx(0.0, abs=1e-9) and s.roll == pytest.approx(-math.atan(slope))
+
+
+def test_a_run_with_no_ticks_has_undefined_metrics_but_its_collisions() -> None:
+    empty = Trajectory.from_rows([])
+    row = compute_metrics(empty, _straight(), success=False, clearance_time=None, collisions=1)
+    assert tuple(row) == METRIC_KEYS
+    assert row["collisions"] == 1 and row["distance"] == 0.0
+    assert all(math.isnan(row[key]) for key in METRIC_KEYS if key not in ("collisions", "distance"))

@@ -27,17 +27,18 @@ import numpy as np
 from segmin.common.angles import wrap_angle
 from segmin.nav_eval.sim.track import Trajectory, project_onto_polyline
 
-
-def lateral_mae_mse(x: np.ndarray, y: np.ndarray, centreline: np.ndarray) -> tuple[float, float]:
-    """MAE and MSE of the lateral deviation of the points (x, y) from the centreline."""
-    _, lat, _ = project_onto_polyline(np.stack([x, y], axis=1), centreline)
-    return float(np.mean(np.abs(lat))), float(np.mean(lat**2))
-
-
-def heading_average(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, centreline: np.ndarray) -> float:
-    """Cumulative heading average: mean |yaw - centreline tangent at the projection| (rad)."""
-    _, _, tangent = project_onto_polyline(np.stack([x, y], axis=1), centreline)
-    return float(np.mean(np.abs(wrap_angle(np.asarray(yaw) - tangent))))
+# The per-run metric keys, in the order of the results table's columns (report.CSV_COLUMNS).
+METRIC_KEYS = (
+    "clearance_time",
+    "mae",
+    "mse",
+    "heading_avg",
+    "v_avg",
+    "omega_std",
+    "collisions",
+    "min_plant_distance",
+    "distance",
+)
 
 
 def compute_metrics(
@@ -46,18 +47,7 @@ def compute_metrics(
     """The per-run metric row (plain floats, NaN where undefined)."""
     n = len(traj.t)
     if n == 0:
-        nan = float("nan")
-        return {
-            "clearance_time": nan,
-            "mae": nan,
-            "mse": nan,
-            "heading_avg": nan,
-            "v_avg": nan,
-            "omega_std": nan,
-            "collisions": collisions,
-            "min_plant_distance": nan,
-            "distance": 0.0,
-        }
+        return {**dict.fromkeys(METRIC_KEYS, float("nan")), "collisions": collisions, "distance": 0.0}
     s, lat, tangent = project_onto_polyline(np.stack([traj.x, traj.y], axis=1), centreline)
     return {
         "clearance_time": float(clearance_time) if success and clearance_time is not None else float("nan"),

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from segmin.common.atomic import write_bytes, write_json, write_text
-from segmin.nav_eval.evaluation.metrics import mean_std
+from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, mean_std
 
 # What one evaluation writes to its --out (the figures and videos beside them are named per field).
 RESULT_FILES: tuple[str, ...] = ("results.csv", "results.json", "trajectories.json", "report.md")
@@ -49,15 +49,7 @@ CSV_COLUMNS = (
     "model",
     "success",
     "reason",
-    "clearance_time",
-    "mae",
-    "mse",
-    "heading_avg",
-    "v_avg",
-    "omega_std",
-    "collisions",
-    "min_plant_distance",
-    "distance",
+    *METRIC_KEYS,
     "goal_m",
     "sim_time",
     "wall_time",
