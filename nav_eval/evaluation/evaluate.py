@@ -29,7 +29,7 @@ import numpy as np
 
 from segmin.common.config import from_dict, to_dict
 from segmin.common.outputs import check_output_dir
-from segmin.nav_eval.evaluation.metrics import compute_metrics
+from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics
 from segmin.nav_eval.evaluation.processes import run_in_processes
 from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
@@ -44,18 +44,6 @@ from segmin.nav_eval.sim.factories import (
 from segmin.nav_eval.sim.mask_dropout import with_dropout
 from segmin.nav_eval.sim.protocols import FrameSegmenter
 from segmin.nav_eval.sim.track import Trajectory
-
-METRIC_KEYS = (
-    "clearance_time",
-    "mae",
-    "mse",
-    "heading_avg",
-    "v_avg",
-    "omega_std",
-    "collisions",
-    "min_plant_distance",
-    "distance",
-)
 
 
 @dataclasses.dataclass
