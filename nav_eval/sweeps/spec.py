@@ -8,7 +8,10 @@ spec or nav config key it sets; anything else is an error that lists the known n
 Every variant is built and validated here, before any run: the world through `WorldSpec`'s own
 checks, the nav config through `NavEvalConfig`'s, the navigators of every method through
 `check_navigators`, so a value that makes an invalid field stops the sweep with one line naming
-the sweep file, the parameter, the value and what the validation said.
+the sweep file, the parameter, the value and what the validation said. A parameter that cannot
+act from the base (a robot.skid one on the kinematic robot, the downhill creep on a field without
+a cross slope) is refused as well: every value would drive the same, and the flat lines would
+read as robustness. A spec drives the skid-steer robot unless it says `robot: kinematic`.
 """
 
 from __future__ import annotations
