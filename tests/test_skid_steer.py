@@ -117,6 +117,28 @@ def test_actuator_noise_is_reproducible_from_the_seed() -> None:
     assert np.all(still == 0)  # relative noise: at rest it stays at rest
 
 
+# Clearpath's Jackal controller mixes wheel speeds for a track of wheel_separation 0.37559 m times
+# wheel_separation_multiplier 1.5, its calibration on firm ground (docs/reference/robot-model.md).
+JACKAL_WHEEL_SEPARATION = 0.37559
+JACKAL_SEPARATION_MULTIPLIER = 1.5
+
+
+@pytest.mark.parametrize("v, omega", [(0.5, 0.0), (0.5, 0.4), (0.3, -1.0), (0.0, 1.0)])
+def test_the_default_drive_mixes_wheel_speeds_as_the_jackal_controller_does(v: float, omega: float) -> None:
+    """On firm, flat ground the shipped robot turns as commanded, and the wheel speeds its drive
+    mixes read back to the same yaw rate through the Jackal's own controller geometry."""
+    config = load_nav_config(overrides=["robot.model=skid_steer"]).robot
+    skid = dataclasses.replace(config.skid, noise_std=0.0, longitudinal_slip=0.0)
+    robot = SkidSteerRobot(dataclasses.replace(config, skid=skid), None, None, roughness=0.0)
+    robot.reset(0.0, 0.0, 0.0)
+    vx, _, w = robot.body_velocity(v, omega)
+    assert (vx, w) == (pytest.approx(v), pytest.approx(omega))
+    half = 0.5 * skid.icr_expansion * skid.track_width
+    left, right = v - omega * half, v + omega * half
+    jackal_track = JACKAL_WHEEL_SEPARATION * JACKAL_SEPARATION_MULTIPLIER
+    assert (right - left) / jackal_track == pytest.approx(omega, rel=2e-3, abs=1e-12)
+
+
 def test_the_model_is_chosen_and_checked_by_the_nav_config() -> None:
     world = type(
         "W",

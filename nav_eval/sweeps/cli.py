@@ -16,7 +16,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         description="Run every method on variants of one field, one parameter changed at a time through the "
         "values of a sweep spec (configs/sweeps/*.yaml or your own), with seeded runs. Resumable: finished runs "
         "are stored under OUT/runs and not redone (--force redoes them). Writes sweep.csv, summary.md, "
-        "sweep_<parameter>.png (success rate and MAE against the value) and envelope.png.",
+        "sweep_<parameter>.png (success rate and MAE against the value) and envelope.png (both, for every "
+        "parameter). The robot is the skid-steer one unless the spec says 'robot: kinematic'.",
     )
     sweep.add_argument("spec", help="a shipped sweep (vineyards, trees) or a sweep spec YAML")
     sweep.add_argument("--out", type=Path, required=True, help="output folder (reused to resume)")

@@ -8,7 +8,10 @@ spec or nav config key it sets; anything else is an error that lists the known n
 Every variant is built and validated here, before any run: the world through `WorldSpec`'s own
 checks, the nav config through `NavEvalConfig`'s, the navigators of every method through
 `check_navigators`, so a value that makes an invalid field stops the sweep with one line naming
-the sweep file, the parameter, the value and what the validation said.
+the sweep file, the parameter, the value and what the validation said. A parameter that cannot
+act from the base (a robot.skid one on the kinematic robot, the downhill creep on a field without
+a cross slope) is refused as well: every value would drive the same, and the flat lines would
+read as robustness. A spec drives the skid-steer robot unless it says `robot: kinematic`.
 """
 
 from __future__ import annotations
@@ -45,6 +48,26 @@ def _range_from(value: Any, current: Any) -> Any:
 def _across(value: Any, current: Any) -> Any:
     """The cross component (dz/dy) of the terrain slope; the slope along the rows is kept."""
     return [current[0], value]
+
+
+# The skid-steer coefficients that say how much the ground lets the wheels slide (robot.skid): the
+# `slip` parameter scales them together, as a more or less slippery ground would. The drive's
+# calibrated ICR expansion, the latency and the actuator noise belong to the robot and stay.
+SLIP_COEFFICIENTS = (
+    "icr_expansion_per_roughness",
+    "icr_x",
+    "longitudinal_slip",
+    "slip_per_roughness",
+    "slip_per_slope",
+    "cross_slope_drift",
+)
+
+
+def _slip_scaled(value: Any, current: Any) -> Any:
+    """robot.skid with every slip coefficient times `value` (1: as configured, 0: no slip)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ValueError(f"slip is a factor >= 0 on robot.skid's slip coefficients, got {value!r}")
+    return {**current, **{key: current[key] * value for key in SLIP_COEFFICIENTS}}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,6 +114,21 @@ PARAMETERS: dict[str, Parameter] = {
         "share of masks corrupted (perception.mask_dropout_mode), a weaker segmenter",
     ),
     "latency": Parameter("nav", "robot.skid.latency_ticks", "ticks", "command latency of the skid-steer robot"),
+    "slip": Parameter(
+        "nav",
+        "robot.skid",
+        "x",
+        "how slippery the ground is: every slip coefficient of the skid-steer robot "
+        f"({', '.join(SLIP_COEFFICIENTS)}) times the value (1: as configured, 0: no slip)",
+        _slip_scaled,
+    ),
+    "cross_slope_drift": Parameter(
+        "nav",
+        "robot.skid.cross_slope_drift",
+        "",
+        "sideways creep downhill of the skid-steer robot, v_y = -value tan(roll) |v_x| "
+        "(acts only on a base with a cross slope)",
+    ),
     "robot_model": Parameter("nav", "robot.model", "", "kinematic unicycle or skid_steer"),
 }
 
@@ -105,7 +143,7 @@ class SweepSpec:
     methods: list[str] = dataclasses.field(default_factory=lambda: list(METHODS))
     runs: int = 2  # seeded runs per value and method (seeds shared across values)
     seed: int = 0
-    robot: Literal["kinematic", "skid_steer"] = "kinematic"
+    robot: Literal["kinematic", "skid_steer"] = "skid_steer"  # the harder robot unless a spec says otherwise
     nav_config: str = "default"  # shipped nav config name or path
     overrides: list[str] = dataclasses.field(default_factory=list)  # nav config key=value for every variant
 
@@ -204,6 +242,9 @@ def plan_sweep(spec: SweepSpec, where: str, overrides: list[str] | tuple[str, ..
     variants = []
     for name, values in spec.parameters.items():
         parameter = PARAMETERS[name]
+        inert = _inert_reason(name, world_raw, config_raw)
+        if inert:
+            raise ConfigError(f"{where}: parameters.{name}: {inert}, so every value would drive the same")
         for value in values:
             variant = Variant(name, value, copy.deepcopy(world_raw), copy.deepcopy(config_raw))
             raw, cls, what = (
@@ -211,8 +252,8 @@ def plan_sweep(spec: SweepSpec, where: str, overrides: list[str] | tuple[str, ..
                 if parameter.target == "world"
                 else (variant.config, NavEvalConfig, "nav config")
             )
-            _set(raw, parameter, value)
             try:
+                _set(raw, parameter, value)
                 checked = from_dict(cls, raw, where=what)
                 if parameter.target == "nav":
                     check_navigators(base, field_label(spec.base), spec.methods, checked)
@@ -229,6 +270,15 @@ def plan_sweep(spec: SweepSpec, where: str, overrides: list[str] | tuple[str, ..
             variants.append(variant)
     check_navigators(base, field_label(spec.base), spec.methods, config)
     return SweepPlan(spec, where, Path(where).stem, field_label(spec.base), world_raw, config, variants)
+
+
+def _inert_reason(name: str, world: dict, config: dict) -> str | None:
+    """Why sweeping `name` from this base changes nothing the robot meets (None: it does)."""
+    if PARAMETERS[name].key.startswith("robot.skid") and config["robot"]["model"] != "skid_steer":
+        return f"robot.skid acts on the skid-steer robot only and this sweep's robot is {config['robot']['model']}"
+    if name == "cross_slope_drift" and world["terrain"]["slope"][1] == 0:
+        return "the base field has no cross slope (terrain.slope[1] = 0) for the creep to act on"
+    return None
 
 
 def _set(raw: dict, parameter: Parameter, value: Any) -> None:
