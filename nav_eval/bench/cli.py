@@ -1,5 +1,6 @@
 """`segmin bench nav-eval` (simulated seconds per wall second), `segmin bench navigator`
-(the navigators and the runtime per frame) and `segmin bench replay-bag` (bag replay frames/s)."""
+(the navigators and the runtime per frame), `segmin bench replay-bag` (bag replay frames/s) and
+`segmin bench gym` (the Gymnasium env's steps/s)."""
 
 from __future__ import annotations
 
@@ -51,6 +52,15 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     bag.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
     bag.set_defaults(func=_bench_replay_bag)
 
+    gym = bench.add_parser(
+        "gym", help="segmin/RowFollow-v0 env steps/s: single, make_vec sync and async, per observation option"
+    )
+    gym.add_argument("--field", default="straight_vineyard", help="field to drive (default straight_vineyard)")
+    gym.add_argument("--steps", type=int, default=150, help="timed steps per setting (default 150)")
+    gym.add_argument("--sizes", type=int, nargs="+", default=[224, 112], help="camera sides, px (default 224 112)")
+    gym.add_argument("--num-envs", type=int, nargs="+", default=[1, 2], help="vector sizes (default 1 2)")
+    gym.set_defaults(func=_bench_gym)
+
 
 def _bench(args: argparse.Namespace) -> int:
     from segmin.nav_eval.bench.closed_loop import NavEvalBenchOptions, bench_nav_eval
@@ -85,4 +95,13 @@ def _bench_navigator(args: argparse.Namespace) -> int:
     single_thread_environment()
     print(format_rows(bench_navigator(size=args.size, steps=args.steps), args.size))
     print(bench_runtime(size=args.size, steps=args.steps, model=args.model, threads=args.threads))
+    return 0
+
+
+def _bench_gym(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.bench.gym import bench_gym, format_gym_rows
+
+    if args.steps < 1 or any(s < 8 for s in args.sizes) or any(n < 1 for n in args.num_envs):
+        raise ValueError("bench gym: --steps, --num-envs must be >= 1 and --sizes >= 8 px")
+    print(format_gym_rows(bench_gym(args.field, args.sizes, args.steps, args.num_envs)))
     return 0
