@@ -42,7 +42,9 @@ class Executor:
         if self.kind not in EXECUTORS:
             raise ValueError(f"executor: {self.kind!r} is not one of {list(EXECUTORS)}")
         if self.ray_address is not None and self.kind != "ray":
-            raise ValueError(f"ray address {self.ray_address!r} given with executor {self.kind!r}: use --executor ray")
+            raise ValueError(
+                f"ray address {self.ray_address!r} given with executor {self.kind!r}: an address is for the ray executor"
+            )
 
     def run(
         self,
