@@ -313,3 +313,13 @@ def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
     for a, b, c in zip(first, again, from_async, strict=True):
         for key in a:
             assert np.array_equal(a[key], b[key]) and np.array_equal(a[key], c[key]), key
+
+
+def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env() -> None:
+    from segmin.nav_eval.bench.gym import GymBenchRow, format_gym_rows, time_env
+
+    rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard")
+    table = format_gym_rows(
+        [GymBenchRow("single", 1, "mask+depth", 16, rate / 2), GymBenchRow("sync", 2, "mask+depth", 16, rate)]
+    )
+    assert rate > 0 and "| mask+depth | 16 | sync | 2 |" in table and "| 2.00 |" in table
