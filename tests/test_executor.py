@@ -5,6 +5,7 @@ line. The Ray tests share one local Ray instance (2 CPUs, no dashboard, loopback
 from __future__ import annotations
 
 import csv
+import functools
 import sys
 from pathlib import Path
 
@@ -97,3 +98,29 @@ def test_a_bad_executor_choice_is_one_line(tmp_path, capsys, monkeypatch) -> Non
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pip install 'segmin[cluster]'" in err[0]
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_bench_executor_times_both_executors(ray_instance, capsys) -> None:
+    from segmin.nav_eval.bench.executor import ExecutorBenchOptions, bench_executor
+
+    options = ExecutorBenchOptions(frames=2, size=32, runs=3, rounds=1, nav_overrides=tuple(NAV))
+    ratios = bench_executor(options)
+    assert set(ratios) == {"render", "nav-eval"} and all(0 < r < 100 for r in ratios.values())
+    assert "ray / local time: render 2 frames" in capsys.readouterr().out
+
+
+def test_a_ray_actor_that_dies_fails_only_its_job(ray_instance) -> None:
+    import test_processes
+    from test_processes import SquareWorker
+
+    ray_instance.cloudpickle.register_pickle_by_value(test_processes)  # the actors cannot import tests/
+
+    results: dict[int, object] = {}
+    RAY.run([1, 2, 13, 4, 5], functools.partial(SquareWorker, 100), 2, results.__setitem__, lambda job, why: why)
+    assert sorted(results) == [1, 2, 4, 5, 13] and "Ray actor died" in str(results[13]), results
+    assert {job: value for job, (value, _) in ((j, r) for j, r in results.items() if j != 13)} == {
+        1: 101,
+        2: 104,
+        4: 116,
+        5: 125,
+    }
