@@ -258,3 +258,68 @@ except ModuleNotFoundError as exc:
 """
     done = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
     assert "needs gymnasium, part of the [sim] extra" in done.stdout, done.stdout + done.stderr[-2000:]
+
+
+def test_obs_keys_pick_the_observation_and_its_space() -> None:
+    world = FakeWorld()
+    env = RowFollowEnv(
+        None, config=_config(), world=world, renderer=FakeRenderer(world, size=32), obs_keys=("mask", "depth")
+    )
+    check_env(env, skip_render_check=True)
+    obs, info = env.reset(seed=2)
+    assert sorted(obs) == ["depth", "mask"] and env.observation_space.contains(obs)
+    assert obs["mask"].dtype == np.uint8 and np.array_equal(obs["mask"].astype(bool), info["mask"])
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        ({"obs_keys": ("rgb", "colour")}, "obs_keys"),
+        ({"obs_keys": ()}, "obs_keys"),
+        ({"obs_keys": ("depth", "depth")}, "obs_keys"),
+        ({"size": 0}, "size"),
+        ({"size": (32, 32, 3)}, "size"),
+        ({"size": "small"}, "size"),
+    ],
+)
+def test_bad_observation_options_are_refused_by_name(option: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        RowFollowEnv("straight_vineyard", overrides=TINY, **option)
+
+
+def _rollout(env, seed: int, steps: int = 3) -> list[dict]:
+    obs, _ = env.reset(seed=seed)
+    frames = [obs]
+    for _ in range(steps):
+        obs, *_ = env.step(np.tile([0.4, 0.05], (env.num_envs, 1)))
+        frames.append(obs)
+    return frames
+
+
+def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
+    """Sub-env i is reset with seed + i (Gymnasium's vector rule): distinct start poses, the same
+    ones again for the same seed, and the same in an async vector (a process and a pybullet client per env) as in sync."""
+    options = {"overrides": TINY, "obs_keys": ("mask", "depth", "attitude"), "size": (24, 32)}
+    sync = gymnasium.make_vec("segmin/RowFollow-v0", num_envs=2, vectorization_mode="sync", **options)
+    first, again = _rollout(sync, seed=7), _rollout(sync, seed=7)
+    sync.close()
+    vec = gymnasium.make_vec("segmin/RowFollow-v0", num_envs=2, vectorization_mode="async", **options)
+    try:
+        assert vec.observation_space.contains(first[0]) and vec.single_observation_space["mask"].shape == (24, 32)
+        from_async = _rollout(vec, seed=7)
+    finally:
+        vec.close()
+    assert not np.array_equal(first[0]["attitude"][0], first[0]["attitude"][1])  # distinct seeds
+    for a, b, c in zip(first, again, from_async, strict=True):
+        for key in a:
+            assert np.array_equal(a[key], b[key]) and np.array_equal(a[key], c[key]), key
+
+
+def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env() -> None:
+    from segmin.nav_eval.bench.gym import GymBenchRow, format_gym_rows, time_env
+
+    rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard")
+    table = format_gym_rows(
+        [GymBenchRow("single", 1, "mask+depth", 16, rate / 2), GymBenchRow("sync", 2, "mask+depth", 16, rate)]
+    )
+    assert rate > 0 and "| mask+depth | 16 | sync | 2 |" in table and "| 2.00 |" in table

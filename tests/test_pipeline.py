@@ -286,6 +286,8 @@ def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Pat
         ("nav.oracle_methods=[]", "nav.oracle_methods: name at least one method"),
         ("export.verify_frames=0", "export.verify_frames must be >= 1"),
         ("export.latency_frames=0", "export.latency_frames must be >= 1"),
+        ("executor=dask", "executor: 'dask' is not one of"),
+        ("ray_address=auto", "an address is for the ray executor"),
     ],
 )
 def test_settings_that_would_fail_late_fail_when_the_profile_loads(override, message) -> None:

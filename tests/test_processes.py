@@ -1,11 +1,11 @@
-"""Jobs in worker processes (nav_eval.evaluation.processes): one worker per process, crashes contained."""
+"""Jobs in worker processes (segmin.common.processes): one worker per process, crashes contained."""
 
 from __future__ import annotations
 
 import functools
 import os
 
-from segmin.nav_eval.evaluation.processes import run_in_processes
+from segmin.common.processes import run_in_processes
 
 
 class SquareWorker:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from segmin.common.cli_args import NamesThenOverrides, add_overrides, overrides_of
+from segmin.common.cli_args import NamesThenOverrides, add_executor_options, add_overrides, executor_of, overrides_of
 
 
 def register(commands, bench) -> None:
@@ -17,6 +17,7 @@ def register(commands, bench) -> None:
     r.add_argument("--frames", type=int, required=True, help="number of frames in the whole dataset")
     r.add_argument("--out", type=Path, required=True, help="dataset root (DIR/<domain>/<domain>_<k>/...)")
     r.add_argument("--workers", type=int, default=1, help="parallel render processes (default 1)")
+    add_executor_options(r)
     r.add_argument("--shard", default="0/1", help="render only part I of N (frames with id %% N == I)")
     r.add_argument("--overwrite", action="store_true", help="start over instead of resuming")
     r.add_argument("--seed", type=int, default=None, help="dataset seed (default: the world's seed)")
@@ -85,6 +86,7 @@ def _render(args) -> int:
         shard=parse_shard(args.shard),
         overwrite=args.overwrite,
         progress=not args.no_progress,
+        executor=executor_of(args),
     )
     summary = render_dataset(job)
     print(

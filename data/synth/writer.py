@@ -19,10 +19,10 @@ all three folders exist, which is what a rerun checks to continue after a kill.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import math
-import multiprocessing as mp
 import os
 import shutil
 import tempfile
@@ -34,6 +34,7 @@ import numpy as np
 
 from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
+from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir, make_dirs
 from segmin.data.synth.camera import CameraModel
@@ -72,6 +73,7 @@ class RenderJob:
     shard: tuple[int, int] = (0, 1)
     overwrite: bool = False
     progress: bool = True
+    executor: Executor = LOCAL  # where the workers run
 
     def __post_init__(self) -> None:
         self.out = Path(self.out)
@@ -309,20 +311,21 @@ class FrameRenderer:
         p.disconnect(self.client)
 
 
-_WORKER: dict = {}
+class RenderWorker:
+    """One executor worker of a job: a FrameRenderer whose results are each frame's encoded files.
 
+    The files travel back to the process that runs `render_dataset`, which writes them: so a
+    worker on another machine (a Ray node) needs no access to the output folder, and resuming
+    (which frames exist) is decided in one place whatever the executor."""
 
-def _worker_init(job: RenderJob) -> None:
-    _WORKER["job"] = job
-    _WORKER["renderer"] = FrameRenderer(job.spec, job.camera, job.dataset_seed, job.appearance_every, job.noisy_depth)
+    def __init__(self, job: RenderJob) -> None:
+        self.renderer = FrameRenderer(job.spec, job.camera, job.dataset_seed, job.appearance_every, job.noisy_depth)
 
+    def run(self, frames: list[int]) -> list[tuple[int, dict[str, bytes]]]:
+        return [(f, encode_frame(self.renderer.render(f))) for f in frames]
 
-def _worker_run(frames: list[int]) -> int:
-    job, fr = _WORKER["job"], _WORKER["renderer"]
-    for f in frames:
-        paths = frame_paths(job.out, job.spec.domain, f, job.frames_per_subset)
-        write_frame(paths, encode_frame(fr.render(f)))
-    return len(frames)
+    def close(self) -> None:
+        self.renderer.close()
 
 
 # --------------------------------------------------------------------------------- meta
@@ -520,19 +523,28 @@ def _tasks(todo: list[int], appearance_every: int) -> list[list[int]]:
 
 
 def _render_tasks(job: RenderJob, tasks: list[list[int]], tick) -> None:
-    """Render every task, in this process or on a pool of `job.workers`; `tick(n)` as each ends."""
-    if job.workers == 1:
-        _worker_init(job)
+    """Render every task, in this process or on `job.workers` workers of `job.executor` (forked
+    locally: this process holds no pybullet client by now); write each frame as it comes back,
+    `tick(n)` as each task ends."""
+
+    def done(_: list[int], frames: list[tuple[int, dict[str, bytes]]]) -> None:
+        for f, data in frames:
+            write_frame(frame_paths(job.out, job.spec.domain, f, job.frames_per_subset), data)
+        tick(len(frames))
+
+    def failed(task: list[int], why: str) -> list[tuple[int, dict[str, bytes]]]:
+        raise RuntimeError(f"synth render: frames {task[0]}-{task[-1]} not rendered: {why}")
+
+    if job.workers == 1 and job.executor.kind == "local":
+        worker = RenderWorker(job)
         try:
             for task in tasks:
-                tick(_worker_run(task))
+                done(task, worker.run(task))
         finally:
-            _WORKER.pop("renderer").close()
+            worker.close()
     else:
-        ctx = mp.get_context("fork")
-        with ctx.Pool(min(job.workers, len(tasks)), initializer=_worker_init, initargs=(job,)) as pool:
-            for n in pool.imap_unordered(_worker_run, tasks):
-                tick(n)
+        make_worker = functools.partial(RenderWorker, job)
+        job.executor.run(tasks, make_worker, min(job.workers, len(tasks)), done, failed, start_method="fork")
 
 
 class _Rate:

@@ -1,12 +1,13 @@
 """`segmin bench nav-eval` (simulated seconds per wall second), `segmin bench navigator`
-(the navigators and the runtime per frame) and `segmin bench replay-bag` (bag replay frames/s)."""
+(the navigators and the runtime per frame), `segmin bench replay-bag` (bag replay frames/s) and
+`segmin bench gym` (the Gymnasium env's steps/s) and `segmin bench executor` (Ray against the local pool)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from segmin.common.cli_args import overrides_of
+from segmin.common.cli_args import add_overrides, overrides_of
 from segmin.nav_eval.evaluation.cli import add_scenario_options
 
 
@@ -51,6 +52,30 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     bag.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
     bag.set_defaults(func=_bench_replay_bag)
 
+    gym = bench.add_parser(
+        "gym", help="segmin/RowFollow-v0 env steps/s: single, make_vec sync and async, per observation option"
+    )
+    gym.add_argument("--field", default="straight_vineyard", help="field to drive (default straight_vineyard)")
+    gym.add_argument("--steps", type=int, default=150, help="timed steps per setting (default 150)")
+    gym.add_argument("--sizes", type=int, nargs="+", default=[224, 112], help="camera sides, px (default 224 112)")
+    gym.add_argument("--num-envs", type=int, nargs="+", default=[1, 2], help="vector sizes (default 1 2)")
+    gym.set_defaults(func=_bench_gym)
+
+    ex = bench.add_parser(
+        "executor", help="--executor ray against the local pool: a render and a nav-eval, alternately (time ratio)"
+    )
+    ex.add_argument(
+        "--field", default="straight_vineyard", help="field to render and drive (default straight_vineyard)"
+    )
+    ex.add_argument("--frames", type=int, default=200, help="frames of the render (default 200)")
+    ex.add_argument("--size", type=int, default=224, help="render size, px (default 224)")
+    ex.add_argument("--runs", type=int, default=15, help="nav-eval runs, over the 3 methods (default 15)")
+    ex.add_argument("--workers", type=int, default=2, help="workers of both executors (default 2)")
+    ex.add_argument("--rounds", type=int, default=2, help="local/ray rounds, order alternating (default 2)")
+    ex.add_argument("--ray-address", default=None, help="Ray cluster (default: RAY_ADDRESS, else a local instance)")
+    add_overrides(ex, example="run.length_m=5 (nav config of the nav-eval; default run.length_m=5)")
+    ex.set_defaults(func=_bench_executor)
+
 
 def _bench(args: argparse.Namespace) -> int:
     from segmin.nav_eval.bench.closed_loop import NavEvalBenchOptions, bench_nav_eval
@@ -85,4 +110,27 @@ def _bench_navigator(args: argparse.Namespace) -> int:
     single_thread_environment()
     print(format_rows(bench_navigator(size=args.size, steps=args.steps), args.size))
     print(bench_runtime(size=args.size, steps=args.steps, model=args.model, threads=args.threads))
+    return 0
+
+
+def _bench_gym(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.bench.gym import bench_gym, format_gym_rows
+
+    if args.steps < 1 or any(s < 8 for s in args.sizes) or any(n < 1 for n in args.num_envs):
+        raise ValueError("bench gym: --steps, --num-envs must be >= 1 and --sizes >= 8 px")
+    print(format_gym_rows(bench_gym(args.field, args.sizes, args.steps, args.num_envs)))
+    return 0
+
+
+def _bench_executor(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.bench.executor import ExecutorBenchOptions, bench_executor
+
+    for name in ("frames", "size", "runs", "workers", "rounds"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"bench executor: --{name} must be >= 1, got {getattr(args, name)}")
+    overrides = tuple(overrides_of(args)) or ExecutorBenchOptions.nav_overrides
+    options = ExecutorBenchOptions(
+        args.field, args.frames, args.size, args.runs, args.workers, args.rounds, overrides, args.ray_address
+    )
+    bench_executor(options)
     return 0

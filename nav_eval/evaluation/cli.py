@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.common.cli_args import add_executor_options, add_overrides, executor_of, overrides_of
 from segmin.nav_eval.runtime.methods import METHODS
 
 
@@ -37,6 +37,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     )
     parser.add_argument("--force", action="store_true", help="overwrite the results of an earlier nav-eval in --out")
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
+    add_executor_options(parser)
     parser.add_argument(
         "--video",
         action="store_true",
@@ -63,6 +64,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
     config = load_nav_config(args.config, overrides_of(args))
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    executor = executor_of(args)
     check_results_absent(args.out, RESULT_FILES, args.force, "nav-eval")
     if args.bag:
         import rosbags.rosbag2  # noqa: F401  (a missing [ros] extra is named now, not in every run)
@@ -79,6 +81,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
         bag=args.bag,
         progress=not args.no_progress,
         plots=not args.no_plots,
+        executor=executor,
     )
     print(table3_markdown(results), end="")
     failed = [r for r in results if r.reason == "error"]

@@ -5,7 +5,7 @@ workers, config) -> list[RunResult]`.
 
 Each run is one job. A `Worker` builds its own pybullet DIRECT client per field, its own
 segmenter and navigators, and returns a `RunResult`; with several workers each lives in its own
-spawned process (`nav_eval.evaluation.processes`). An exception inside a run becomes a failure
+spawned process (`segmin.common.processes`). An exception inside a run becomes a failure
 row (reason "error", with the exception text); a crashed worker process fails its run the same
 way. Seeds: the start noise and the depth noise of run k in a field depend on (seed, field, k)
 only, so every method starts from the same pose with the same noise (a paired comparison).
@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from segmin.common.config import from_dict, to_dict
+from segmin.common.executor import LOCAL, Executor
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics
-from segmin.nav_eval.evaluation.processes import run_in_processes
 from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.sim.factories import (
@@ -349,12 +349,14 @@ def run_evaluation(
     bag: bool = False,
     progress: bool = True,
     plots: bool = True,
+    executor: Executor = LOCAL,
 ) -> list[RunResult]:
     """Evaluate `model` ('oracle' or an .onnx path) on fields x methods x runs.
 
     With `out_dir`, writes results.csv/json (rewritten atomically after every finished run, so
     an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
-    workers <= 1 runs in this process; more uses spawned processes. `video` / `bag`: run 0 of
+    workers <= 1 runs in this process; more uses spawned processes, or `executor`'s (Ray actors)
+    whatever the number. `video` / `bag`: run 0 of
     each field and method as a video in out/videos, as a rosbag2 (MCAP) in out/bags.
     Reads top to bottom as plan -> resume -> run (in process or in workers) -> write; kept as one
     function so the resume rules and the rewrite after every run stay side by side.
@@ -396,7 +398,7 @@ def run_evaluation(
 
             write_results(out, sorted(results, key=_order(jobs)), meta)
 
-    execute_jobs(jobs, str(model), config, workers, done, progress=progress)
+    execute_jobs(jobs, str(model), config, workers, done, progress=progress, executor=executor)
     results.sort(key=_order(jobs))
     if out is not None:
         from segmin.nav_eval.evaluation.report import write_report
@@ -414,12 +416,14 @@ def execute_jobs(
     *,
     progress: bool = True,
     desc: str = "nav-eval runs",
+    executor: Executor = LOCAL,
 ) -> None:
-    """Run `jobs` on `workers` processes (this one when <= 1), calling `done(job, result)` as
-    each finishes (in completion order). A job's own `config` replaces `config` for that run."""
+    """Run `jobs` on `workers` processes (this one when <= 1) or Ray actors (`executor`), calling
+    `done(job, result)` as each finishes (in completion order). A job's own `config` replaces
+    `config` for that run."""
     bar = _progress(len(jobs), progress, desc)
     try:
-        if workers <= 1:
+        if workers <= 1 and executor.kind == "local":
             # One core is left to pybullet: the episode renders the next frame on this thread
             # while the segmenter runs on its helper thread (see nav_eval.sim).
             worker = Worker(model, config, threads=max(1, (os.cpu_count() or 1) - 1))
@@ -430,7 +434,7 @@ def execute_jobs(
             finally:
                 worker.close()
         else:
-            _run_pool(jobs, model, config, workers, done, bar)
+            _run_pool(jobs, model, config, workers, done, bar, executor)
     finally:
         bar.close()
 
@@ -441,10 +445,16 @@ def _order(jobs: list[Job]) -> Callable[[RunResult], int]:
 
 
 def _run_pool(
-    jobs: list[Job], model: str, config: NavEvalConfig, workers: int, done: Callable[[Job, RunResult], None], bar: Any
+    jobs: list[Job],
+    model: str,
+    config: NavEvalConfig,
+    workers: int,
+    done: Callable[[Job, RunResult], None],
+    bar: Any,
+    executor: Executor,
 ) -> None:
-    """`jobs` on `workers` processes, each with its own `Worker` (fields and segmenter kept
-    between its runs) sharing the cores."""
+    """`jobs` on `workers` processes (or Ray actors), each with its own `Worker` (fields and
+    segmenter kept between its runs) sharing the cores."""
     threads = max(1, (os.cpu_count() or 1) // workers)
 
     def finished(job: Job, result: RunResult) -> None:
@@ -464,7 +474,7 @@ def _run_pool(
         )
 
     make_worker = functools.partial(Worker.from_plain, model, to_dict(config), threads)
-    run_in_processes(jobs, make_worker, workers, finished, failed)
+    executor.run(jobs, make_worker, workers, finished, failed)
 
 
 def _progress(total: int, enabled: bool, desc: str) -> Any:

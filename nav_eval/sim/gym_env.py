@@ -7,7 +7,11 @@ physics tick), and the observation is the next camera frame. The simulator itsel
 
 - observation: Dict(rgb uint8 H x W x 3, depth float32 H x W metres (0 = no reading), t float64
   seconds, attitude float64 (roll, pitch) radians: the IMU, REP 103), what
-  `nav_eval.runtime.RowFollower.step` takes;
+  `nav_eval.runtime.RowFollower.step` takes. `obs_keys` picks the entries (also `mask`, the
+  oracle vegetation mask as uint8 0/1, for learning from masks) and `size` the camera's
+  (height, width): a learner that wants mask + depth at the model's size skips copying colour and
+  renders fewer pixels (the renderer draws colour whatever is asked: TinyRenderer has no
+  depth-only pass);
 - action: Box([-max_v, -max_omega], [max_v, max_omega]) float64, the robot's hardware limits
   (float64 so a command reaches the robot unrounded);
 - reward: progress along the row's centreline during the step, in metres (negative when the
@@ -34,6 +38,8 @@ built when the env is made):
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
 import gymnasium
@@ -47,6 +53,29 @@ from segmin.nav_eval.sim.row_env import RowEnv
 
 TERMINAL = ("success", "collision", "left_row")
 TRUNCATING = ("timeout", "stalled")
+OBS_KEYS = ("rgb", "depth", "mask", "t", "attitude")
+"""Every observation entry `obs_keys` can pick."""
+DEFAULT_OBS_KEYS = ("rgb", "depth", "t", "attitude")
+"""What `RowFollower.step` takes: the default observation."""
+
+
+def check_obs_keys(obs_keys: Sequence[str]) -> tuple[str, ...]:
+    """`obs_keys` as a tuple, or a ValueError naming the option: some of OBS_KEYS, each once."""
+    keys = (obs_keys,) if isinstance(obs_keys, str) else tuple(obs_keys)
+    unknown = [k for k in keys if k not in OBS_KEYS]
+    if not keys or unknown or len(set(keys)) != len(keys):
+        raise ValueError(f"obs_keys: {list(keys)!r} is not a non-empty list of distinct keys of {list(OBS_KEYS)}")
+    return keys
+
+
+def check_size(size: int | Sequence[int]) -> tuple[int, int]:
+    """`size` (one side, or height and width) as (height, width), or a ValueError naming it."""
+    sides = [size] if isinstance(size, int | np.integer) else list(size) if isinstance(size, Sequence) else []
+    if len(sides) == 1:
+        sides *= 2
+    if len(sides) != 2 or not all(isinstance(n, int | np.integer) and 8 <= n <= 4096 for n in sides):
+        raise ValueError(f"size: {size!r} must be one side or (height, width), whole pixels from 8 to 4096")
+    return int(sides[0]), int(sides[1])
 
 
 class RowFollowEnv(gymnasium.Env):
@@ -63,13 +92,25 @@ class RowFollowEnv(gymnasium.Env):
         gap: int | None = None,
         world: SimWorld | None = None,
         renderer: SimRenderer | None = None,
+        obs_keys: Sequence[str] = DEFAULT_OBS_KEYS,
+        size: int | Sequence[int] | None = None,
     ) -> None:
         """`config`: a NavEvalConfig, a config name/path, or None (the shipped default) plus
-        `overrides` (key=value). `world` + `renderer` replace the field (tests, custom worlds)."""
+        `overrides` (key=value). `world` + `renderer` replace the field (tests, custom worlds).
+        `obs_keys`: the observation's entries (of OBS_KEYS); `size`: the camera's side or
+        (height, width) in pixels, replacing perception.width / height (a field's camera only)."""
+        self.obs_keys = check_obs_keys(obs_keys)
         if not isinstance(config, NavEvalConfig):
             config = load_nav_config(config, list(overrides))
         elif overrides:
             raise ValueError("overrides apply to a config name or path, not to a NavEvalConfig")
+        if size is not None:
+            if world is not None:
+                raise ValueError("size sets a field's camera; a given renderer keeps its own")
+            height, width = check_size(size)
+            config = dataclasses.replace(
+                config, perception=dataclasses.replace(config.perception, width=width, height=height)
+            )
         self.config = config
         self._context = None
         if world is None:
@@ -88,14 +129,14 @@ class RowFollowEnv(gymnasium.Env):
         self._closed = False
         height, width = self.simulator.camera_size
         robot = config.robot
-        self.observation_space = spaces.Dict(
-            {
-                "rgb": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
-                "depth": spaces.Box(0.0, np.inf, (height, width), dtype=np.float32),
-                "t": spaces.Box(0.0, np.inf, (), dtype=np.float64),
-                "attitude": spaces.Box(-np.pi / 2, np.pi / 2, (2,), dtype=np.float64),
-            }
-        )
+        every: dict[str, spaces.Space] = {
+            "rgb": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
+            "depth": spaces.Box(0.0, np.inf, (height, width), dtype=np.float32),
+            "mask": spaces.Box(0, 1, (height, width), dtype=np.uint8),
+            "t": spaces.Box(0.0, np.inf, (), dtype=np.float64),
+            "attitude": spaces.Box(-np.pi / 2, np.pi / 2, (2,), dtype=np.float64),
+        }
+        self.observation_space = spaces.Dict({key: every[key] for key in self.obs_keys})
         self.action_space = spaces.Box(
             np.array([-robot.max_v, -robot.max_omega]), np.array([robot.max_v, robot.max_omega]), dtype=np.float64
         )
@@ -132,13 +173,16 @@ class RowFollowEnv(gymnasium.Env):
 
     def _observe(self, info: dict[str, Any]) -> tuple[dict, dict]:
         frame = self.simulator.frame()
-        info = dict(info, pose=self.simulator.pose, mask=np.asarray(frame.mask, dtype=bool))
-        return {
-            "rgb": np.asarray(frame.rgb, dtype=np.uint8),
-            "depth": np.asarray(frame.depth, dtype=np.float32),
-            "t": np.array(self.simulator.t, dtype=np.float64),
-            "attitude": np.array(self.simulator.attitude, dtype=np.float64),
-        }, info
+        mask = np.asarray(frame.mask, dtype=bool)
+        info = dict(info, pose=self.simulator.pose, mask=mask)
+        entries: dict[str, Callable[[], np.ndarray]] = {  # only the asked entries are converted
+            "rgb": lambda: np.asarray(frame.rgb, dtype=np.uint8),
+            "depth": lambda: np.asarray(frame.depth, dtype=np.float32),
+            "mask": lambda: mask.view(np.uint8),
+            "t": lambda: np.array(self.simulator.t, dtype=np.float64),
+            "attitude": lambda: np.array(self.simulator.attitude, dtype=np.float64),
+        }
+        return {key: entries[key]() for key in self.obs_keys}, info
 
     def _refuse_if_closed(self, call: str) -> None:
         if self._closed:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.common.cli_args import add_executor_options, add_overrides, executor_of, overrides_of
 
 
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
@@ -24,6 +24,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     sweep.add_argument("--model", default=None, help="replaces the spec's model: an .onnx file or 'oracle'")
     sweep.add_argument("--runs", type=int, default=None, help="replaces the spec's runs per value and method")
     sweep.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
+    add_executor_options(sweep)
     sweep.add_argument("--force", action="store_true", help="redo the runs stored under OUT/runs")
     sweep.add_argument("--no-plots", action="store_true", help="skip the figures")
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -45,6 +46,7 @@ def _robustness(args: argparse.Namespace) -> int:
         force=args.force,
         progress=not args.no_progress,
         plots=not args.no_plots,
+        executor=executor_of(args),
     )
     methods = outcome.plan.spec.methods
     print("| parameter | " + " | ".join(methods) + " |\n" + "|---" * (1 + len(methods)) + "|")

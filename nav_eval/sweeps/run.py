@@ -24,6 +24,7 @@ from typing import Any
 import yaml
 
 from segmin.common.atomic import write_json, write_text
+from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs, run_seed
@@ -61,6 +62,7 @@ def run_sweep(
     force: bool = False,
     progress: bool = True,
     plots: bool = True,
+    executor: Executor = LOCAL,
 ) -> SweepOutcome:
     """Run (or resume) the sweep `spec_path` into `out_dir`; `model` and `runs` replace the spec's."""
     spec, path = load_sweep(spec_path)
@@ -91,7 +93,9 @@ def run_sweep(
             new[key] = result
             write_json(out / "runs" / f"{key}.json", {"key": key, "result": result.row()})
 
-        execute_jobs(todo, spec.model, plan.base_config, workers, done, progress=progress, desc="sweep runs")
+        execute_jobs(
+            todo, spec.model, plan.base_config, workers, done, progress=progress, desc="sweep runs", executor=executor
+        )
         results = {**cached, **new}
         rows = summarise_sweep(plan, keys, results)
         write_sweep_outputs(out, plan, rows, plots=plots, executed=len(new), reused=len(cached), errored=len(errored))

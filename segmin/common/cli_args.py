@@ -18,7 +18,10 @@ import re
 import sys
 from collections import Counter
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from segmin.common.executor import Executor
 
 OVERRIDES_DEST = "overrides"
 # A dotted config key, then "=": what an override looks like (a world path such as
@@ -142,3 +145,32 @@ def add_overrides(parser: argparse.ArgumentParser, alias: bool = True, example: 
 def overrides_of(args: argparse.Namespace) -> list[str]:
     """The overrides given on the command line, in order ([] when none)."""
     return list(getattr(args, OVERRIDES_DEST, None) or [])
+
+
+def add_executor_options(parser: argparse.ArgumentParser) -> None:
+    """`--executor local|ray` and `--ray-address`: where a command's workers run
+    (`segmin.common.executor`); `--workers` stays the number of them."""
+    from segmin.common.executor import EXECUTORS
+
+    parser.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="where the --workers run: local processes (default) or Ray actors (needs the [cluster] extra)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        default=None,
+        help="the Ray cluster for --executor ray (default: RAY_ADDRESS, else a Ray instance started for the run)",
+    )
+
+
+def executor_of(args: argparse.Namespace) -> Executor:
+    """The Executor that `add_executor_options`'s arguments name: a ValueError when they disagree,
+    the [cluster] advice now (not after the command's first steps) when Ray is chosen but missing."""
+    from segmin.common.executor import Executor, import_ray
+
+    executor = Executor(args.executor, args.ray_address)
+    if executor.kind == "ray":
+        import_ray()
+    return executor

@@ -2,7 +2,7 @@
 
 `pip install segmin` is the robot runtime (numpy, OpenCV, onnxruntime, PyYAML). Simulation and
 figures come with `[sim]`, training and export with `[train]`, ROS bags (replay and recording)
-with `[ros]`; `[all]` is all three. The table must
+with `[ros]`; `[all]` is all three. Ray, for `--executor ray`, comes with `[cluster]`. The table must
 follow pyproject.toml's extras (a test checks it).
 """
 
@@ -22,7 +22,10 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "onnxscript": "train",
     "tensorboard": "train",
     "rosbags": "ros",
+    "ray": "cluster",
 }
+ALL_EXTRAS = ("sim", "train", "ros")
+"""What `segmin[all]` installs (not [cluster]: Ray is for the machines that fan jobs out)."""
 
 
 def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
@@ -31,7 +34,7 @@ def missing_extra_message(exc: ModuleNotFoundError) -> str | None:
     extra = EXTRA_OF_MODULE.get(top)
     if extra is None:
         return None
+    also = " (or 'segmin[all]')" if extra in ALL_EXTRAS else ""
     return (
-        f"this command needs the [{extra}] extra (module {top!r} is not installed): "
-        f"pip install 'segmin[{extra}]' (or 'segmin[all]')"
+        f"this command needs the [{extra}] extra (module {top!r} is not installed): pip install 'segmin[{extra}]'{also}"
     )

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Literal
 
 from segmin.common.config import load_config
+from segmin.common.executor import Executor
 from segmin.common.shipped import resolve_config
 from segmin.nav_eval.runtime.methods import METHODS
 
@@ -149,11 +150,21 @@ class PipelineConfig:
     # Train the families side by side, one process and one thread each (on 2 cores: 0.62 against
     # 0.75 s a step of one 2-thread training after the other); false: one after the other.
     parallel_training: bool = False
+    # Where the render and nav-eval stages' workers run: "local" processes or "ray" actors, on the
+    # cluster at `ray_address` (null: RAY_ADDRESS, else a Ray instance started for the stage).
+    # Not a stage input: the outputs are the same on either.
+    executor: str = "local"
+    ray_address: str | None = None
 
     def __post_init__(self) -> None:
         if not self.families:
             raise ValueError("families: name at least one crop family")
+        self.fan_out()  # a bad executor or address is refused at load
         check_training_sources(self)
+
+    def fan_out(self) -> Executor:
+        """The render and nav-eval stages' executor."""
+        return Executor(self.executor, self.ray_address)
 
 
 def check_training_sources(config: PipelineConfig) -> None:

@@ -106,6 +106,7 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
                     camera=camera,
                     workers=config.render.workers,
                     overwrite=overwrite,
+                    executor=config.fan_out(),
                 )
                 render_dataset(job)
                 domains[split].append(spec.domain)
@@ -323,6 +324,7 @@ def nav_stage(config: PipelineConfig, model: str, fields: list[str], folder: Pat
         config=nav_config(config),
         seed=config.nav.seed,
         video=config.nav.video,
+        executor=config.fan_out(),
     )
     raise_for_errors(results, f"nav-eval in {folder}")  # never cache a stage whose runs raised
     successes = sum(bool(r.success) for r in results)

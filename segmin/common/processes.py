@@ -7,7 +7,8 @@ picklable callable: a `functools.partial` of the worker's constructor), and the 
 jobs one at a time over a pipe, the next as soon as it sends a result back: a long run holds one
 process while the others go on.
 
-Processes are spawned, never forked: pybullet and onnxruntime hold threads. A worker turns a
+Processes are spawned by default: pybullet and onnxruntime hold threads. A caller whose parent
+holds neither (synth render) may fork instead, which saves each worker the imports. A worker turns a
 run's exceptions into results; a process that dies (a crash, a kill) fails the job it was
 running, and once none is left the jobs not yet given out fail too, each as `failed(job, why)`.
 """
@@ -18,13 +19,14 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
-from multiprocessing.context import SpawnContext
-from typing import Generic, Protocol, TypeVar
+from multiprocessing.context import ForkContext, SpawnContext
+from typing import Generic, Literal, Protocol, TypeVar
 
 J = TypeVar("J")
 R = TypeVar("R")
 J_contra = TypeVar("J_contra", contravariant=True)
 R_co = TypeVar("R_co", covariant=True)
+StartMethod = Literal["spawn", "fork"]
 
 
 class JobWorker(Protocol[J_contra, R_co]):
@@ -53,7 +55,7 @@ def serve(make_worker: Callable[[], JobWorker[J, R]], connection: Connection) ->
 class _Process(Generic[J]):
     """One worker process as the parent sees it: its end of the pipe and the job it is running."""
 
-    def __init__(self, context: SpawnContext, make_worker: Callable[[], JobWorker]) -> None:
+    def __init__(self, context: SpawnContext | ForkContext, make_worker: Callable[[], JobWorker]) -> None:
         self.connection, child = context.Pipe()
         self.process = context.Process(target=serve, args=(make_worker, child), daemon=True)
         self.process.start()
@@ -81,10 +83,11 @@ def run_in_processes(
     processes: int,
     done: Callable[[J, R], None],
     failed: Callable[[J, str], R],
+    start_method: StartMethod = "spawn",
 ) -> None:
-    """Run `jobs` on up to `processes` spawned processes, calling `done(job, result)` in the
-    parent as each finishes (in completion order)."""
-    context = get_context("spawn")
+    """Run `jobs` on up to `processes` processes (spawned unless `start_method` says "fork"),
+    calling `done(job, result)` in the parent as each finishes (in completion order)."""
+    context = get_context("fork") if start_method == "fork" else get_context("spawn")
     pending = deque(jobs)
     started: list[_Process[J]] = []
     busy: dict[Connection, _Process[J]] = {}

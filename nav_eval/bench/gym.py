@@ -1,0 +1,82 @@
+"""`segmin bench gym`: steps per second of `segmin/RowFollow-v0`, alone and under
+`gymnasium.make_vec` (sync and async, 1 and 2 envs), per observation option.
+
+A step of a vector of N envs is N env steps: the figure is env steps per wall second. Every
+setting builds its envs first (the field, a pybullet client each) and times only the steps;
+episodes that end are reset (the vector's own autoreset), as a learner would see them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from segmin.common.machine import load_average
+
+OBSERVATIONS: dict[str, tuple[str, ...]] = {
+    "rgb+depth": ("rgb", "depth", "t", "attitude"),
+    "mask+depth": ("mask", "depth"),
+}
+"""The observation options the bench times, by label."""
+
+
+@dataclasses.dataclass(frozen=True)
+class GymBenchRow:
+    """One timed setting."""
+
+    mode: str  # "single", "sync" or "async"
+    num_envs: int
+    observation: str
+    size: int
+    steps_per_s: float
+
+
+def time_env(mode: str, num_envs: int, obs_keys: Sequence[str], size: int, steps: int, field: str) -> float:
+    """Env steps per second of `steps` vector steps (or single-env steps) after one reset."""
+    import gymnasium
+
+    import segmin.envs
+
+    options = {"field": field, "obs_keys": tuple(obs_keys), "size": size}
+    if mode == "single":
+        env = gymnasium.make(segmin.envs.ROW_FOLLOW, **options)
+        action = np.array([0.4, 0.0])
+    else:
+        env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **options)
+        action = np.tile([0.4, 0.0], (num_envs, 1))
+    try:
+        env.reset(seed=0)
+        start = time.perf_counter()
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(action)
+            if mode == "single" and (terminated or truncated):
+                env.reset()
+        return steps * num_envs / (time.perf_counter() - start)
+    finally:
+        env.close()
+
+
+def bench_gym(field: str, sizes: Sequence[int], steps: int, num_envs: Sequence[int]) -> list[GymBenchRow]:
+    """Every (observation, size, mode, N) setting, printed as it is timed."""
+    settings = [("single", 1)] + [(mode, n) for mode in ("sync", "async") for n in num_envs]
+    rows = []
+    for label, keys in OBSERVATIONS.items():
+        for size in sizes:
+            for mode, n in settings:
+                rate = time_env(mode, n, keys, size, steps, field)
+                rows.append(GymBenchRow(mode, n, label, size, rate))
+                print(f"{label:>10} {size:>4}px {mode:>6} N={n}: {rate:7.1f} env steps/s ({load_average()})")
+    return rows
+
+
+def format_gym_rows(rows: Sequence[GymBenchRow]) -> str:
+    """A markdown table, with each setting's rate against the single env's at its observation and size."""
+    single = {(r.observation, r.size): r.steps_per_s for r in rows if r.mode == "single"}
+    lines = ["| observation | size | mode | envs | env steps/s | x single |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        ratio = r.steps_per_s / single[(r.observation, r.size)] if single.get((r.observation, r.size)) else float("nan")
+        lines.append(f"| {r.observation} | {r.size} | {r.mode} | {r.num_envs} | {r.steps_per_s:.1f} | {ratio:.2f} |")
+    return "\n".join(lines + [f"\n{load_average()}"])
