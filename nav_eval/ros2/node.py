@@ -4,7 +4,9 @@ Subscribes (sensor-data QoS: best effort, keep last 1, so a late frame is replac
 queued behind) to the colour image and the aligned depth (`Image`, or `CompressedImage` on a
 topic ending in /compressed or /compressedDepth, as image_transport names them). Publishes
 `Twist` (or `TwistStamped`) on `cmd_vel`, optionally `~/overlay` (the mask and the chosen
-column on the image) and `/diagnostics`. The service `~/enable` (std_srvs/SetBool) and the
+column on the image), `/diagnostics` and `~/frame_acks` (the header of each image message once
+handled: a player that waits for it feeds the node frame by frame, so the commands depend on the
+images' stamps alone, not on when DDS delivered them). The service `~/enable` (std_srvs/SetBool) and the
 parameter `enabled` start and stop driving; both are off at start-up.
 
 Two callback groups on a multi-threaded executor: the images (segmentation runs there) and the
@@ -36,6 +38,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool
 
 from segmin.nav_eval.replay.video import overlay
@@ -98,6 +101,8 @@ class RowFollowerNode(Node):
         self._diagnostics = (
             self.create_publisher(DiagnosticArray, "/diagnostics", 10) if settings.publish_diagnostics else None
         )
+        # Reliable with a queue: a player waiting for each acknowledgement must not miss one.
+        self._acks = self.create_publisher(Header, "~/frame_acks", 100) if settings.publish_frame_acks else None
         self.create_timer(1.0 / params.runtime.command_hz, self._watchdog, callback_group=control)
         if self._diagnostics is not None:
             self.create_timer(1.0, self._diagnose, callback_group=control)
@@ -117,10 +122,17 @@ class RowFollowerNode(Node):
     def _on_colour(self, message: Any) -> None:
         self._apply_pending()
         self._overlay_out(self.core.on_colour(message, self._seconds()), message)
+        self._acknowledge(message)
 
     def _on_depth(self, message: Any) -> None:
         self._apply_pending()
         self._overlay_out(self.core.on_depth(message, self._seconds()), None)
+        self._acknowledge(message)
+
+    def _acknowledge(self, message: Any) -> None:
+        """After the command from `message` (if any) went out: a player waiting for this sends the next."""
+        if self._acks is not None:
+            self._acks.publish(message.header)
 
     def _overlay_out(self, output: FollowerOutput | None, message: Any) -> None:
         if self._overlay is None or output is None or not output.fresh or self.core.last_rgb is None:

@@ -52,6 +52,7 @@ class NodeSettings:
     slop_s: float = 0.01
     publish_overlay: bool = False
     publish_diagnostics: bool = True
+    publish_frame_acks: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
@@ -106,6 +107,9 @@ DESCRIPTIONS: dict[str, str] = {
     "slop_s": "colour and depth pair when their stamps differ by at most this, s",
     "publish_overlay": "publish ~/overlay: the camera image with the fused mask and the chosen column",
     "publish_diagnostics": "publish /diagnostics (diagnostic_msgs/DiagnosticArray) once a second",
+    "publish_frame_acks": "publish ~/frame_acks (std_msgs/Header, reliable): the header of every image message the "
+    "node has handled (stepped, waiting for its partner, or refused), so a bag player can feed the node frame by "
+    "frame and a monitor can see which frames it dropped",
 }
 GROUPS = (
     ("driving", ("enabled", "method", "model", "depth_threshold", "threads")),
@@ -113,7 +117,7 @@ GROUPS = (
     ("timing", ("publish_on_timer",)),
     ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
     ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
-    ("outputs", ("publish_overlay", "publish_diagnostics")),
+    ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
 )
 # The file's defaults; depth_threshold has none in NavigatorConfig on purpose: the paper's vineyards'.
 DEFAULTS: dict[str, Any] = {
@@ -131,6 +135,7 @@ STARTUP_ONLY = (
     "twist_stamped",
     "publish_overlay",
     "publish_diagnostics",
+    "publish_frame_acks",
 )
 
 
