@@ -399,3 +399,20 @@ def test_a_stale_imu_is_ignored_with_a_log_line_and_the_robot_drives_on(corridor
     assert [(o.command.v, o.command.omega) for o in out.sent] == [c[1:3] for c in commands]  # level ground here
     stale = [line for line in out.logged if topics.IMU in line]
     assert stale and "stale" in stale[0] and "imu_max_age_s=0.1" in stale[0]
+
+
+def test_command_timing_reports_the_nodes_latency_and_period_jitter() -> None:
+    from segmin.nav_eval.ros2.timing import CommandTiming
+
+    timing = CommandTiming()
+    for k in range(5):
+        stamp = 10**9 * k
+        timing.image_received(stamp, received_ns=stamp + 1_000_000)
+        late = 0.004 if k == 3 else 0.0  # one command 4 ms late
+        timing.published(stamp, now_ns=stamp + 11_000_000, monotonic_s=100.0 + 0.2 * k + late)
+    timing.published(None, now_ns=0, monotonic_s=101.0)  # a tick without a fresh image: a period, no latency
+    summary = timing.summary(command_hz=5)
+    assert summary["latency image received to command published median ms"] == "10.00"
+    assert summary["command period median ms"] == "200.00" and summary["command periods timed"] == "5"
+    assert float(summary["command period jitter p99 ms"]) == pytest.approx(4.0, abs=0.1)
+    assert CommandTiming().summary(5)["command period jitter p99 ms"] == "-"
