@@ -25,6 +25,7 @@ community wheels (`.ci/ros_env.sh`). Nothing here is imported by the rest of seg
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from pathlib import Path
@@ -51,6 +52,11 @@ from segmin.nav_eval.ros2.params import DESCRIPTIONS, STARTUP_ONLY, NodeParams, 
 from segmin.nav_eval.ros2.timing import CommandTiming
 from segmin.nav_eval.runtime.follower import FollowerOutput
 
+# The command thread wakes at its deadline but must then take the GIL, which an executor thread in
+# pure Python (message conversion, callbacks) keeps for up to the switch interval, 5 ms by default.
+# On the project's loaded 2-core machine a thread sleeping to 5 Hz deadlines beside a GIL-bound
+# thread woke p99 80-92 ms late with 5 ms, 35-47 ms with 0.5 ms (18-27 ms with no GIL contention).
+SWITCH_INTERVAL_S = 0.0005
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
@@ -303,6 +309,7 @@ def run(name: str, values: dict[str, Any], base: Path | None, ros_args: list[str
     use_sim_time = bool(values.pop("use_sim_time", False))
     params = node_params(values, base)
     segmenter = load_segmenter(params)
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     rclpy.init(args=["segmin", "--ros-args", *ros_args] if ros_args else None)
     node = RowFollowerNode(name, params, segmenter, use_sim_time)
     executor = MultiThreadedExecutor(num_threads=3)
