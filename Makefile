@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+ROS_ENV ?= .ros-venv
 
 .PHONY: test test-ros2 demo install docs lint
 

@@ -2,18 +2,19 @@
 
 Usage (inside a network namespace holding only loopback, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST):
 
-    ROSENV/bin/python tests/ros2_driver.py BAG PARAMS OUT.json [RATE]
+    ROSENV/bin/python tests/ros2_driver.py BAG PARAMS OUT.json
 
-RATE (default 1) scales the playback speed; /clock follows the bag's time whatever the rate, so
-the node's runtime sees the same stamps and the same clock (a loaded CI machine plays slower, so
-that the node's queue of one frame drops none).
+The node runs with `publish_frame_acks`: the player publishes each image message at its recorded
+time (or later) and waits for the node's acknowledgement before the next, so the node takes every
+frame in the bag's order, whatever the machine's load and DDS's delivery times, as the simulator
+did; /clock follows the bag's stamps.
 
 Starts `segmin ros2 follow --params PARAMS` as a child process (use_sim_time: this script owns
 /clock), then, in phases, with colour + depth from BAG (a simulated run, restamped by an
 offset so that each phase's stamps come after the last):
 
 1. disabled: the bag's first second of frames -> the node must publish nothing;
-2. ~/enable true; the whole bag at its recorded rate (times RATE) -> TwistStamped commands (stamped with the
+2. ~/enable true; the whole bag, frame by frame -> TwistStamped commands (stamped with the
    image that gave them) to compare with the bag's /cmd_vel;
 3. stall: no frames, the clock runs on -> the watchdog stops the robot after frame_timeout_s;
 4. good frames, one colour frame with a wrong encoding, good frames -> an immediate stop, and
@@ -32,6 +33,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import rclpy
@@ -45,11 +47,13 @@ from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool
 
 COLOUR, DEPTH = "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw"
 NODE = "segmin_row_follower"
 NS = 10**9
+ACK_TIMEOUT_S = 30.0  # the node takes milliseconds per frame; this long without an acknowledgement is a fault
 
 
 def read_bag(path: Path) -> tuple[list[tuple[int, str, bytes]], list[tuple[int, float, float]]]:
@@ -75,14 +79,27 @@ class Driver(Node):
         self.clock_pub = self.create_publisher(Clock, "/clock", 10)
         self.received: list[tuple[float, int, float, float]] = []  # (wall, stamp ns, v, omega)
         self.create_subscription(TwistStamped, "/cmd_vel", self._on_cmd, 100)
+        self.sent: Counter[int] = Counter()  # stamp (ns) -> image messages published with it
+        self.acked: Counter[int] = Counter()  # stamp (ns) -> image messages the node acknowledged
+        self.create_subscription(Header, f"/{NODE}/frame_acks", self._on_ack, 100)
         self.enable = self.create_client(SetBool, f"/{NODE}/enable")
         self.set_params = self.create_client(SetParameters, f"/{NODE}/set_parameters")
         self.clock_ns = 1000 * NS
-        self.rate = 1.0
 
     def _on_cmd(self, message: TwistStamped) -> None:
         stamp = message.header.stamp.sec * NS + message.header.stamp.nanosec
         self.received.append((time.monotonic(), stamp, message.twist.linear.x, message.twist.angular.z))
+
+    def _on_ack(self, header: Header) -> None:
+        self.acked[header.stamp.sec * NS + header.stamp.nanosec] += 1
+
+    def wait_for_ack(self, stamp: int) -> None:
+        """Spin until the node acknowledged every message stamped `stamp` (RuntimeError after ACK_TIMEOUT_S)."""
+        end = time.monotonic() + ACK_TIMEOUT_S
+        while self.acked[stamp] < self.sent[stamp]:
+            if time.monotonic() > end:
+                raise RuntimeError(f"the node acknowledged no image stamped {stamp} ns within {ACK_TIMEOUT_S} s")
+            rclpy.spin_once(self, timeout_sec=0.002)
 
     def spin_for(self, seconds: float, clock_advance: bool = True) -> None:
         """Spin, advancing /clock with the wall clock (100 Hz)."""
@@ -99,10 +116,11 @@ class Driver(Node):
         self.clock_pub.publish(clock)
 
     def play(self, frames: list[tuple[int, str, bytes]], offset_ns: int, encoding: str | None = None) -> None:
-        """Publish frames at their recorded rate, stamps (and /clock) shifted by offset_ns."""
+        """Publish frames at their recorded rate (slower when the node takes longer: each message waits
+        for the node's acknowledgement of the one before), stamps (and /clock) shifted by offset_ns."""
         start_wall, start_t = time.monotonic(), frames[0][0]
         for t, topic, raw in frames:
-            while (time.monotonic() - start_wall) * self.rate < (t - start_t) / NS:
+            while time.monotonic() - start_wall < (t - start_t) / NS:
                 rclpy.spin_once(self, timeout_sec=0.002)
             self.set_clock(t + offset_ns)
             message = deserialize_message(raw, Image)
@@ -110,8 +128,9 @@ class Driver(Node):
             message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, NS)
             if encoding is not None and topic == COLOUR:
                 message.encoding = encoding
+            self.sent[stamp] += 1
             self.pub[topic].publish(message)
-            rclpy.spin_once(self, timeout_sec=0)
+            self.wait_for_ack(stamp)
 
     def call(self, client, request, timeout: float = 10.0):
         if not client.wait_for_service(timeout_sec=timeout):
@@ -188,7 +207,6 @@ def stop(node: subprocess.Popen) -> tuple[int, str]:
 
 def main() -> int:
     bag, params, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
-    rate = float(sys.argv[4]) if len(sys.argv) > 4 else 1.0
     frames, bag_commands = read_bag(bag)
     segmin = Path(sys.executable).with_name("segmin")
     node = subprocess.Popen(
@@ -199,8 +217,7 @@ def main() -> int:
     )
     rclpy.init()
     driver = Driver()
-    driver.rate = rate
-    result: dict = {"bag_commands": bag_commands, "phases": {}, "rate": rate}
+    result: dict = {"bag_commands": bag_commands, "phases": {}}
     try:
         if not driver.enable.wait_for_service(timeout_sec=60):
             raise RuntimeError("the node's ~/enable service never appeared")

@@ -221,7 +221,7 @@ BARE_DEPENDENCIES = {"numpy", "cv2", "onnxruntime", "yaml"}
 BARE_PACKAGES = ("segmin.nav_eval.runtime", "segmin.nav_eval.replay", "segmin.nav_eval.ros2", "segmin.nav_eval.demo")
 # Modules inside them that load more, only when it is there: replay's figure (the [sim] extra; replay
 # skips its plot and says so on the bare install) and the ROS 2 node (the robot's own rclpy).
-ROS2_MODULES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_srvs", "diagnostic_msgs"}
+ROS2_MODULES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs"}
 OPTIONAL_MODULES = {"segmin.nav_eval.replay.plot": {"matplotlib"}, "segmin.nav_eval.ros2.node": ROS2_MODULES}
 
 

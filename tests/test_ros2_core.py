@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from segmin.app.cli import main
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.core import LOG_EVERY_S, FollowerCore, Outgoing
 from segmin.nav_eval.ros2.params import DEFAULTS, DESCRIPTIONS, GROUPS, defaults_yaml, load_params_file, node_params
+from segmin.nav_eval.ros2.sensors import attitude_from_imu, geometry_from_camera_info
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
 
 # ---- parameters ----------------------------------------------------------------------------
@@ -251,3 +253,166 @@ def test_the_shipped_jackal_parameter_file_is_complete_and_valid() -> None:
     params = node_params(values, path.parent)
     assert params.navigator.method == "segmind" and params.runtime.command_hz == 5
     assert values["enabled"] is False
+
+
+# ---- SegCorridor's inputs: CameraInfo and Imu ----------------------------------------------
+
+
+def _imu(q: tuple[float, float, float, float], covariance0: float = 0.0) -> SimpleNamespace:
+    x, y, z, w = q
+    return SimpleNamespace(
+        orientation=SimpleNamespace(x=x, y=y, z=z, w=w), orientation_covariance=[covariance0] + [0.0] * 8
+    )
+
+
+@pytest.mark.parametrize(("slope_pitch", "slope_roll", "yaw"), [(0.0, 0.0, 0.3), (0.1, 0.0, -2.0), (-0.08, 0.12, 1.0)])
+def test_the_imu_attitude_is_the_simulators_through_a_recorded_quaternion(slope_pitch, slope_roll, yaw) -> None:
+    """The bag recorder writes the body's orientation; read back it is the attitude the simulator's
+    runtime got (REP 103: positive roll lifts the left side, positive pitch lowers the nose)."""
+    from segmin.nav_eval.sim.bag_recorder import base_pose, quaternion
+    from segmin.nav_eval.sim.robot import RobotState, imu_attitude
+
+    state = RobotState(x=1.0, y=2.0, yaw=yaw, pitch=slope_pitch, roll=slope_roll)
+    got = attitude_from_imu(_imu(quaternion(base_pose(state)[:3, :3])), topics.IMU)
+    assert got == pytest.approx(imu_attitude(state), abs=1e-9)
+    if slope_pitch > 0:  # nose-up ground: the nose is raised, a negative pitch
+        assert got[1] < 0
+
+
+@pytest.mark.parametrize(
+    ("q", "covariance0", "needle"),
+    [
+        ((0.0, 0.0, 0.0, 0.0), 0.0, "not a unit quaternion"),
+        ((0.0, 0.0, 0.0, float("nan")), 0.0, "not a unit quaternion"),
+        ((0.0, 0.0, 0.0, 1.0), -1.0, "no orientation"),
+    ],
+)
+def test_a_bad_imu_message_names_its_topic(q, covariance0, needle) -> None:
+    with pytest.raises(ValueError, match=rf"^{topics.IMU}: .*{needle}"):
+        attitude_from_imu(_imu(q, covariance0), topics.IMU)
+
+
+def _info(width: int = 224, height: int = 224, fx: float = 160.0) -> SimpleNamespace:
+    return SimpleNamespace(width=width, height=height, k=[fx, 0.0, 111.5, 0.0, fx, 111.5, 0.0, 0.0, 1.0])
+
+
+def test_camera_info_gives_the_intrinsics_and_the_parameters_the_mount() -> None:
+    geometry = geometry_from_camera_info(
+        _info(), topics.COLOUR_INFO, mount_height=0.4, tilt_deg=15.0, mount_forward=0.2
+    )
+    assert (geometry.width, geometry.height, geometry.fx, geometry.cx, geometry.tilt_deg) == (
+        224,
+        224,
+        160.0,
+        111.5,
+        15.0,
+    )
+    with pytest.raises(ValueError, match=rf"^{topics.COLOUR_INFO}: camera fx .*uncalibrated"):
+        geometry_from_camera_info(_info(fx=0.0), topics.COLOUR_INFO, 0.4, 15.0, 0.2)
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({}, "parameter camera_info_topic: segcorridor needs the camera intrinsics"),
+        ({"camera_fx": 160.0}, "parameter camera_width: camera width must be an integer >= 1"),
+        ({"depth_topic": ""}, "parameter depth_topic: segcorridor needs depth"),
+        ({"camera_info_topic": topics.COLOUR_INFO, "v_max": -1.0}, "parameter v_max: v_max must be"),
+        ({"camera_info_topic": topics.COLOUR_INFO, "imu_max_age_s": 0.0}, "parameter imu_max_age_s: imu_max_age_s"),
+    ],
+)
+def test_segcorridor_refuses_to_start_without_the_camera_intrinsics(values, message) -> None:
+    with pytest.raises(ValueError, match=r"^" + message):
+        node_params({"method": "segcorridor", **values})
+
+
+def test_segcorridor_takes_its_camera_from_the_parameters_or_the_camera_info_topic() -> None:
+    intrinsics = {"camera_width": 224, "camera_height": 224, "camera_fx": 160.0, "camera_fy": 160.0}
+    params = node_params({"method": "segcorridor", **intrinsics, "camera_cx": 111.5, "camera_cy": 111.5})
+    assert params.camera is not None and params.camera.frame_shape == (224, 224) and params.camera.tilt_deg == 15.0
+    from_topic = node_params({"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO})
+    assert from_topic.camera is None and from_topic.navigator.method == "segcorridor"
+
+
+@pytest.fixture(scope="module")
+def corridor_run(tmp_path_factory) -> tuple[list, list]:
+    """(messages in bag order as (topic, t, message), the simulator's commands) of a SegCorridor run."""
+    from rosbags.highlevel import AnyReader
+
+    bag = tmp_path_factory.mktemp("corridor") / "run"
+    episode, _ = _episode(GreenSegmenter(), method="segcorridor", bag=bag)
+    wanted_topics = (topics.COLOUR, topics.DEPTH, topics.COLOUR_INFO, topics.IMU)
+    with AnyReader([bag]) as reader:
+        wanted = [c for c in reader.connections if c.topic in wanted_topics]
+        messages = [
+            (c.topic, t / 1e9, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages(connections=wanted)
+        ]
+    order = {topic: i for i, topic in enumerate((topics.COLOUR_INFO, topics.IMU, topics.DEPTH, topics.COLOUR))}
+    messages.sort(key=lambda m: (m[1], order[m[0]]))  # per frame: camera info and IMU first, colour last
+    return messages, episode.commands
+
+
+def _feed(core: FollowerCore, messages: list) -> None:
+    handlers = {
+        topics.COLOUR: core.on_colour,
+        topics.DEPTH: core.on_depth,
+        topics.COLOUR_INFO: core.on_camera_info,
+        topics.IMU: core.on_imu,
+    }
+    for topic, t, message in messages:
+        handlers[topic](message, t)
+
+
+def test_the_core_drives_segcorridor_as_the_simulator_from_camera_info_and_imu(corridor_run) -> None:
+    messages, commands = corridor_run
+    core, out = _core(method="segcorridor", camera_info_topic=topics.COLOUR_INFO, imu_topic=topics.IMU)
+    _feed(core, messages)
+    sent = [(_stamp_s(o.stamp), o.command.v, o.command.omega) for o in out.sent]
+    assert len(commands) > 5
+    assert [s[1:] for s in sent] == [c[1:3] for c in commands]
+    assert out.logged == [
+        f"{topics.COLOUR_INFO}: camera 48x48, fx {core.follower.navigator.camera.fx:.1f}: runtime (re)started"
+    ]
+
+
+def test_frames_before_camera_info_or_of_another_size_stop_the_robot_naming_the_topic(corridor_run) -> None:
+    messages, _ = corridor_run
+    core, out = _core(method="segcorridor", camera_info_topic=topics.COLOUR_INFO)
+    _feed(core, [m for m in messages[:8] if m[0] != topics.COLOUR_INFO])
+    assert out.sent and all(o.command.v == 0.0 for o in out.sent) and core.frames == 0
+    assert len(out.logged) == 1 and out.logged[0].endswith(
+        f"{topics.COLOUR_INFO}: no CameraInfo yet (SegCorridor needs the intrinsics)"
+    )
+    info = next(m[2] for m in messages if m[0] == topics.COLOUR_INFO)
+    core, out = _core(method="segcorridor", camera_info_topic=topics.COLOUR_INFO)
+    core.on_camera_info(dataclasses.replace(info, width=320, height=240), 0.0)
+    _feed(core, [m for m in messages[:8] if m[0] != topics.COLOUR_INFO])
+    assert core.frames == 0 and out.sent[-1].command.v == 0.0
+    assert f"{topics.COLOUR_INFO}: the camera is 320x240 but {topics.COLOUR} images are 48x48" in out.logged[-1]
+
+
+def test_a_stale_imu_is_ignored_with_a_log_line_and_the_robot_drives_on(corridor_run) -> None:
+    messages, commands = corridor_run
+    core, out = _core(method="segcorridor", camera_info_topic=topics.COLOUR_INFO, imu_topic=topics.IMU)
+    first_imu = next(m for m in messages if m[0] == topics.IMU)
+    _feed(core, [first_imu] + [m for m in messages if m[0] != topics.IMU])
+    assert [(o.command.v, o.command.omega) for o in out.sent] == [c[1:3] for c in commands]  # level ground here
+    stale = [line for line in out.logged if topics.IMU in line]
+    assert stale and "stale" in stale[0] and "imu_max_age_s=0.1" in stale[0]
+
+
+def test_command_timing_reports_the_nodes_latency_and_period_jitter() -> None:
+    from segmin.nav_eval.ros2.timing import CommandTiming
+
+    timing = CommandTiming()
+    for k in range(5):
+        stamp = 10**9 * k
+        timing.image_received(stamp, received_ns=stamp + 1_000_000)
+        late = 0.004 if k == 3 else 0.0  # one command 4 ms late
+        timing.published(stamp, now_ns=stamp + 11_000_000, monotonic_s=100.0 + 0.2 * k + late)
+    timing.published(None, now_ns=0, monotonic_s=101.0)  # a tick without a fresh image: a period, no latency
+    summary = timing.summary(command_hz=5)
+    assert summary["latency image received to command published median ms"] == "10.00"
+    assert summary["command period median ms"] == "200.00" and summary["command periods timed"] == "5"
+    assert float(summary["command period jitter p99 ms"]) == pytest.approx(4.0, abs=0.1)
+    assert CommandTiming().summary(5)["command period jitter p99 ms"] == "-"

@@ -7,8 +7,9 @@ so discovery can reach no other address; when no such namespace can be made the 
 the reason instead of running unconfined.
 
 A simulated run (stand-in world, the tiny exported model) is recorded as a bag; the driver
-(`tests/ros2_driver.py`, in the ROS environment) feeds it to the node at its recorded rate and
-checks the enable service, the commands against the simulator's, the stop on a stalled camera,
+(`tests/ros2_driver.py`, in the ROS environment) feeds it to the node at its recorded rate, frame
+by frame (each image waits for the node's acknowledgement of the one before, `publish_frame_acks`),
+and checks the enable service, the commands against the simulator's, the stop on a stalled camera,
 a frame of a wrong encoding and a bad parameter.
 """
 
@@ -29,12 +30,6 @@ from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 pytestmark = pytest.mark.ros2
 ROOT = Path(__file__).resolve().parents[1]
 NS = 10**9
-# Playback speed of the bag (its /clock and stamps are the bag's at any speed): half the recorded
-# rate, so that on a loaded two-core CI machine the node's one-frame queues drop no frame. Slower
-# is not safer: the runtime's deadlines run on the node's clock, and at a quarter of the rate the
-# node took most commands one frame later than the simulator did. The bench (`segmin bench ros2`)
-# measures at the recorded rate.
-RATE = 0.5
 # Scheduling slack of the watchdog timer on a shared two-core machine (0.95 s was seen against
 # 0.85 s with 0.05 s of slack while two simulator processes ran beside it).
 TIMER_SLACK_S = 0.2
@@ -91,11 +86,11 @@ def drive(exported, tmp_path_factory) -> dict:
     folder = tmp_path_factory.mktemp("ros2")
     model = exported[0]
     _episode(OnnxSegmenter(model, threads=1), bag=folder / "run")
-    params = _params(folder / "params.yaml", model, use_sim_time=True)
+    params = _params(folder / "params.yaml", model, use_sim_time=True, publish_frame_acks=True)
     env = ros_env()
     result = confined(
         [str(env / "bin" / "python"), str(ROOT / "tests" / "ros2_driver.py"), str(folder / "run"), str(params),
-         str(folder / "out.json"), str(RATE)],
+         str(folder / "out.json")],
         timeout=240,
     )  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
@@ -109,22 +104,17 @@ def test_the_node_publishes_nothing_until_enabled(drive) -> None:
 
 
 def test_the_node_gives_the_commands_of_the_simulator_from_its_bag(drive) -> None:
-    """The same commands in the same order; each stamped with the image that gave it, which is the
-    simulator's frame, or the next one when the node dropped that frame (one camera period late)."""
+    """The simulator's commands, each stamped with the image that gave it: fed frame by frame, the
+    node takes every frame the simulator took, in the same order, whatever DDS's timing."""
     offset = drive["bag_offset_ns"]
     first, last = drive["phases"]["bag"]
-    frame_ns = NS // 30 + 1
-    end = drive["bag_commands"][-1][0] + frame_ns
     fresh: dict[int, tuple[float, float]] = {}
     for _, stamp, v, omega in drive["received"][first:last]:
-        if 0 <= stamp - offset <= end and (v, omega) != (0.0, 0.0):
+        if stamp - offset >= 0 and (v, omega) != (0.0, 0.0):
             fresh[stamp - offset] = (v, omega)  # the watchdog may repeat a command with its image's stamp
-    got = sorted(fresh.items())
-    expected = [(t, (v, omega)) for t, v, omega in drive["bag_commands"]]
-    assert [g[1] for g in got] == [e[1] for e in expected]
-    lags = [g[0] - e[0] for g, e in zip(got, expected)]
-    assert all(0 <= lag <= frame_ns for lag in lags), lags
-    assert sum(lag == 0 for lag in lags) >= len(lags) - 2, lags
+    expected = [(t, (v, omega)) for t, v, omega in drive["bag_commands"] if (v, omega) != (0.0, 0.0)]
+    assert len(expected) > 10
+    assert sorted(fresh.items()) == expected
 
 
 def test_a_stalled_camera_stops_the_robot(drive) -> None:

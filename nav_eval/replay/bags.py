@@ -26,7 +26,7 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DEFAULT_SLOP_S = 0.01  # RealSense colour and aligned depth differ by a few ms; frames are 33 ms apart
 
 
-def _open(path: Path) -> Any:
+def open_bag(path: Path) -> Any:
     """An open `rosbags` AnyReader on `path` (ValueError naming the path when it is no bag)."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
@@ -65,7 +65,7 @@ def bag_frames(
     path = Path(path)
     if not slop >= 0:
         raise ValueError(f"--slop must be a number of seconds >= 0, got {slop!r}")
-    reader = _open(path)
+    reader = open_bag(path)
     try:
         count = sum(c.msgcount for c in _connections(reader, path, rgb_topic, "--rgb-topic"))
         if depth_topic is not None:
@@ -93,7 +93,7 @@ def bag_frames(
 def _read(
     path: Path, rgb_topic: str, depth_topic: str | None, pairer: StampPairer
 ) -> Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]:
-    reader = _open(path)
+    reader = open_bag(path)
     try:
         wanted = [c for c in reader.connections if c.topic in (rgb_topic, depth_topic)]
         index = 0

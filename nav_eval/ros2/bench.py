@@ -6,15 +6,21 @@ inside a network namespace holding only loopback: it starts DDS and refuses othe
 - The runtime's own step: `FollowerCore` on the same frames in this process, without ROS
   (decode, pair, `RowFollower.step`), timed on the frames that gave a command.
 - The node (`segmin ros2 follow`, a child process, enabled, TwistStamped) fed the bag's frames
-  looped for `seconds`, restamped with the wall clock at publication: image-in to cmd_vel-out
-  latency (the command's stamp is its image's), the period of the commands and its jitter, the
-  frames the node stepped against those published (its queues hold one frame, so they cannot
-  grow; frames it could not take are replaced and counted here), its resident memory each second.
+  looped for `seconds`, restamped with the wall clock at publication. Measured by the node
+  (`timing.CommandTiming`, read from its diagnostics): latency from the image's reception to the
+  command computed from it published, and the command period and its jitter at publication.
+  Measured here, at the receiving end: image published to command received (the node's latency
+  plus DDS both ways plus this process's executor) and the period at reception. Also the frames
+  the node stepped against those published (its queues hold one frame, so they cannot grow;
+  frames it could not take are replaced and counted here) and its resident memory each second.
+- The load average and the Fast DDS transports (`FASTDDS_BUILTIN_TRANSPORTS`, e.g. SHM; unset:
+  the default UDPv4 + shared memory) are printed with the figures.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 import tempfile
@@ -188,19 +194,28 @@ def bench_ros2(
     periods = np.diff(sent)
     jitter = np.abs(periods - 0.2) if periods.size else np.zeros(1)
     after = [m for t, m in rss if t >= 10.0]
+    node_side = feeder.diagnostics
+    own_p95 = 1e3 * np.percentile(own, 95)
+    node_p95 = node_side.get("latency image received to command published p95 ms", "-")
+    ratio = f"{float(node_p95) / own_p95:.2f}" if node_p95 != "-" else "-"
     lines = [
         f"segmin bench ros2: {method}, {Path(model).name}, {len(frames) // 2} frames looped for {seconds:.0f} s at 30 Hz, "
-        f"commands {'from the timer' if on_timer else 'at once'}",
+        f"commands {'from the timer' if on_timer else 'at once'}; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}; "
+        f"FASTDDS_BUILTIN_TRANSPORTS={os.environ.get('FASTDDS_BUILTIN_TRANSPORTS', '(default)')}",
         f"runtime's own step (FollowerCore, no ROS, frames giving a command): median {1e3 * np.median(own):.1f} ms, "
-        f"p95 {1e3 * np.percentile(own, 95):.1f} ms ({own.size} steps)",
-        f"node image-in -> cmd_vel-out: median {1e3 * np.median(latency):.1f} ms, p95 {1e3 * np.percentile(latency, 95):.1f} ms "
-        f"({latency.size} commands; target p95 <= 1.5 x {1e3 * np.percentile(own, 95):.1f} = "
-        f"{1.5e3 * np.percentile(own, 95):.1f} ms)",
-        f"command period: median {1e3 * np.median(periods):.1f} ms, jitter p99 {1e3 * np.percentile(jitter, 99):.1f} ms, "
-        f"max {1e3 * jitter.max():.1f} ms (target p99 <= 5 ms at 5 Hz)",
-        f"frames published {len(stamps)}, stepped by the node {feeder.diagnostics.get('frames stepped', '?')}, "
-        f"unpaired colour / depth {feeder.diagnostics.get('unpaired colour frames', '?')} / "
-        f"{feeder.diagnostics.get('unpaired depth frames', '?')}; latency median first / last 10 s "
+        f"p95 {own_p95:.1f} ms ({own.size} steps)",
+        "node, measured by the node: image received -> command published median "
+        f"{node_side.get('latency image received to command published median ms', '-')} ms, p95 {node_p95} ms "
+        f"= {ratio} x the runtime's own step p95 (target <= 1.5); command period median "
+        f"{node_side.get('command period median ms', '-')} ms, jitter p99 "
+        f"{node_side.get('command period jitter p99 ms', '-')} ms (target <= 5 ms at 5 Hz; "
+        f"{node_side.get('command periods timed', '-')} periods)",
+        f"at this receiver: image published -> command received median {1e3 * np.median(latency):.1f} ms, "
+        f"p95 {1e3 * np.percentile(latency, 95):.1f} ms ({latency.size} commands); period median "
+        f"{1e3 * np.median(periods):.1f} ms, jitter p99 {1e3 * np.percentile(jitter, 99):.1f} ms, max {1e3 * jitter.max():.1f} ms",
+        f"frames published {len(stamps)}, stepped by the node {node_side.get('frames stepped', '?')}, "
+        f"unpaired colour / depth {node_side.get('unpaired colour frames', '?')} / "
+        f"{node_side.get('unpaired depth frames', '?')}; latency median first / last 10 s "
         f"{1e3 * np.median(latency[:50]):.1f} / {1e3 * np.median(latency[-50:]):.1f} ms",
         f"node resident memory: {rss[0][1]:.0f} MB at start, "
         + (

@@ -1,6 +1,7 @@
-"""`segmin ros2 follow` (the row-follower node) and `segmin ros2 params` (its parameter file).
+"""`segmin ros2 follow` (the row-follower node), `segmin ros2 params` (its parameter file) and
+`segmin ros2 view-bag` (a picture of a bag's topics).
 
-rclpy is imported only by `follow`, so `segmin --help` and `segmin ros2 params` work without it.
+rclpy is imported only by `follow`, so `segmin --help`, `params` and `view-bag` work without it.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.params import NODE_NAME
 
 RCLPY_MISSING = (
@@ -47,6 +49,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     params.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     params.add_argument("--node-name", default=NODE_NAME, help=f"node name of the section (default {NODE_NAME})")
     params.set_defaults(func=_params)
+    _register_view_bag(sub)
 
     b = bench.add_parser(
         "ros2",
@@ -60,6 +63,24 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     b.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
     b.add_argument("--timer", action="store_true", help="the node publishes from its timer only (publish_on_timer)")
     b.set_defaults(func=_bench)
+
+
+def _register_view_bag(sub: argparse._SubParsersAction) -> None:
+    view = sub.add_parser(
+        "view-bag",
+        help="a picture of a bag's camera, depth, cmd_vel and odometry topics (what a viewer shows)",
+        description="Renders one PNG of a bag (e.g. from `segmin nav-eval --bag`): the colour frame nearest --at "
+        "(with --model, the mask the node would compute over it), its aligned depth, /cmd_vel over the bag and "
+        "the top-down path of /odom: the panels Foxglove or RViz would show, rendered by segmin.",
+    )
+    view.add_argument("--bag", type=Path, required=True, help="a ROS 1 bag or rosbag2 folder")
+    view.add_argument("--out", type=Path, required=True, help="PNG to write")
+    view.add_argument("--at", type=float, default=0.0, help="seconds into the bag of the frame shown (default 0)")
+    view.add_argument("--model", type=Path, default=None, help="exported .onnx: tint its mask over the frame")
+    view.add_argument("--colour-topic", default=topics.COLOUR, help=f"default {topics.COLOUR}")
+    view.add_argument("--depth-topic", default=topics.DEPTH, help=f"default {topics.DEPTH}")
+    view.add_argument("--force", action="store_true", help="overwrite --out")
+    view.set_defaults(func=_view_bag)
 
 
 def _follow(args: argparse.Namespace) -> int:
@@ -85,6 +106,27 @@ def _bench(args: argparse.Namespace) -> int:
     from segmin.nav_eval.ros2.bench import bench_ros2
 
     print(bench_ros2(args.model, args.bag, args.seconds, args.threads, args.method, args.depth_threshold, args.timer))
+    return 0
+
+
+def _view_bag(args: argparse.Namespace) -> int:
+    from segmin.common.atomic import write_bytes
+    from segmin.common.outputs import check_output_file
+    from segmin.nav_eval.ros2.bag_view import plot_bag_view, read_bag_view
+
+    out = check_output_file(args.out)
+    if out.exists() and not args.force:
+        raise ValueError(f"--out {out}: already exists (use --force to overwrite)")
+    if not args.at >= 0:
+        raise ValueError(f"--at must be a number of seconds >= 0, got {args.at!r}")
+    view = read_bag_view(args.bag, args.at, args.colour_topic, args.depth_topic)
+    mask = None
+    if args.model is not None:
+        from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+        mask = OnnxSegmenter(args.model).segment(view.rgb)
+    write_bytes(out, plot_bag_view(view, f"{args.bag.name}: segmin's rendering of the bag's topics", mask))
+    print(f"wrote {out}")
     return 0
 
 

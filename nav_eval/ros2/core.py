@@ -17,6 +17,12 @@ are tested in the normal suite and the bench can drive it.
   runtime gives a fresh command. The node stays up. Frames without a partner (a depth frame
   with no colour frame within `slop_s`) are logged and counted but stop nothing by themselves:
   a robot that gets no pairs any more is stopped by the frame timeout.
+- SegCorridor (`method: segcorridor`) needs the camera: from the parameters, or from the first
+  `CameraInfo` on `camera_info_topic` (frames before it are refused, naming that topic; one whose
+  size differs from the images' stops the robot, naming it too). Its `Imu` on `imu_topic` gives
+  roll and pitch (`sensors.attitude_from_imu`); a frame with no IMU message within
+  `imu_max_age_s` of it is stepped on level ground, with a log line (a stale IMU must not stop a
+  robot that can still see its rows).
 - `enabled` (off at start-up): while off the runtime still runs (diagnostics, overlay) but no
   command is published; switching off publishes one stop.
 
@@ -39,6 +45,9 @@ import numpy as np
 from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth, stamp_seconds
 from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
 from segmin.nav_eval.ros2.params import NodeParams
+from segmin.nav_eval.ros2.sensors import attitude_from_imu, geometry_from_camera_info
+from segmin.nav_eval.runtime.camera import CameraGeometry
+from segmin.nav_eval.runtime.corridor import CorridorConfig, CorridorNavigator
 from segmin.nav_eval.runtime.follower import STOP, FollowerOutput, RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator
 
@@ -53,6 +62,7 @@ class Outgoing:
     command: Command
     stamp: Any  # a builtin_interfaces Time of the image that gave the command, or None: now
     reason: str | None = None  # why this is a stop
+    paced: bool = False  # this publication sets the command rate (a fresh command at once, or a timer tick)
 
 
 class FollowerCore:
@@ -69,7 +79,10 @@ class FollowerCore:
         self.params = params
         self.publish = publish
         self.log = log
-        self.follower = RowFollower(segmenter, Navigator(params.navigator), params.runtime)
+        self.segmenter = segmenter
+        self._info_camera: CameraGeometry | None = None  # the latest CameraInfo's
+        self._attitude: tuple[float, float, float] | None = None  # (stamp s, roll, pitch) of the latest Imu
+        self.follower = self._new_follower()
         self.pairer = StampPairer(params.node.slop_s, max_pending=2)
         self._wall = timer  # times the steps (wall clock, also when the node runs on a bag's clock)
         self._lock = threading.Lock()
@@ -84,6 +97,85 @@ class FollowerCore:
         self.step_s: deque[float] = deque(maxlen=100)
         self.last_output: FollowerOutput | None = None
         self.last_rgb: np.ndarray | None = None
+
+    def _new_follower(self) -> RowFollower | None:
+        """The runtime of the parameters; None while SegCorridor waits for its camera's CameraInfo."""
+        config = self.params.navigator
+        if not isinstance(config, CorridorConfig):
+            return RowFollower(self.segmenter, Navigator(config), self.params.runtime)
+        camera = self.params.camera or self._info_camera
+        return (
+            None
+            if camera is None
+            else RowFollower(self.segmenter, CorridorNavigator(config, camera), self.params.runtime)
+        )
+
+    # ---- SegCorridor's camera and IMU ----------------------------------------------------------
+    def on_camera_info(self, message: Any, now: float) -> None:
+        """A CameraInfo: SegCorridor's intrinsics (a new runtime when they change)."""
+        node = self.params.node
+        try:
+            camera = geometry_from_camera_info(
+                message,
+                node.camera_info_topic,
+                node.camera_mount_height,
+                node.camera_tilt_deg,
+                node.camera_mount_forward,
+            )
+        except ValueError as exc:
+            self._reject(str(exc), now)
+            return
+        if camera != self._info_camera:
+            self._info_camera = camera
+            if isinstance(self.params.navigator, CorridorConfig) and self.params.camera is None:
+                self.follower = self._new_follower()
+                self.log(
+                    f"{node.camera_info_topic}: camera {camera.width}x{camera.height}, fx {camera.fx:.1f}: runtime (re)started"
+                )
+
+    def on_imu(self, message: Any, now: float) -> None:
+        """An Imu: the roll and pitch of the next frames (a bad one is logged and ignored)."""
+        try:
+            roll, pitch = attitude_from_imu(message, self.params.node.imu_topic)
+        except ValueError as exc:
+            self._warn(str(exc), now, "IMU ignored, level ground assumed")
+            return
+        self._attitude = (stamp_seconds(message), roll, pitch)
+
+    def _frame_attitude(self, t: float, now: float) -> tuple[float, float] | None:
+        """The IMU's (roll, pitch) for a frame at `t`, or None (level ground) when it is stale or absent."""
+        topic = self.params.node.imu_topic
+        if not topic:
+            return None
+        if self._attitude is None or abs(t - self._attitude[0]) > self.params.node.imu_max_age_s:
+            age = (
+                "no message yet"
+                if self._attitude is None
+                else f"newest {abs(t - self._attitude[0]):.3f} s from the frame"
+            )
+            self._warn(
+                f"{topic}: stale ({age}; imu_max_age_s={self.params.node.imu_max_age_s})",
+                now,
+                "IMU ignored, level ground assumed",
+            )
+            return None
+        return self._attitude[1:]
+
+    def _camera_mismatch(self, shape: tuple[int, ...]) -> str | None:
+        """Why SegCorridor cannot take a frame of `shape` (no camera yet, or another size), or None."""
+        if not isinstance(self.params.navigator, CorridorConfig):
+            return None
+        node = self.params.node
+        source = "camera_width/camera_height" if self.params.camera is not None else node.camera_info_topic
+        camera = self.params.camera or self._info_camera
+        if camera is None:
+            return f"{source}: no CameraInfo yet (SegCorridor needs the intrinsics)"
+        if tuple(shape[:2]) != camera.frame_shape:
+            return (
+                f"{source}: the camera is {camera.width}x{camera.height} but {node.colour_topic} images are "
+                f"{shape[1]}x{shape[0]}"
+            )
+        return None
 
     # ---- the image callbacks -------------------------------------------------------------------
     def on_colour(self, message: Any, now: float) -> FollowerOutput | None:
@@ -128,9 +220,14 @@ class FollowerCore:
     def _step(
         self, rgb: np.ndarray, depth: np.ndarray | None, t: float, stamp: Any, now: float
     ) -> FollowerOutput | None:
+        mismatch = self._camera_mismatch(rgb.shape)
+        if mismatch is not None or self.follower is None:
+            return self._reject(mismatch or "no runtime", now)
+        uses_attitude = self.follower.navigator.inputs.attitude
+        attitude = self._frame_attitude(t, now) if uses_attitude else None
         start = self._wall()
         try:
-            output = self.follower.step(rgb, depth, t)
+            output = self.follower.step(rgb, depth, t, attitude=attitude)
         except ValueError as exc:
             return self._reject(f"{self.params.node.colour_topic}: {exc}", now)
         self.step_s.append(self._wall() - start)
@@ -144,7 +241,8 @@ class FollowerCore:
                 if send:
                     self._last_sent = now
             if send:
-                self.publish(Outgoing(output.command, stamp, None if output.command.valid else output.stopped))
+                reason = None if output.command.valid else output.stopped
+                self.publish(Outgoing(output.command, stamp, reason, paced=True))
         return output
 
     def _reject(self, why: str, now: float) -> None:
@@ -182,16 +280,16 @@ class FollowerCore:
                 return
             self._last_sent = now
             fault, stamp = self.fault, self._stamp
-        command = STOP if fault else self.follower.command_at(stamp_now)
+        command = STOP if fault or self.follower is None else self.follower.command_at(stamp_now)
         reason = fault or (None if command.valid else self.stop_reason(stamp_now))
-        self.publish(Outgoing(command, stamp if command.valid else None, reason))
+        self.publish(Outgoing(command, stamp if command.valid else None, reason, paced=on_timer))
 
     def reconfigure(self, params: NodeParams, segmenter: Any) -> None:
         """New parameters (checked by the node): a fresh runtime, masks and EMA cleared.
 
         Called from the image callbacks' group, between two frames."""
-        self.params = params
-        self.follower = RowFollower(segmenter, Navigator(params.navigator), params.runtime)
+        self.params, self.segmenter = params, segmenter
+        self.follower = self._new_follower()
         self.pairer = StampPairer(params.node.slop_s, max_pending=2)
         self._unpaired = 0
         if params.node.enabled != self.enabled:
@@ -213,6 +311,8 @@ class FollowerCore:
             return "disabled"
         if self.fault:
             return self.fault
+        if self.follower is None:
+            return f"{self.params.node.camera_info_topic}: no CameraInfo yet"
         last = self.follower.last_frame_t
         if last is None:
             return "no frame yet"

@@ -4,12 +4,17 @@ Subscribes (sensor-data QoS: best effort, keep last 1, so a late frame is replac
 queued behind) to the colour image and the aligned depth (`Image`, or `CompressedImage` on a
 topic ending in /compressed or /compressedDepth, as image_transport names them). Publishes
 `Twist` (or `TwistStamped`) on `cmd_vel`, optionally `~/overlay` (the mask and the chosen
-column on the image) and `/diagnostics`. The service `~/enable` (std_srvs/SetBool) and the
+column on the image), `/diagnostics` and `~/frame_acks` (the header of each image message once
+handled: a player that waits for it feeds the node frame by frame, so the commands depend on the
+images' stamps alone, not on when DDS delivered them). The service `~/enable` (std_srvs/SetBool) and the
 parameter `enabled` start and stop driving; both are off at start-up.
 
 Two callback groups on a multi-threaded executor: the images (segmentation runs there) and the
-control side (watchdog timer at command_hz, diagnostics, the service, parameter changes), so
-inference never blocks the watchdog. A parameter set while running is checked as at start-up
+control side (diagnostics, the service, parameter changes). The watchdog (and, with
+`publish_on_timer`, every command) runs on a thread of its own that sleeps to absolute
+deadlines on the node's clock (`Clock.sleep_until`: the system clock, or /clock with
+use_sim_time), not on an executor timer: its period then does not wait for the executor to
+dispatch it behind image callbacks. A parameter set while running is checked as at start-up
 (`params.node_params`): a bad value is refused with its reason, logged, and the robot stopped;
 a good one is applied at the next frame (the runtime restarts: masks and EMA cleared). Topics
 and outputs are read-only after start-up.
@@ -20,8 +25,9 @@ community wheels (`.ci/ros_env.sh`). Nothing here is imported by the rest of seg
 
 from __future__ import annotations
 
-import dataclasses
+import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -31,18 +37,26 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist, TwistStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool
 
 from segmin.nav_eval.replay.video import overlay
 from segmin.nav_eval.ros2.core import FollowerCore, Outgoing
 from segmin.nav_eval.ros2.params import DESCRIPTIONS, STARTUP_ONLY, NodeParams, as_values, node_params
+from segmin.nav_eval.ros2.timing import CommandTiming
 from segmin.nav_eval.runtime.follower import FollowerOutput
 
+# The command thread wakes at its deadline but must then take the GIL, which an executor thread in
+# pure Python (message conversion, callbacks) keeps for up to the switch interval, 5 ms by default.
+# On the project's loaded 2-core machine a thread sleeping to 5 Hz deadlines beside a GIL-bound
+# thread woke p99 80-92 ms late with 5 ms, 35-47 ms with 0.5 ms (18-27 ms with no GIL contention).
+SWITCH_INTERVAL_S = 0.0005
 SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
@@ -69,7 +83,8 @@ class RowFollowerNode(Node):
         super().__init__(name, parameter_overrides=[Parameter("use_sim_time", value=use_sim_time)])
         self.params = params
         self.segmenter = segmenter
-        for key, value in as_values(params).items():
+        self._values = as_values(params)  # as declared; a change is checked with the others
+        for key, value in self._values.items():
             self.declare_parameter(
                 key, value, ParameterDescriptor(description=DESCRIPTIONS[key], read_only=key in STARTUP_ONLY)
             )
@@ -93,12 +108,18 @@ class RowFollowerNode(Node):
                 SENSOR_QOS,
                 callback_group=images,
             )
+        self._subscribe_corridor_inputs(settings, images)
         self._cmd = self.create_publisher(TwistStamped if settings.twist_stamped else Twist, settings.cmd_vel_topic, 10)
         self._overlay = self.create_publisher(Image, "~/overlay", 1) if settings.publish_overlay else None
         self._diagnostics = (
             self.create_publisher(DiagnosticArray, "/diagnostics", 10) if settings.publish_diagnostics else None
         )
-        self.create_timer(1.0 / params.runtime.command_hz, self._watchdog, callback_group=control)
+        # Reliable with a queue: a player waiting for each acknowledgement must not miss one.
+        self._acks = self.create_publisher(Header, "~/frame_acks", 100) if settings.publish_frame_acks else None
+        self.timing = CommandTiming()
+        self._stopping = threading.Event()
+        self._command_thread = threading.Thread(target=self._command_loop, name="commands", daemon=True)
+        self._command_thread.start()
         if self._diagnostics is not None:
             self.create_timer(1.0, self._diagnose, callback_group=control)
         self.create_service(SetBool, "~/enable", self._on_enable, callback_group=control)
@@ -110,17 +131,52 @@ class RowFollowerNode(Node):
             + f" -> {settings.cmd_vel_topic}; driving {'enabled' if settings.enabled else 'disabled (call ~/enable)'}"
         )
 
+    def _subscribe_corridor_inputs(self, settings: Any, group: MutuallyExclusiveCallbackGroup) -> None:
+        """SegCorridor's CameraInfo and Imu, subscribed at start-up when it is the method (an IMU at
+        200 Hz would cost the other methods CPU for nothing); in the images' group, so they never
+        race a frame."""
+        if self.params.navigator.method != "segcorridor":
+            return
+        if settings.camera_info_topic and not settings.intrinsics_given:
+            self.create_subscription(
+                CameraInfo,
+                settings.camera_info_topic,
+                lambda m: self.core.on_camera_info(m, self._seconds()),
+                SENSOR_QOS,
+                callback_group=group,
+            )
+        if settings.imu_topic:
+            self.create_subscription(
+                Imu,
+                settings.imu_topic,
+                lambda m: self.core.on_imu(m, self._seconds()),
+                SENSOR_QOS,
+                callback_group=group,
+            )
+        source = "the parameters" if settings.intrinsics_given else f"CameraInfo on {settings.camera_info_topic}"
+        imu = f"roll and pitch from {settings.imu_topic}" if settings.imu_topic else "no IMU: level ground"
+        self.get_logger().info(f"segcorridor: camera intrinsics from {source}; {imu}")
+
     def _seconds(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
     # ---- images --------------------------------------------------------------------------------
-    def _on_colour(self, message: Any) -> None:
+    def _on_colour(self, message: Any, info: Any) -> None:
+        stamp = message.header.stamp
+        self.timing.image_received(stamp.sec * 10**9 + stamp.nanosec, int(info["received_timestamp"]))
         self._apply_pending()
         self._overlay_out(self.core.on_colour(message, self._seconds()), message)
+        self._acknowledge(message)
 
     def _on_depth(self, message: Any) -> None:
         self._apply_pending()
         self._overlay_out(self.core.on_depth(message, self._seconds()), None)
+        self._acknowledge(message)
+
+    def _acknowledge(self, message: Any) -> None:
+        """After the command from `message` (if any) went out: a player waiting for this sends the next."""
+        if self._acks is not None:
+            self._acks.publish(message.header)
 
     def _overlay_out(self, output: FollowerOutput | None, message: Any) -> None:
         if self._overlay is None or output is None or not output.fresh or self.core.last_rgb is None:
@@ -140,12 +196,49 @@ class RowFollowerNode(Node):
         twist.linear.x, twist.angular.z = float(outgoing.command.v), float(outgoing.command.omega)
         if not self.params.node.twist_stamped:
             self._cmd.publish(twist)
+            self._timed(outgoing)
             return
         stamped = TwistStamped()
         stamped.header.frame_id = self.params.node.base_frame
         stamped.header.stamp = outgoing.stamp if outgoing.stamp is not None else self.get_clock().now().to_msg()
         stamped.twist = twist
         self._cmd.publish(stamped)
+        self._timed(outgoing)
+
+    def _timed(self, outgoing: Outgoing) -> None:
+        if outgoing.paced:
+            stamp = outgoing.stamp
+            self.timing.published(
+                None if stamp is None else stamp.sec * 10**9 + stamp.nanosec, time.time_ns(), time.monotonic()
+            )
+
+    def _command_loop(self) -> None:
+        """The watchdog's thread: `core.tick` at command_hz on absolute deadlines of the node's clock.
+
+        A deadline missed (a loaded machine) is skipped, not caught up in a burst; a clock that
+        jumps (a new /clock source) restarts the schedule."""
+        clock = self.get_clock()
+        deadline = clock.now()
+        while not self._stopping.is_set():
+            period = Duration(nanoseconds=10**9 // self.core.params.runtime.command_hz)
+            deadline = deadline + period
+            if not clock.sleep_until(deadline, context=self.context):
+                if not self.context.ok():
+                    return
+                deadline = clock.now()  # ROS time switched on or off: restart the schedule
+                continue
+            if self._stopping.is_set():
+                return
+            self._watchdog()
+            now = clock.now()
+            if now - deadline > period:
+                deadline = now
+
+    def destroy_node(self) -> None:
+        """Stop the command thread first (it wakes within one period), so it never publishes on a destroyed node."""
+        self._stopping.set()
+        self._command_thread.join(timeout=2.0)
+        super().destroy_node()
 
     def _watchdog(self) -> None:
         now = self._seconds()
@@ -159,8 +252,7 @@ class RowFollowerNode(Node):
 
     # ---- parameters ----------------------------------------------------------------------------
     def _on_set_parameters(self, changes: list[Parameter]) -> SetParametersResult:
-        values = as_values(self.params)
-        values.update({p.name: p.value for p in changes if p.name != "use_sim_time"})
+        values = {**self._values, **{p.name: p.value for p in changes if p.name != "use_sim_time"}}
         try:
             params = node_params(values)
             segmenter = self.segmenter
@@ -170,13 +262,15 @@ class RowFollowerNode(Node):
             self.get_logger().error(f"refused, robot stopped: {exc}")
             self.core.hold(str(exc), self._seconds())
             return SetParametersResult(successful=False, reason=str(exc))
-        unchanged = dataclasses.replace(params, node=dataclasses.replace(params.node, enabled=self.params.node.enabled))
-        if unchanged == self.params:  # only `enabled`: at once, from here
+        only_enabled = {k: v for k, v in values.items() if k != "enabled"} == {
+            k: v for k, v in self._values.items() if k != "enabled"
+        }
+        if only_enabled:  # at once, from here
             self.get_logger().info(self.core.set_enabled(params.node.enabled))
         else:
             with self._pending_lock:
                 self._pending = (params, segmenter)
-        self.params = params
+        self.params, self._values = params, values
         return SetParametersResult(successful=True)
 
     def _apply_pending(self) -> None:
@@ -191,7 +285,7 @@ class RowFollowerNode(Node):
     # ---- diagnostics ---------------------------------------------------------------------------
     def _diagnose(self) -> None:
         now = self._seconds()
-        values = self.core.status(now)
+        values = self.core.status(now) | self.timing.summary(self.core.params.runtime.command_hz)
         frames = self.core.frames
         values["frame rate Hz"] = f"{frames - self._frames_at_diagnosis:.0f}"
         self._frames_at_diagnosis = frames
@@ -215,6 +309,7 @@ def run(name: str, values: dict[str, Any], base: Path | None, ros_args: list[str
     use_sim_time = bool(values.pop("use_sim_time", False))
     params = node_params(values, base)
     segmenter = load_segmenter(params)
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     rclpy.init(args=["segmin", "--ros-args", *ros_args] if ros_args else None)
     node = RowFollowerNode(name, params, segmenter, use_sim_time)
     executor = MultiThreadedExecutor(num_threads=3)

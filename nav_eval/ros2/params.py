@@ -27,8 +27,10 @@ from typing import Any
 import yaml
 
 from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.runtime.camera import CameraGeometry
+from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.follower import RuntimeConfig
-from segmin.nav_eval.runtime.methods import PAPER_METHODS
+from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
 
 NODE_NAME = "segmin_row_follower"
@@ -52,6 +54,19 @@ class NodeSettings:
     slop_s: float = 0.01
     publish_overlay: bool = False
     publish_diagnostics: bool = True
+    publish_frame_acks: bool = False
+    camera_info_topic: str = ""
+    imu_topic: str = ""
+    imu_max_age_s: float = 0.1
+    camera_width: int = 0
+    camera_height: int = 0
+    camera_fx: float = 0.0
+    camera_fy: float = 0.0
+    camera_cx: float = 0.0
+    camera_cy: float = 0.0
+    camera_mount_height: float = 0.40
+    camera_tilt_deg: float = 15.0
+    camera_mount_forward: float = 0.2
 
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
@@ -61,19 +76,50 @@ class NodeSettings:
         for name in ("colour_topic", "cmd_vel_topic"):
             if not getattr(self, name):
                 raise ValueError(f"{name} must name a topic")
+        if not (math.isfinite(self.imu_max_age_s) and self.imu_max_age_s > 0):
+            raise ValueError(f"imu_max_age_s must be a number of seconds > 0, got {self.imu_max_age_s!r}")
+
+    @property
+    def intrinsics_given(self) -> bool:
+        """The camera intrinsics are parameters (camera_fx etc.), not read from a CameraInfo topic."""
+        return any(getattr(self, f"camera_{name}") for name in ("width", "height", "fx", "fy", "cx", "cy"))
+
+    def camera_geometry(self) -> CameraGeometry:
+        """The camera of the parameters (ValueError naming the parameter when one is missing or wrong)."""
+        try:
+            return CameraGeometry(
+                width=self.camera_width,
+                height=self.camera_height,
+                fx=self.camera_fx,
+                fy=self.camera_fy,
+                cx=self.camera_cx,
+                cy=self.camera_cy,
+                mount_height=self.camera_mount_height,
+                tilt_deg=self.camera_tilt_deg,
+                mount_forward=self.camera_mount_forward,
+            )
+        except ValueError as exc:  # "camera fx must be ..." -> parameter camera_fx
+            name = str(exc).split()[1]
+            raise ValueError(f"camera_{name}: {exc}") from None
 
 
 @dataclass(frozen=True)
 class NodeParams:
-    """Every checked parameter of the node, as the objects the runtime takes."""
+    """Every checked parameter of the node, as the objects the runtime takes.
 
-    navigator: NavigatorConfig
+    `navigator` is SegCorridor's `CorridorConfig` (its other settings at their defaults) for
+    method segcorridor; `camera` its camera when the intrinsics are parameters (None: from the
+    CameraInfo topic, or a method that needs no camera)."""
+
+    navigator: NavigatorConfig | CorridorConfig
     runtime: RuntimeConfig
     node: NodeSettings
+    camera: CameraGeometry | None = None
 
 
 DESCRIPTIONS: dict[str, str] = {
-    "method": f"navigation method: {', '.join(PAPER_METHODS)} (segmind needs depth_topic)",
+    "method": f"navigation method: {', '.join(METHODS)} (segmind and segcorridor need depth_topic; segcorridor "
+    "the camera intrinsics: camera_info_topic or camera_fx ... camera_height, and takes the IMU's roll and pitch)",
     "depth_threshold": "depth cut d_th in metres (paper: 5 vineyards, 8 pear rows and pergolas, 10 tall trees)",
     "fuse_frames": "masks ORed per command (paper: 3)",
     "smooth_window": "columns of the histogram's moving average (odd)",
@@ -106,6 +152,23 @@ DESCRIPTIONS: dict[str, str] = {
     "slop_s": "colour and depth pair when their stamps differ by at most this, s",
     "publish_overlay": "publish ~/overlay: the camera image with the fused mask and the chosen column",
     "publish_diagnostics": "publish /diagnostics (diagnostic_msgs/DiagnosticArray) once a second",
+    "publish_frame_acks": "publish ~/frame_acks (std_msgs/Header, reliable): the header of every image message the "
+    "node has handled (stepped, waiting for its partner, or refused), so a bag player can feed the node frame by "
+    "frame and a monitor can see which frames it dropped",
+    "camera_info_topic": "sensor_msgs/CameraInfo of the colour camera: SegCorridor's intrinsics (k, width, height) "
+    "when camera_fx etc. are not set; empty: not subscribed",
+    "imu_topic": "sensor_msgs/Imu: roll and pitch from its orientation (REP 103, IMU level with base_link) for "
+    "SegCorridor; empty: not subscribed, level ground assumed",
+    "imu_max_age_s": "an IMU message older than this at a frame is stale: ignored (level ground), logged, s",
+    "camera_width": "SegCorridor's camera from parameters (all six set) instead of camera_info_topic: image width, px",
+    "camera_height": "image height, px (0: intrinsics from camera_info_topic)",
+    "camera_fx": "focal length in x, px",
+    "camera_fy": "focal length in y, px",
+    "camera_cx": "principal point x, px",
+    "camera_cy": "principal point y, px",
+    "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
+    "camera_tilt_deg": "SegCorridor: camera tilt down from horizontal, degrees",
+    "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
 }
 GROUPS = (
     ("driving", ("enabled", "method", "model", "depth_threshold", "threads")),
@@ -113,7 +176,12 @@ GROUPS = (
     ("timing", ("publish_on_timer",)),
     ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
     ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
-    ("outputs", ("publish_overlay", "publish_diagnostics")),
+    ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
+    (
+        "SegCorridor: camera and IMU",
+        ("camera_info_topic", "imu_topic", "imu_max_age_s", "camera_width", "camera_height", "camera_fx")
+        + ("camera_fy", "camera_cx", "camera_cy", "camera_mount_height", "camera_tilt_deg", "camera_mount_forward"),
+    ),
 )
 # The file's defaults; depth_threshold has none in NavigatorConfig on purpose: the paper's vineyards'.
 DEFAULTS: dict[str, Any] = {
@@ -131,6 +199,9 @@ STARTUP_ONLY = (
     "twist_stamped",
     "publish_overlay",
     "publish_diagnostics",
+    "publish_frame_acks",
+    "camera_info_topic",
+    "imu_topic",
 )
 
 
@@ -159,28 +230,51 @@ def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
     if unknown:
         raise ValueError(f"parameter {unknown[0]}: unknown (known: {', '.join(sorted(DEFAULTS))})")
     merged = {name: _typed(name, values[name]) if name in values else default for name, default in DEFAULTS.items()}
-    if merged["method"] not in PAPER_METHODS:
-        raise ValueError(f"parameter method: {merged['method']!r} is not one of {', '.join(PAPER_METHODS)}")
+    if merged["method"] not in METHODS:
+        raise ValueError(f"parameter method: {merged['method']!r} is not one of {', '.join(METHODS)}")
     if merged["model"] and base is not None and not Path(merged["model"]).is_absolute():
         merged["model"] = str(base / merged["model"])
 
     def build(cls: type) -> Any:
         names = [f.name for f in dataclasses.fields(cls) if f.init]
         try:
-            return cls(**{name: merged[name] for name in names})
+            return cls(**{name: merged[name] for name in names if name in merged})
         except ValueError as exc:
-            named = next((n for n in names if str(exc).startswith(n)), None)
-            raise ValueError(f"parameter {named}: {exc}" if named else f"parameters: {exc}") from None
+            text = str(exc).removeprefix("corridor.")
+            named = next((n for n in names if text.startswith(n)), None)
+            raise ValueError(f"parameter {named}: {text}" if named else f"parameters: {exc}") from None
 
-    params = NodeParams(build(NavigatorConfig), build(RuntimeConfig), build(NodeSettings))
-    if params.navigator.method == "segmind" and not params.node.depth_topic:
+    node = build(NodeSettings)
+    if merged["method"] == "segcorridor":
+        return NodeParams(build(CorridorConfig), build(RuntimeConfig), node, _corridor_camera(node))
+    params = NodeParams(build(NavigatorConfig), build(RuntimeConfig), node)
+    if params.navigator.method in DEPTH_METHODS and not node.depth_topic:
         raise ValueError("parameter depth_topic: segmind needs depth (or use segmin, which runs on the mask alone)")
     return params
 
 
+def _corridor_camera(node: NodeSettings) -> CameraGeometry | None:
+    """SegCorridor's camera from the parameters, or None when a CameraInfo topic gives it (ValueError
+    when neither does: it cannot place a pixel without the intrinsics)."""
+    if not node.depth_topic:
+        raise ValueError("parameter depth_topic: segcorridor needs depth")
+    if node.intrinsics_given:
+        try:
+            return node.camera_geometry()
+        except ValueError as exc:
+            raise ValueError(f"parameter {exc}") from None
+    if not node.camera_info_topic:
+        raise ValueError(
+            "parameter camera_info_topic: segcorridor needs the camera intrinsics: set camera_info_topic "
+            "(sensor_msgs/CameraInfo) or camera_width, camera_height, camera_fx, camera_fy, camera_cx and camera_cy"
+        )
+    return None
+
+
 def as_values(params: NodeParams) -> dict[str, Any]:
-    """The parameters as plain name -> value (what the node declares)."""
-    values = {**dataclasses.asdict(params.node), **dataclasses.asdict(params.runtime)}
+    """The parameters as plain name -> value (what the node declares). SegCorridor's config lacks
+    the paper's navigator-only parameters (smooth_window, omega_gain, zeros_*): they are the defaults."""
+    values = {**DEFAULTS, **dataclasses.asdict(params.node), **dataclasses.asdict(params.runtime)}
     values.update({k: v for k, v in dataclasses.asdict(params.navigator).items() if k in DEFAULTS})
     return values
 
