@@ -113,7 +113,9 @@ class Renderer:
     renderer changing the same bodies would leave the first one's bookkeeping stale.
     """
 
-    def __init__(self, world: World, camera: CameraModel | None = None) -> None:
+    def __init__(self, world: World, camera: CameraModel | None = None, backend: str | None = None) -> None:
+        """`backend` overrides the world's `render.backend` (the agreement bench renders one world with
+        both: the gl backend leaves pybullet's bodies alone, so a tiny renderer beside it stays right)."""
         self.world = world
         self.client = world.client_id
         self._optics: dict[tuple, tuple] = {}
@@ -144,7 +146,10 @@ class Renderer:
         self.hidden: set[int] = set()  # bodies kept hidden whatever the culling says (tests, ablations)
         self.state = self.bodies >= 0  # shown flag per (chunk, level), mirrors `shown`
         self.raster = None
-        if world.spec.render.backend == "gl":
+        self.backend = backend or world.spec.render.backend
+        if self.backend not in ("tiny", "gl"):
+            raise ValueError(f"render backend: 'tiny' or 'gl', got {self.backend!r}")
+        if self.backend == "gl":
             from segmin.data.synth.gl_raster import GlRasteriser
 
             self.raster = GlRasteriser(world)
