@@ -44,6 +44,9 @@ def register(commands, bench) -> None:
     b.add_argument("--fields", nargs="+", default=None, help="worlds to measure (default: the five test fields)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (default 1 2)")
     b.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
+    b.add_argument(
+        "--backends", nargs="+", default=["tiny", "gl"], help="render backends, in turn per world (default tiny gl)"
+    )
     b.set_defaults(func=_bench)
 
     a = bench.add_parser(
@@ -168,6 +171,7 @@ def _bench(args) -> int:
         frames=args.frames,
         fields=tuple(args.fields or TEST_FIELDS),
         workers=tuple(args.workers),
+        backends=tuple(args.backends),
     )
     bench_synth(options)
     return 0
