@@ -3,10 +3,14 @@ clear line for a bad backend name or a machine without EGL."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pybullet as p
 import pytest
-from synth_helpers import tiny
+from synth_helpers import tiny, write_spec
 
 from segmin.app.cli import main
 from segmin.common.config import ConfigError
@@ -16,8 +20,11 @@ from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.render import Renderer
 from segmin.data.synth.spec import load_world_spec, spec_from_dict
 from segmin.data.synth.world import build_world
+from segmin.nav_eval.sim.config import load_nav_config
+from segmin.nav_eval.sim.factories import FieldContext
 
 SMALL = CameraModel(width=48, height=48)
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_gl_frames_agree_with_tinyrenderer():
@@ -80,13 +87,9 @@ def test_no_egl_is_one_line(monkeypatch):
     def refuse(**_kwargs):
         raise Exception("libEGL.so: cannot open shared object file")  # what glcontext raises
 
-    gl_raster._context.cache_clear()
     monkeypatch.setattr(moderngl, "create_context", refuse)
-    try:
-        with pytest.raises(OSError, match=r"render.backend=gl found no headless OpenGL .* libEGL.so"):
-            gl_raster._context()
-    finally:
-        gl_raster._context.cache_clear()
+    with pytest.raises(OSError, match=r"render.backend=gl found no headless OpenGL .* libEGL.so"):
+        gl_raster.open_context()
 
 
 def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):
@@ -95,3 +98,38 @@ def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):
     assert main(["bench", "render-agreement", "--sheet", str(sheet)]) == 2
     assert "--force" in capsys.readouterr().err and sheet.read_bytes() == b"keep"
     assert main(["bench", "render-agreement", "--poses", "0"]) == 2
+
+
+def test_the_nav_config_picks_the_backend_of_every_field(tmp_path):
+    field = write_spec(tmp_path / "tiny.yaml", tiny())
+    for backend in (None, "gl"):
+        overrides = [] if backend is None else [f"render.backend={backend}"]
+        ctx = FieldContext(field, load_nav_config(None, overrides))
+        try:
+            assert ctx.renderer.backend == (backend or "tiny")  # None: the field's own (tiny by default)
+            assert (ctx.renderer.raster is not None) == (backend == "gl")
+        finally:
+            ctx.close()
+
+
+def test_torch_and_triton_load_after_a_gl_frame():
+    """llvmpipe's LLVM and triton's must not meet: a process that renders with gl and then imports
+    torch's compiler (training after rendering, the test suite) used to segfault."""
+    code = (
+        "import sys; sys.path.insert(0, 'tests')\n"
+        "import importlib.util, pybullet as p\n"
+        "from synth_helpers import tiny\n"
+        "from segmin.data.synth.camera import CameraModel\n"
+        "from segmin.data.synth.render import Renderer\n"
+        "from segmin.data.synth.spec import spec_from_dict\n"
+        "from segmin.data.synth.world import build_world\n"
+        "world = build_world(spec_from_dict(tiny()), p.connect(p.DIRECT))\n"
+        "Renderer(world, CameraModel(width=16, height=16), backend='gl').render(*world.gap_pose(0, 1.0))\n"
+        "assert importlib.util.find_spec('triton'), 'triton is not installed: nothing to check'\n"
+        "import triton\n"
+        "print('ok')\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], check=False, capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stderr[-2000:]

@@ -18,7 +18,10 @@ context starts.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import importlib
+import importlib.util
 import os
 
 import numpy as np
@@ -77,9 +80,15 @@ SHININESS = 4.0
 
 @functools.cache
 def _context():
-    """The process's one headless context (contexts are costly and a process renders one frame at a
-    time); a missing EGL becomes one line saying what to install."""
+    """The process's one headless context: contexts are costly, a process renders one frame at a
+    time, and GL objects must be released in the context that made them."""
+    return open_context()
+
+
+def open_context():
+    """A new headless EGL context; a missing EGL or driver becomes one line saying what to install."""
     os.environ.setdefault("LP_NUM_THREADS", "1")
+    _load_tritons_llvm_first()
     import moderngl  # the [sim] extra; a missing one is named by the command line
 
     try:
@@ -91,6 +100,16 @@ def _context():
         ) from None
     ctx.gc_mode = "auto"  # buffers of a world go with its renderer
     return ctx
+
+
+def _load_tritons_llvm_first() -> None:
+    """Mesa's llvmpipe loads its LLVM with global symbols; triton (which torch imports for compiled
+    kernels) links an LLVM of its own whose static constructors, run after Mesa's is loaded, bind
+    to Mesa's and crash the process (a segfault in the middle of an import, or a test suite's).
+    Loaded first, triton's LLVM keeps to itself. About half a second, once, where triton is installed."""
+    if importlib.util.find_spec("triton") is not None:
+        with contextlib.suppress(ImportError):
+            importlib.import_module("triton._C.libtriton")
 
 
 def clip_matrix(camera: CameraModel, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
