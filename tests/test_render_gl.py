@@ -97,7 +97,6 @@ def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):
     sheet.write_bytes(b"keep")
     assert main(["bench", "render-agreement", "--sheet", str(sheet)]) == 2
     assert "--force" in capsys.readouterr().err and sheet.read_bytes() == b"keep"
-    assert main(["bench", "render-agreement", "--poses", "0"]) == 2
 
 
 def test_the_nav_config_picks_the_backend_of_every_field(tmp_path):
