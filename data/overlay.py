@@ -1,12 +1,15 @@
-"""The mask tint of every figure (training previews, synth contact sheets, nav-eval frames and videos).
+"""The mask tint and depth colours of every figure (training previews, synth contact sheets,
+nav-eval frames and videos, renderer comparisons).
 
-One function so the figures agree on how a mask is drawn; each keeps its own colour and opacity.
+One function each so the figures agree on how a mask and a depth map are drawn; each figure keeps
+its own mask colour and opacity.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 GREEN: tuple[int, int, int] = (0, 255, 0)
@@ -24,3 +27,11 @@ def tint_mask(rgb: np.ndarray, mask: np.ndarray, colour: Sequence[int] = GREEN, 
     keep = round(1.0 - opacity, 6)
     out[selected] = (keep * out[selected] + opacity * np.asarray(colour)).astype(np.uint8)
     return out
+
+
+def depth_colours(depth: np.ndarray, far: float = 15.0) -> np.ndarray:
+    """RGB uint8 picture of planar depth in metres: near warm, `far` and beyond cold, no return black."""
+    d = np.clip(depth / far, 0, 1)
+    image = cv2.applyColorMap((255 - d * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[:, :, ::-1].copy()
+    image[depth <= 0] = 0
+    return image

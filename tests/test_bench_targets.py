@@ -39,6 +39,10 @@ def test_verdicts_cover_the_measured_figures_only():
         (["bench", "synth", "--workers", "1", "0"], "--workers 1 0: each must be >= 1"),
         (["bench", "nav-eval", "--workers", "0"], "--workers 0: must be >= 1"),
         (["bench", "nav-eval", "--seconds", "0"], "--seconds 0.0: must be > 0"),
+        (["bench", "nav-eval", "--backends", "tiny", "vulkan"], "--backends tiny vulkan: each must be one of tiny, gl"),
+        (["bench", "nav-eval", "--rounds", "0"], "--rounds 0: must be >= 1"),
+        (["bench", "synth", "--backends", "egl"], "--backends egl: each must be tiny or gl"),
+        (["bench", "render-agreement", "--poses", "0"], "--poses 0: must be >= 1"),
     ],
 )
 def test_benches_refuse_bad_parameters_with_one_line(argv, message, capsys):

@@ -1,5 +1,8 @@
 """`segmin bench synth`: frames/s written per world (1 and 2 workers), and 20 m vs 200 m rows.
 
+Every render backend (`--backends`, default tiny and gl) measures each world in turn, so their
+ratio is taken under the same load.
+
 Per world: whole-run and steady frames/s of `render_dataset` (RGB + depth + mask PNGs written),
 and the CPU milliseconds of rendering and encoding one frame in this process (independent of
 other load). Then the per-frame render time of a straight vineyard 20 m and 200 m long: culling
@@ -8,6 +11,7 @@ should make it (nearly) independent of the world's size; the ratio is printed ag
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 import time
 from dataclasses import dataclass
@@ -31,8 +35,11 @@ class SynthBenchOptions:
     frames: int = 120  # frames per measurement
     fields: tuple[str, ...] = TEST_FIELDS
     workers: tuple[int, ...] = (1, 2)
+    backends: tuple[str, ...] = ("tiny", "gl")
 
     def __post_init__(self) -> None:
+        if not self.backends or any(b not in ("tiny", "gl") for b in self.backends):
+            raise ValueError(f"--backends {' '.join(self.backends)}: each must be tiny or gl")
         if self.frames < 1:
             raise ValueError(f"--frames {self.frames}: must be >= 1")
         if not self.workers or min(self.workers) < 1:
@@ -53,20 +60,40 @@ def bench_synth(options: SynthBenchOptions) -> dict[str, float]:
     )
     print("frames/s: whole run (incl. building the world in each worker) and steady (after the first task);")
     print("cpu ms/frame: render + encode in one process (CPU time, independent of other load)")
-    header = f"{'world':20s} " + " ".join(f"{f'{w}w run':>8s} {f'{w}w steady':>10s}" for w in options.workers)
+    header = f"{'world':20s} {'backend':7s} " + " ".join(
+        f"{f'{w}w run':>8s} {f'{w}w steady':>10s}" for w in options.workers
+    )
     print(header + f" {'cpu ms/frame':>13s}")
     for name, spec in specs.items():
-        print(_world_row(name, spec, options), flush=True)
-    seconds = {length: _render_seconds_at_length(length, options) for length in ROW_LENGTHS}
-    ratio = seconds[ROW_LENGTHS[1]] / seconds[ROW_LENGTHS[0]]
-    print(f"200 m / 20 m per-frame render time ratio (CPU): {ratio:.2f}")
-    for target in TARGETS:
-        print(target.verdict(ratio))
-    return {**{f"{length:g} m": s for length, s in seconds.items()}, "length_ratio": ratio}
+        cells = {b: _world_row(_with_backend(spec, b), options) for b in options.backends}
+        for backend, row in cells.items():
+            print(
+                f"{name:20s} {backend:7s} "
+                + " ".join(f"{v:8.1f} {s:10.1f}" for v, s in row[:-1])
+                + f" {row[-1][0]:13.1f}"
+            )
+        if len(cells) > 1:  # per cell: frames/s of the last backend / the first; CPU ms of the first / the last
+            first, last = cells[options.backends[0]], cells[options.backends[-1]]
+            ratios = " ".join(f"{b[0] / a[0]:7.2f}x {b[1] / a[1]:9.2f}x" for a, b in zip(first[:-1], last[:-1]))
+            print(f"{'':20s} {'ratio':7s} {ratios} {first[-1][0] / last[-1][0]:12.2f}x", flush=True)
+    results = {}
+    for backend in options.backends:
+        seconds = {length: _render_seconds_at_length(length, options, backend) for length in ROW_LENGTHS}
+        ratio = seconds[ROW_LENGTHS[1]] / seconds[ROW_LENGTHS[0]]
+        print(f"{backend}: 200 m / 20 m per-frame render time ratio (CPU): {ratio:.2f}")
+        for target in TARGETS:
+            print(target.verdict(ratio))
+        results.update({f"{backend} {length:g} m": s for length, s in seconds.items()})
+        results[f"{backend} length_ratio"] = ratio
+    return results
 
 
-def _world_row(name: str, spec: WorldSpec, options: SynthBenchOptions) -> str:
-    """One table row: frames/s per worker count, and the CPU cost of one frame."""
+def _with_backend(spec: WorldSpec, backend: str) -> WorldSpec:
+    return dataclasses.replace(spec, render=dataclasses.replace(spec.render, backend=backend))
+
+
+def _world_row(spec: WorldSpec, options: SynthBenchOptions) -> list[tuple[float, float]]:
+    """One table row: (whole-run, steady) frames/s per worker count, then (CPU ms of one frame, 0)."""
     from segmin.data.synth.writer import FrameRenderer, RenderJob, encode_frame, render_dataset
 
     cells = []
@@ -76,7 +103,7 @@ def _world_row(name: str, spec: WorldSpec, options: SynthBenchOptions) -> str:
                 spec=spec, out=Path(tmp), frames=options.frames, camera=options.camera, workers=workers, progress=False
             )
             summary = render_dataset(job)
-        cells.append(f"{summary['fps']:8.1f} {summary['steady_fps']:10.1f}")
+        cells.append((summary["fps"], summary["steady_fps"]))
     renderer = FrameRenderer(spec, options.camera, spec.seed, 10, True)
     try:
         started = time.process_time()
@@ -86,10 +113,10 @@ def _world_row(name: str, spec: WorldSpec, options: SynthBenchOptions) -> str:
         cpu_ms = 1000 * (time.process_time() - started) / n
     finally:
         renderer.close()
-    return f"{name:20s} " + " ".join(cells) + f" {cpu_ms:13.1f}"
+    return [*cells, (cpu_ms, 0.0)]
 
 
-def _render_seconds_at_length(length: float, options: SynthBenchOptions) -> float:
+def _render_seconds_at_length(length: float, options: SynthBenchOptions, backend: str) -> float:
     """Mean CPU seconds per frame over the first 15 m of a straight vineyard `length` m long
     (the same poses relative to the camera at every length); prints the world's size and times."""
     import pybullet as p
@@ -98,7 +125,7 @@ def _render_seconds_at_length(length: float, options: SynthBenchOptions) -> floa
     from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.world import build_world
 
-    spec = load_world_spec("straight_vineyard", [f"rows.length={length}"])
+    spec = load_world_spec("straight_vineyard", [f"rows.length={length}", f"render.backend={backend}"])
     client = p.connect(p.DIRECT)
     try:
         t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""`segmin synth render|preview` and `segmin bench synth`."""
+"""`segmin synth render|preview`, `segmin bench synth` and `segmin bench render-agreement`."""
 
 from __future__ import annotations
 
@@ -45,7 +45,20 @@ def register(commands, bench) -> None:
     b.add_argument("--fields", nargs="+", default=None, help="worlds to measure (default: the five test fields)")
     b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (default 1 2)")
     b.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
+    b.add_argument(
+        "--backends", nargs="+", default=["tiny", "gl"], help="render backends, in turn per world (default tiny gl)"
+    )
     b.set_defaults(func=_bench)
+
+    a = bench.add_parser(
+        "render-agreement", help="the gl render backend against TinyRenderer: mask IoU, depth error, speed"
+    )
+    a.add_argument("--poses", type=int, default=8, help="poses along each field's evaluation gap (default 8)")
+    a.add_argument("--fields", nargs="+", default=None, help="worlds to compare (default: the five test fields)")
+    a.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
+    a.add_argument("--sheet", type=Path, default=None, help="PNG file for the side-by-side frames (one row a field)")
+    a.add_argument("--force", action="store_true", help="overwrite an existing --sheet")
+    a.set_defaults(func=_bench_agreement)
 
 
 def _world_args(p: argparse.ArgumentParser) -> None:
@@ -102,7 +115,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
     import numpy as np
     import pybullet as p
 
-    from segmin.data.overlay import MAGENTA, tint_mask
+    from segmin.data.overlay import MAGENTA, depth_colours, tint_mask
     from segmin.data.synth.render import Renderer
     from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.world import build_world
@@ -123,10 +136,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
                     renderer.randomize_appearance(rng)
                 f = renderer.render(x, y, yaw, rng=rng)
                 overlay = tint_mask(f.rgb, f.mask, MAGENTA, opacity=0.55)
-                d = np.clip(f.depth / 15.0, 0, 1)
-                depth = cv2.applyColorMap((255 - d * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[:, :, ::-1].copy()
-                depth[f.depth <= 0] = 0
-                row = np.concatenate([f.rgb, overlay, depth], axis=1)
+                row = np.concatenate([f.rgb, overlay, depth_colours(f.depth)], axis=1)
                 label = f"{spec.name}  s={s:.0f} m"
                 cv2.putText(row, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
                 cv2.putText(row, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
@@ -163,6 +173,23 @@ def _bench(args) -> int:
         frames=args.frames,
         fields=tuple(args.fields or TEST_FIELDS),
         workers=tuple(args.workers),
+        backends=tuple(args.backends),
     )
     bench_synth(options)
+    return 0
+
+
+def _bench_agreement(args) -> int:
+    from segmin.common.outputs import check_output_file
+    from segmin.data.synth.agreement import AgreementOptions, bench_render_agreement
+    from segmin.data.synth.spec import TEST_FIELDS
+
+    if args.sheet is not None:
+        check_output_file(args.sheet, "--sheet")
+        if args.sheet.exists() and not args.force:
+            raise ValueError(f"--sheet {args.sheet}: already exists; use --force to overwrite")
+    options = AgreementOptions(
+        camera=_camera(args.size), poses=args.poses, fields=tuple(args.fields or TEST_FIELDS), sheet=args.sheet
+    )
+    bench_render_agreement(options)
     return 0

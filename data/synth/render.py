@@ -7,6 +7,10 @@ level of detail. Shadows double a frame's cost, so they are drawn on a share of 
 back-lit skies and distance haze are randomised from the world's `sky` section. Backdrop chunks
 skip the distance cut. Where nothing was hit, a sky (gradient plus clouds) is composited and
 depth is 0 (no return).
+
+`render.backend` picks the rasteriser: `tiny` (TinyRenderer, the reference) or `gl` (OpenGL through
+EGL, `gl_raster.py`), which draws the same meshes and needs no alpha changes in pybullet; culling,
+level of detail, sky, haze and exposure are this module's for both.
 """
 
 from __future__ import annotations
@@ -109,7 +113,9 @@ class Renderer:
     renderer changing the same bodies would leave the first one's bookkeeping stale.
     """
 
-    def __init__(self, world: World, camera: CameraModel | None = None) -> None:
+    def __init__(self, world: World, camera: CameraModel | None = None, backend: str | None = None) -> None:
+        """`backend` overrides the world's `render.backend` (the agreement bench renders one world with
+        both: the gl backend leaves pybullet's bodies alone, so a tiny renderer beside it stays right)."""
         self.world = world
         self.client = world.client_id
         self._optics: dict[tuple, tuple] = {}
@@ -139,6 +145,14 @@ class Renderer:
         self.shown: dict[int, bool] = {}
         self.hidden: set[int] = set()  # bodies kept hidden whatever the culling says (tests, ablations)
         self.state = self.bodies >= 0  # shown flag per (chunk, level), mirrors `shown`
+        self.raster = None
+        self.backend = backend or world.spec.render.backend
+        if self.backend not in ("tiny", "gl"):
+            raise ValueError(f"render backend: 'tiny' or 'gl', got {self.backend!r}")
+        if self.backend == "gl":
+            from segmin.data.synth.gl_raster import GlRasteriser
+
+            self.raster = GlRasteriser(world)
         # Put every body in a known state: another renderer may have used this world before.
         for c in chunks:
             for b in c.bodies:
@@ -147,9 +161,7 @@ class Renderer:
                 self.rgba[b] = list(c.tint[:3])
                 self.texture[b] = c.texture
                 self.shown[b] = True
-                p.changeVisualShape(
-                    b, -1, textureUniqueId=c.texture, rgbaColor=self.rgba[b] + [1.0], physicsClientId=self.client
-                )
+                self._set_visual(b, texture=c.texture)
         self._noise_rng = np.random.default_rng([world.seed, 7])
         self.far_ground = np.array([0.42, 0.42, 0.3], np.float32)
 
@@ -179,6 +191,17 @@ class Renderer:
         self.aspect, self.projection, self.rays_small, self.radius = self._optics[key]
         self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
         self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
+
+    def _set_visual(self, body: int, texture: int | None = None) -> None:
+        """Show TinyRenderer a body's tint, texture and shown flag (alpha); the gl backend reads them
+        from `rgba`, `texture` and `state` at draw time instead."""
+        if self.raster is not None:
+            return
+        rgba = self.rgba[body] + [1.0 if self.shown[body] else 0.0]
+        if texture is None:
+            p.changeVisualShape(body, -1, rgbaColor=rgba, physicsClientId=self.client)
+        else:
+            p.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=rgba, physicsClientId=self.client)
 
     # ----------------------------------------------------------------- appearance
     def randomize_appearance(self, rng: np.random.Generator) -> None:
@@ -210,10 +233,7 @@ class Renderer:
                     continue
                 self.rgba[b] = [min(max(float(v), 0.0), 1.0) for v in tint]
                 self.texture[b] = texture
-                alpha = 1.0 if self.shown[b] else 0.0
-                p.changeVisualShape(
-                    b, -1, textureUniqueId=texture, rgbaColor=self.rgba[b] + [alpha], physicsClientId=self.client
-                )
+                self._set_visual(b, texture=texture)
 
     # ----------------------------------------------------------------- culling
     def _cull(self, pose: np.ndarray) -> dict:
@@ -242,9 +262,8 @@ class Renderer:
         changed = np.nonzero(want != self.state)
         for i, lv in zip(*changed):
             b = int(self.bodies[i, lv])
-            w = bool(want[i, lv])
-            self.shown[b] = w
-            p.changeVisualShape(b, -1, rgbaColor=self.rgba[b] + [1.0 if w else 0.0], physicsClientId=self.client)
+            self.shown[b] = bool(want[i, lv])
+            self._set_visual(b)
         self.state = want
         return {
             "visible_chunks": int(visible.sum()),
@@ -351,13 +370,14 @@ class Renderer:
         pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
         stats = self._cull(pose)
         look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
-        rgb, zbuf, seg = self._shoot(pose, look)
-        hit = seg >= 0
-        ids = np.where(hit, seg & 0xFFFFFF, -1).astype(np.int32)
+        if self.raster is None:
+            rgb, depth, ids = self._shoot(pose, look)
+        else:  # no shadows: the frame's stats say so
+            look["shadow"] = False
+            bodies = self.bodies[self.state].tolist()
+            rgb, depth, ids = self.raster.shoot(cam, pose, look["light"], bodies, self.rgba, self.texture)
+        hit = ids >= 0
         mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)]
-        near, far = cam.near, cam.far
-        depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
-        depth[~hit] = 0.0
         if not hit.all():
             np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
         if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
@@ -381,7 +401,8 @@ class Renderer:
         )
 
     def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """TinyRenderer's image from `pose` in `look`'s light: RGB, depth buffer and segmentation."""
+        """TinyRenderer's image from `pose` in `look`'s light: RGB, planar depth (0 where nothing was
+        hit) and body ids (-1 there)."""
         cam = self.camera
         eye = pose[:3, 3]
         view = p.computeViewMatrix(
@@ -400,7 +421,12 @@ class Renderer:
         rgba = np.reshape(np.asarray(rgba, np.uint8), (cam.height, cam.width, 4))
         zbuf = np.reshape(np.asarray(zbuf, np.float32), (cam.height, cam.width))
         seg = np.reshape(np.asarray(seg, np.int32), (cam.height, cam.width))
-        return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), zbuf, seg
+        hit = seg >= 0
+        ids = np.where(hit, seg & 0xFFFFFF, -1).astype(np.int32)
+        near, far = cam.near, cam.far
+        depth = np.float32(far * near) / (np.float32(far) - np.float32(far - near) * zbuf)
+        depth[~hit] = 0.0
+        return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), depth, ids
 
     def _expose(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Camera exposure: a random gain per channel (saturating), then the world's vignetting."""

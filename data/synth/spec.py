@@ -280,8 +280,14 @@ class AppearanceSpec:
 
 @dataclass
 class RenderSpec:
-    """Per-world rendering knobs: what to hide (alpha 0) and when to switch to coarse meshes."""
+    """Per-world rendering knobs: which rasteriser, what to hide and when to switch to coarse meshes.
 
+    `backend`: `tiny` is pybullet's TinyRenderer, the reference; `gl` is OpenGL through a headless
+    EGL context (Mesa's llvmpipe on a CPU), several times faster, same masks and depth, no shadows
+    (see data/synth/gl_raster.py).
+    """
+
+    backend: Literal["tiny", "gl"] = "tiny"
     cull_distance: float = 35.0
     lod_distances: tuple[float, float] = (4.0, 10.0)  # switch to the next coarser level beyond these
     chunk_length: float = 3.0  # plants of one row within this length share one body

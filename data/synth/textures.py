@@ -213,5 +213,7 @@ class TextureSet:
         self.ground = [ids[f"ground{i}"] for i in range(n)]
         self.grass = [ids[f"grass{i}"] for i in range(n)]
         self.structure = ids["structure"]
+        # The pixels behind each texture id, for renderers other than pybullet's.
+        self.images = {ids[name]: img for name, img in images.items()}
         # Mean colour of each ground texture (0..1), used to paint ground beyond the tiles.
         self.ground_mean = [images[f"ground{i}"].reshape(-1, 3).mean(axis=0) / 255.0 * 0.8 for i in range(n)]

@@ -120,6 +120,7 @@ class Chunk:
     triangles: list[int] = field(default_factory=list)  # per level
     capsule: tuple[np.ndarray, np.ndarray, float] | None = None  # tighter bound for distances
     tint: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)  # colour before per-episode tints
+    meshes: list[Mesh] = field(default_factory=list)  # per level, the triangles of `bodies` (other renderers)
 
 
 @dataclass
@@ -207,6 +208,7 @@ def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1,
         triangles=[m.n_triangles for m in levels],
         capsule=levels[0].bounding_capsule(),
         tint=tuple(float(v) for v in rgba),
+        meshes=levels,
     )
 
 

@@ -26,6 +26,13 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         help="also run the full matrix (5 fields x 3 methods x 3 runs) on --workers and time it",
     )
     b.add_argument("--workers", type=int, default=2, help="workers for --matrix (default 2)")
+    b.add_argument(
+        "--backends",
+        nargs="+",
+        default=["tiny", "gl"],
+        help="render backends driving the same run in turn (default: tiny gl); --matrix uses the last",
+    )
+    b.add_argument("--rounds", type=int, default=1, help="turns of every backend (default 1)")
     b.add_argument("--out", type=Path, default=None, help="folder for --matrix outputs (default: a temp folder)")
     add_scenario_options(b)
     b.set_defaults(func=_bench)
@@ -92,6 +99,8 @@ def _bench(args: argparse.Namespace) -> int:
         matrix=args.matrix,
         workers=args.workers,
         out=args.out,
+        backends=tuple(args.backends),
+        rounds=args.rounds,
     )
     bench_nav_eval(options)
     return 0

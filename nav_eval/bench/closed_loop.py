@@ -4,7 +4,9 @@ One run on one field with the ONNX segmenter on one thread (what each of 2 worke
 2-core machine), timed per stage: rendering, segmentation (on a helper thread, overlapping the
 next render), navigator, and the rest. The figure of merit is simulated seconds per wall-clock
 second; the full matrix (5 fields x 3 methods x 3 runs) is estimated from it, or measured with
-`--matrix`. Both are printed against `TARGETS`.
+`--matrix`. Both are printed against `TARGETS`. Each render backend (`--backends`) drives the
+same run, taking turns (`--rounds` times), so the ratio between them is measured under the same
+load.
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ from segmin.common.speed_targets import SpeedTarget, verdict_lines
 from segmin.nav_eval.sim.config import NavEvalConfig
 
 TARGETS: tuple[SpeedTarget, ...] = (
-    SpeedTarget("realtime_factor", "closed loop", 3.0, "x real time", at_least=True),
-    SpeedTarget("matrix_minutes", "full matrix estimate", 20.0, "min"),
+    SpeedTarget("realtime_factor", "closed loop", 5.0, "x real time", at_least=True),
+    SpeedTarget("matrix_minutes", "full matrix estimate", 6.0, "min"),
 )
+BACKENDS = ("tiny", "gl")
 # Simulated seconds of the full matrix: SegMin / SegMinD need ~42 s for 20 m at ~0.48 m/s (45 s
 # with the start), SegZeros may run to its 60 s limit; 5 fields x 3 runs each.
 MATRIX_SIM_S = 5 * 3 * (2 * 45.0) + 5 * 3 * 60.0
@@ -44,8 +47,15 @@ class NavEvalBenchOptions:
     matrix: bool = False  # also run and time the full matrix
     workers: int = 2  # for the matrix (estimated and measured)
     out: Path | None = None  # the matrix's outputs (default: a temporary folder)
+    backends: tuple[str, ...] = BACKENDS  # render backends, in turn; the matrix runs with the last
+    rounds: int = 1  # turns of every backend
 
     def __post_init__(self) -> None:
+        unknown = [b for b in self.backends if b not in BACKENDS]
+        if unknown or not self.backends:
+            raise ValueError(f"--backends {' '.join(self.backends)}: each must be one of {', '.join(BACKENDS)}")
+        if self.rounds < 1:
+            raise ValueError(f"--rounds {self.rounds}: must be >= 1")
         if not self.seconds > 0:
             raise ValueError(f"--seconds {self.seconds}: must be > 0")
         for name in ("threads", "workers"):
@@ -144,24 +154,46 @@ def bench_one_run(
     }
 
 
+def _with_backend(config: NavEvalConfig, backend: str) -> NavEvalConfig:
+    return dataclasses.replace(config, render=dataclasses.replace(config.render, backend=backend))
+
+
 def bench_nav_eval(options: NavEvalBenchOptions) -> dict[str, Any]:
-    """Time one run, print its breakdown, the matrix estimate and the targets; returns the run's figures."""
+    """Time one run per backend and round, print each breakdown, then per backend the median real-time
+    factor, the matrix estimate and the targets, and the ratio to the first backend; returns the
+    median figures per backend."""
+    from segmin.common.machine import load_average
+
+    factors: dict[str, list[float]] = {b: [] for b in options.backends}
     with tempfile.TemporaryDirectory() as tmp:
         model = options.model or _untrained_for_timing(Path(tmp))
-        r = bench_one_run(
-            model, options.field, options.method, options.seconds, options.config, options.threads, options.seed
-        )
-        _print_run(r, options.threads)
-        estimate = MATRIX_SIM_S / (r["realtime_factor"] * options.workers) / 60.0
-        print(
-            f"full matrix estimate (5 fields x 3 methods x 3 runs, ~{MATRIX_SIM_S / 60:.0f} simulated min, "
-            f"{options.workers} workers, perfect scaling): {estimate:.1f} min"
-        )
-        for line in verdict_lines(TARGETS, {"realtime_factor": r["realtime_factor"], "matrix_minutes": estimate}):
-            print(line)
+        for turn in range(options.rounds):
+            for backend in options.backends:
+                print(f"--- render backend {backend}, round {turn + 1}/{options.rounds}, {load_average()}")
+                config = _with_backend(options.config, backend)
+                r = bench_one_run(
+                    model, options.field, options.method, options.seconds, config, options.threads, options.seed
+                )
+                _print_run(r, options.threads)
+                factors[backend].append(r["realtime_factor"])
+        print(f"--- summary ({options.workers} workers for the matrix estimate, perfect scaling), {load_average()}")
+        figures = {}
+        for backend, values in factors.items():
+            factor = float(np.median(values))
+            estimate = MATRIX_SIM_S / (factor * options.workers) / 60.0
+            ratio = factor / float(np.median(factors[options.backends[0]]))
+            print(
+                f"{backend:5s}: {factor:.2f}x real time (median of {len(values)}), {ratio:.2f}x the "
+                f"{options.backends[0]} backend; full matrix estimate (~{MATRIX_SIM_S / 60:.0f} simulated min) "
+                f"{estimate:.1f} min"
+            )
+            for line in verdict_lines(TARGETS, {"realtime_factor": factor, "matrix_minutes": estimate}):
+                print(f"  {line}")
+            figures[backend] = {"realtime_factor": factor, "matrix_minutes": estimate}
         if options.matrix:
-            _time_matrix(model, options, options.out or Path(tmp) / "matrix")
-    return r
+            matrix_options = dataclasses.replace(options, config=_with_backend(options.config, options.backends[-1]))
+            _time_matrix(model, matrix_options, options.out or Path(tmp) / "matrix")
+    return figures
 
 
 def _untrained_for_timing(folder: Path) -> str:
@@ -213,6 +245,6 @@ def _time_matrix(model: str, options: NavEvalBenchOptions, out: Path) -> None:
     wall = time.perf_counter() - t0
     sim = float(np.nansum([r.sim_time for r in results]))
     print(
-        f"full matrix measured: {len(results)} runs, {sim / 60:.1f} simulated min in {wall / 60:.1f} min wall "
+        f"full matrix measured (render backend {options.config.render.backend}): {len(results)} runs, {sim / 60:.1f} simulated min in {wall / 60:.1f} min wall "
         f"on {options.workers} workers ({sim / wall:.2f}x real time overall)"
     )

@@ -99,6 +99,15 @@ class RunSettings:
 
 
 @dataclasses.dataclass
+class RenderSettings:
+    """Which rasteriser draws the camera frames (data.synth.render): `tiny` (pybullet's TinyRenderer,
+    the reference), `gl` (OpenGL through EGL, several times faster, same masks and depth), or None
+    for each field's own `render.backend`."""
+
+    backend: Literal["tiny", "gl"] | None = None
+
+
+@dataclasses.dataclass
 class NavEvalConfig:
     """The whole evaluation config."""
 
@@ -106,6 +115,7 @@ class NavEvalConfig:
     robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
     perception: Perception = dataclasses.field(default_factory=Perception)
     run: RunSettings = dataclasses.field(default_factory=RunSettings)
+    render: RenderSettings = dataclasses.field(default_factory=RenderSettings)
     # Paper section 2: 5 m vineyards, 8 m pear and pergola, 10 m tall trees.
     depth_thresholds: dict[str, float] = dataclasses.field(
         default_factory=lambda: {

@@ -51,7 +51,7 @@ class FieldContext:
         self.client = p.connect(p.DIRECT)
         self.world = build_world(self.spec, self.client)
         self.camera = nav_camera(config)
-        self.renderer = Renderer(self.world, self.camera)
+        self.renderer = Renderer(self.world, self.camera, backend=config.render.backend)
         self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
         self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap
 

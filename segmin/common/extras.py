@@ -15,6 +15,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "markdown": "sim",
     "tqdm": "sim",
     "gymnasium": "sim",
+    "moderngl": "sim",
     "torch": "train",
     "torchvision": "train",
     "albumentations": "train",

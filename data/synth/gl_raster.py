@@ -1,0 +1,225 @@
+"""The `gl` render backend: the world's triangles rasterised by OpenGL through a headless EGL context.
+
+TinyRenderer (the `tiny` backend, the reference) rasterises in one CPU thread and scans every
+triangle's whole screen box; Mesa's llvmpipe compiles the shaders to vector code and bins
+triangles into tiles, so the same frame costs a fraction (a GPU, where EGL finds one, less still).
+Geometry is the meshes the world built its pybullet bodies from (`Chunk.meshes`), uploaded once
+into one vertex buffer; culling picks which bodies' index ranges are drawn. Shading is
+TinyRenderer's formula (ambient + (diffuse * max(0, n.l) + specular) * light colour, on the
+texel times the body's tint, truncated to integers), with nearest, repeating texture lookups
+(images uploaded bottom row first, as TinyRenderer reads them).
+Depth is the planar distance itself, interpolated per pixel, and a second float target carries
+the body id, so depth and mask need no decoding. Not drawn: TinyRenderer's shadows.
+
+llvmpipe starts as many threads as the machine has cores unless `LP_NUM_THREADS` says otherwise;
+we default it to 1 (one per worker process: workers run side by side), set before the first
+context starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib
+import importlib.util
+import os
+
+import numpy as np
+
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.world import World
+
+_VERTEX_SHADER = """
+#version 330
+uniform mat4 clip_from_world;
+uniform vec4 depth_row;  // planar depth = dot(depth_row, (p, 1))
+in vec3 in_pos;
+in vec3 in_nrm;
+in vec2 in_uv;
+out vec3 v_nrm;
+out vec2 v_uv;
+out float v_depth;
+void main() {
+    gl_Position = clip_from_world * vec4(in_pos, 1.0);
+    v_nrm = in_nrm;
+    v_uv = in_uv;
+    v_depth = dot(depth_row, vec4(in_pos, 1.0));
+}
+"""
+
+_FRAGMENT_SHADER = """
+#version 330
+uniform sampler2D texels;
+uniform vec3 tint;
+uniform float body;
+uniform vec3 light_dir;
+uniform vec3 light_colour;
+uniform vec3 terms;  // ambient, diffuse, specular coefficients
+uniform vec3 backward;  // world direction from the scene towards the camera (eye-space +z)
+uniform float shininess;
+in vec3 v_nrm;
+in vec2 v_uv;
+in float v_depth;
+layout(location = 0) out vec4 colour;
+layout(location = 1) out vec2 depth_and_body;
+void main() {
+    vec3 n = normalize(v_nrm);
+    float diffuse = max(0.0, dot(n, light_dir));
+    float specular = pow(max(dot(normalize(2.0 * dot(n, light_dir) * n - light_dir), backward), 0.0), shininess);
+    vec3 base = floor(texture(texels, v_uv).rgb * 255.0 + 0.5) * tint;
+    vec3 lit = terms.x * base + (terms.y * diffuse + terms.z * specular) * base * light_colour;
+    colour = vec4(min(floor(lit), 255.0) / 255.0, 1.0);
+    depth_and_body = vec2(v_depth, body + 1.0);
+}
+"""
+
+# TinyRenderer's specular exponent comes from a texture's specular map we do not give it; this one
+# makes the mean colour of every kind of surface agree within a few percent (render-agreement bench).
+SHININESS = 4.0
+
+
+@functools.cache
+def _context():
+    """The process's one headless context: contexts are costly, a process renders one frame at a
+    time, and GL objects must be released in the context that made them."""
+    return open_context()
+
+
+def open_context():
+    """A new headless EGL context; a missing EGL or driver becomes one line saying what to install."""
+    os.environ.setdefault("LP_NUM_THREADS", "1")
+    _load_tritons_llvm_first()
+    import moderngl  # the [sim] extra; a missing one is named by the command line
+
+    try:
+        ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    except Exception as err:  # moderngl raises plain Exceptions for a missing library or display
+        raise OSError(
+            "render.backend=gl found no headless OpenGL 3.3 through EGL (install Mesa's libegl1 and "
+            f"libgl1-mesa-dri, or use render.backend=tiny): {err}"
+        ) from None
+    ctx.gc_mode = "auto"  # buffers of a world go with its renderer
+    return ctx
+
+
+def _load_tritons_llvm_first() -> None:
+    """Mesa's llvmpipe loads its LLVM with global symbols; triton (which torch imports for compiled
+    kernels) links an LLVM of its own whose static constructors, run after Mesa's is loaded, bind
+    to Mesa's and crash the process (a segfault in the middle of an import, or a test suite's).
+    Loaded first, triton's LLVM keeps to itself. About half a second, once, where triton is installed."""
+    if importlib.util.find_spec("triton") is not None:
+        with contextlib.suppress(ImportError):
+            importlib.import_module("triton._C.libtriton")
+
+
+def clip_matrix(camera: CameraModel, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-clip matrix whose pixel centres look where `camera.intrinsics()` says, and the row
+    giving planar depth. The image comes out top row first (y is not flipped), so the read-back
+    needs no flip; GL's pixel (u, v) centre sits at window (u + 0.5, v + 0.5)."""
+    k = camera.intrinsics()
+    w, h, n, f = camera.width, camera.height, camera.near, camera.far
+    project = np.array(
+        [
+            [2 * k["fx"] / w, 0.0, 2 * (k["cx"] + 0.5) / w - 1, 0.0],
+            [0.0, 2 * k["fy"] / h, 2 * (k["cy"] + 0.5) / h - 1, 0.0],
+            [0.0, 0.0, (f + n) / (f - n), -2 * f * n / (f - n)],
+            [0.0, 0.0, 1.0, 0.0],
+        ]
+    )
+    camera_from_world = np.linalg.inv(pose)
+    return project @ camera_from_world, camera_from_world[2]
+
+
+class GlRasteriser:
+    """One world's meshes and textures in GL buffers; draws the bodies it is given from a pose."""
+
+    def __init__(self, world: World) -> None:
+        import moderngl
+
+        self.ctx = ctx = _context()
+        self.program = ctx.program(vertex_shader=_VERTEX_SHADER, fragment_shader=_FRAGMENT_SHADER)
+        vertices, indices, self.ranges = _pack(world)
+        self.centre = np.zeros((max(self.ranges) + 1, 3))
+        for chunk in world.chunks:
+            self.centre[[b for b in chunk.bodies if b >= 0]] = chunk.centre
+        vbo = ctx.buffer(vertices.tobytes())
+        ibo = ctx.buffer(indices.tobytes())
+        self.vao = ctx.vertex_array(
+            self.program, [(vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv")], index_buffer=ibo, index_element_size=4
+        )
+        self.textures = {}
+        for tid, img in world.textures.images.items():
+            tex = ctx.texture((img.shape[1], img.shape[0]), 3, np.ascontiguousarray(img[::-1]).tobytes())
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            tex.repeat_x = tex.repeat_y = True
+            self.textures[tid] = tex
+        self.blank = ctx.texture((1, 1), 3, bytes([255, 255, 255]))
+        self._size: tuple[int, int] | None = None
+
+    def _target(self, width: int, height: int):
+        if self._size != (width, height):
+            ctx = self.ctx
+            self.fbo = ctx.framebuffer(
+                color_attachments=[
+                    ctx.renderbuffer((width, height), 4),
+                    ctx.renderbuffer((width, height), 2, dtype="f4"),
+                ],
+                depth_attachment=ctx.depth_renderbuffer((width, height)),
+            )
+            self._size = (width, height)
+        return self.fbo
+
+    def shoot(
+        self,
+        camera: CameraModel,
+        pose: np.ndarray,
+        light: dict,
+        bodies: list[int],
+        rgba: dict[int, list[float]],
+        texture: dict[int, int],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none)."""
+        ctx, prog = self.ctx, self.program
+        fbo = self._target(camera.width, camera.height)
+        fbo.use()
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.enable(ctx.CULL_FACE)  # TinyRenderer draws front faces only (leaves are one-sided)
+        ctx.front_face = "cw"  # our projection keeps the image top row first, which mirrors the winding
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        clip, depth_row = clip_matrix(camera, pose)
+        prog["clip_from_world"].write(clip.T.astype("f4").tobytes())
+        prog["depth_row"].value = tuple(depth_row)
+        direction = np.asarray(light["lightDirection"], float)
+        prog["light_dir"].value = tuple(direction / np.linalg.norm(direction))
+        prog["light_colour"].value = tuple(light["lightColor"])
+        prog["terms"].value = (light["lightAmbientCoeff"], light["lightDiffuseCoeff"], light["lightSpecularCoeff"])
+        prog["backward"].value = tuple(-pose[:3, 2])
+        prog["shininess"].value = SHININESS
+        tint, body = prog["tint"], prog["body"]
+        eye = pose[:3, 3]
+        order = np.argsort(np.linalg.norm(self.centre[bodies] - eye, axis=1)) if bodies else []
+        for b in np.asarray(bodies)[order].tolist():
+            first, count = self.ranges[b]
+            self.textures.get(texture[b], self.blank).use(0)
+            tint.value = tuple(rgba[b][:3])
+            body.value = float(b)
+            self.vao.render(first=first, vertices=count)
+        w, h = camera.width, camera.height
+        rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3).copy()
+        zid = np.frombuffer(fbo.read(components=2, attachment=1, dtype="f4"), np.float32).reshape(h, w, 2)
+        return rgb, zid[..., 0].copy(), zid[..., 1].astype(np.int32) - 1
+
+
+def _pack(world: World) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[int, int]]]:
+    """Every body's mesh in one interleaved float32 vertex array (position, normal, uv) and one
+    uint32 index array; `ranges[body]` = (first index, index count)."""
+    vertex_parts, index_parts, ranges = [], [], {}
+    n_vertices = n_indices = 0
+    for chunk in world.chunks:
+        for body, mesh in zip(chunk.bodies, chunk.meshes):
+            vertex_parts.append(np.hstack([mesh.vertices, mesh.normals, mesh.uvs]).astype(np.float32))
+            index_parts.append((mesh.indices + n_vertices).astype(np.uint32))
+            ranges[body] = (n_indices, len(mesh.indices))
+            n_vertices += len(mesh.vertices)
+            n_indices += len(mesh.indices)
+    return np.concatenate(vertex_parts), np.concatenate(index_parts), ranges

@@ -1,0 +1,134 @@
+"""The gl render backend: same masks and depth as TinyRenderer, exact masks, analytic depth, and one
+clear line for a bad backend name or a machine without EGL."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import pytest
+from synth_helpers import tiny, write_spec
+
+from segmin.app.cli import main
+from segmin.common.config import ConfigError
+from segmin.data.synth import gl_raster
+from segmin.data.synth.agreement import field_agreement
+from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.render import Renderer
+from segmin.data.synth.spec import load_world_spec, spec_from_dict
+from segmin.data.synth.world import build_world
+from segmin.nav_eval.sim.config import load_nav_config
+from segmin.nav_eval.sim.factories import FieldContext
+
+SMALL = CameraModel(width=48, height=48)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_gl_frames_agree_with_tinyrenderer():
+    figures, row = field_agreement(spec_from_dict(tiny()), CameraModel(width=64, height=48), poses=3)
+    assert figures.mask_iou_min >= 0.98, figures
+    assert figures.ids_equal >= 0.98, figures
+    assert figures.depth_median_m < 1e-3 and figures.depth_p95_m < 0.01, figures
+    assert figures.rgb_mad < 8.0, figures  # same texels, tints and light; the sky is shared code
+    assert row.shape == (48, 5 * 64, 3)
+
+
+def test_gl_mask_is_exactly_the_plant_bodies(bullet_client):
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="gl")
+    x, y, yaw = world.gap_pose(world.eval_gap, 1.0)
+    frame = renderer.render(x, y, yaw)
+    assert 0.05 < frame.mask.mean() < 0.95, "both rows and free space should be in view"
+    assert np.array_equal(frame.mask, np.isin(frame.body_ids, list(world.vegetation_ids)))
+    renderer.hidden = set(world.vegetation_ids)
+    without = renderer.render(x, y, yaw)
+    assert not without.mask.any()
+    assert np.array_equal(frame.depth != without.depth, frame.mask)
+
+
+def test_gl_depth_matches_an_analytic_ground_plane(bullet_client):
+    raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0], "grass_tufts": 0.0}, structures={"poles": False})
+    world = build_world(spec_from_dict(raw), bullet_client)
+    camera = CameraModel(width=64, height=48)
+    frame = Renderer(world, camera, backend="gl").render(
+        *world.gap_pose(world.eval_gap, 1.0), pose_offset=(0.0, 0.0, -0.7, 0.05)
+    )
+    ground = {b for c in world.chunks if c.kind == "ground" for b in c.bodies}
+    is_ground = np.isin(frame.body_ids, list(ground))
+    assert is_ground.mean() > 0.3
+    k = camera.intrinsics()
+    v, u = np.mgrid[0:48, 0:64]
+    rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"], np.ones_like(u, float)], -1)
+    pose = frame.camera_pose
+    expect = -pose[2, 3] / (rays @ pose[:3, :3].T)[..., 2]
+    rel = np.abs(frame.depth[is_ground] - expect[is_ground]) / expect[is_ground]
+    assert rel.max() <= 1e-3, f"max relative depth error {rel.max():.2e}"
+    assert np.all(frame.depth[frame.body_ids < 0] == 0)
+
+
+def test_the_backend_is_validated():
+    assert load_world_spec("straight_vineyard", ["render.backend=gl"]).render.backend == "gl"
+    with pytest.raises(ConfigError, match="render.backend"):
+        load_world_spec("straight_vineyard", ["render.backend=egl"])
+    client = p.connect(p.DIRECT)
+    try:
+        with pytest.raises(ValueError, match="render backend"):
+            Renderer(build_world(spec_from_dict(tiny()), client), SMALL, backend="vulkan")
+    finally:
+        p.disconnect(client)
+
+
+def test_no_egl_is_one_line(monkeypatch):
+    import moderngl
+
+    def refuse(**_kwargs):
+        raise Exception("libEGL.so: cannot open shared object file")  # what glcontext raises
+
+    monkeypatch.setattr(moderngl, "create_context", refuse)
+    with pytest.raises(OSError, match=r"render.backend=gl found no headless OpenGL .* libEGL.so"):
+        gl_raster.open_context()
+
+
+def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):
+    sheet = tmp_path / "sheet.png"
+    sheet.write_bytes(b"keep")
+    assert main(["bench", "render-agreement", "--sheet", str(sheet)]) == 2
+    assert "--force" in capsys.readouterr().err and sheet.read_bytes() == b"keep"
+
+
+def test_the_nav_config_picks_the_backend_of_every_field(tmp_path):
+    field = write_spec(tmp_path / "tiny.yaml", tiny())
+    for backend in (None, "gl"):
+        overrides = [] if backend is None else [f"render.backend={backend}"]
+        ctx = FieldContext(field, load_nav_config(None, overrides))
+        try:
+            assert ctx.renderer.backend == (backend or "tiny")  # None: the field's own (tiny by default)
+            assert (ctx.renderer.raster is not None) == (backend == "gl")
+        finally:
+            ctx.close()
+
+
+def test_torch_and_triton_load_after_a_gl_frame():
+    """llvmpipe's LLVM and triton's must not meet: a process that renders with gl and then imports
+    torch's compiler (training after rendering, the test suite) used to segfault."""
+    code = (
+        "import sys; sys.path.insert(0, 'tests')\n"
+        "import importlib.util, pybullet as p\n"
+        "from synth_helpers import tiny\n"
+        "from segmin.data.synth.camera import CameraModel\n"
+        "from segmin.data.synth.render import Renderer\n"
+        "from segmin.data.synth.spec import spec_from_dict\n"
+        "from segmin.data.synth.world import build_world\n"
+        "world = build_world(spec_from_dict(tiny()), p.connect(p.DIRECT))\n"
+        "Renderer(world, CameraModel(width=16, height=16), backend='gl').render(*world.gap_pose(0, 1.0))\n"
+        "assert importlib.util.find_spec('triton'), 'triton is not installed: nothing to check'\n"
+        "import triton\n"
+        "print('ok')\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], check=False, capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stderr[-2000:]
