@@ -94,7 +94,7 @@ import numpy as np
 
 from .camera import CameraGeometry
 from .checks import check_depth_threshold, check_positive
-from .control import Command, CommandSmoother, clip
+from .control import Command, CommandSmoother, OffsetIntegrator, clip
 from .navigator import (
     Navigator,
     NavigatorConfig,
@@ -109,6 +109,9 @@ from .navigator import (
 from .protocols import MaskNavigator, NavigatorInputs
 
 MODES = ("both", "one_side", "trunks", "fallback")
+# pursuit: pure pursuit alone (step 5); pursuit_integral: plus the offset integral that holds the
+# centre under slip (step 6)
+CONTROLLERS = ("pursuit", "pursuit_integral")
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
 
@@ -153,6 +156,10 @@ class CorridorConfig:
     v_max: float = 0.5
     omega_max: float = 1.0
     ema_lambda: float = 0.5
+    controller: str = "pursuit"
+    integral_gain: float = 0.02
+    integral_limit: float = 0.05
+    integral_band: float = 0.3
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -186,8 +193,11 @@ class CorridorConfig:
             "trunk_h_max",
             "trunk_max_lateral",
             "roof_opening_reach",
+            "integral_limit",
+            "integral_band",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
+        self._check_controller()
         if not (math.isfinite(self.significance) and self.significance >= 0.0):
             raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
         for name in ("x_min", "h_min", "trunk_h_min", "trunk_max_excess_green"):
@@ -218,6 +228,14 @@ class CorridorConfig:
         for name in ("ema_lambda", "width_memory", "centre_memory", "roof_share"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
+
+    def _check_controller(self) -> None:
+        """The steering law's name and the integral gain (0 turns the integral off)."""
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        gain = self.integral_gain
+        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
+            raise ValueError(f"corridor.integral_gain must be a finite number >= 0, got {gain!r}")
 
     def _check_rows_can_be_seen(self) -> None:
         """Limits that each pass alone but together leave no row ever seen: every frame would
@@ -421,6 +439,7 @@ class CorridorNavigator:
         # placed with the camera; SegMinD's fallback needs depth.
         self.inputs = NavigatorInputs(depth=True, rgb=True, attitude=True, camera=camera)
         self._smoother = CommandSmoother(config.ema_lambda)
+        self._integrator = OffsetIntegrator(config.integral_gain, config.integral_limit, config.integral_band)
         self._fusion = Navigator(
             NavigatorConfig(
                 method="segmind",
@@ -436,8 +455,11 @@ class CorridorNavigator:
 
     # ---- the navigator interface ---------------------------------------------------------------
     def reset(self) -> None:
-        """Forget masks, the centreline, the corridor width, the EMA and the mode counts."""
+        """Forget masks, the centreline, the corridor width, the EMA, the offset integral and the
+        mode counts."""
         self._fusion.reset()
+        self._integrator.reset()
+        self._stamp = 0.0  # the newest mask's stamp: the time of the next command
         self._centre: tuple[float, ...] | None = None
         self._width: float | None = None
         self._trunk_width: float | None = None
@@ -463,18 +485,21 @@ class CorridorNavigator:
         depth: np.ndarray,
         attitude: tuple[float, float] | None = None,
         rgb: np.ndarray | None = None,
+        stamp: float = 0.0,
     ) -> CorridorCommand:
-        """Take one mask + depth frame (and the IMU's (roll, pitch) and the image, if any) and
-        return the smoothed command."""
+        """Take one mask + depth frame taken at `stamp` seconds (and the IMU's (roll, pitch) and
+        the image, if any) and return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
-        self._fusion.push_mask(mask_b)
+        self.push_mask(mask_b, stamp)
         fused = self._fusion.fused_mask()
         assert fused is not None
         return self._command(fused, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
-        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`)."""
+        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`); its stamp
+        is the time of the next command (the offset integral's time step)."""
         self._fusion.push_mask(mask, stamp)
+        self._stamp = float(stamp)
 
     def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
         """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
@@ -494,9 +519,11 @@ class CorridorNavigator:
         return self._command(mask_b, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
-        """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
+        """An invalid stop; the EMA restarts from rest, the centreline and the offset integral are
+        forgotten (the robot stands: the disturbance it cancelled is gone until it moves again)."""
         self._smoother.rest()
         self._centre = None
+        self._integrator.reset()
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
     # ---- one command -----------------------------------------------------------------------------
@@ -526,6 +553,8 @@ class CorridorNavigator:
             )
             column = histogram_minimum(histogram)
             v, omega = control_law(column, fused.shape[1], self._fusion.config)
+            if config.controller == "pursuit_integral":  # no offset seen: the integral holds still
+                self._integrator.update(None, self._stamp)
         else:
             if self._centre is not None:  # the row moves little between commands: average out noise
                 memory = config.centre_memory
@@ -533,6 +562,8 @@ class CorridorNavigator:
             self._centre = centre
             y_goal = float(polyval(config.lookahead, centre))
             v, omega = self._pursuit(y_goal)
+            if config.controller == "pursuit_integral":
+                omega = self._hold_centre(centre[0], omega)
             column = self.camera.column_of(config.lookahead, y_goal)
         self.mode_counts[mode] += 1
         v, omega = self._smoother.update(v, omega)
@@ -733,6 +764,14 @@ class CorridorNavigator:
             rays = self.camera.ray_coefficients(rows.ravel().astype(np.float32), cols.ravel().astype(np.float32))
             self._ray_grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
         return self._ray_grids[(*shape, s)]
+
+    def _hold_centre(self, offset: float, omega: float) -> float:
+        """Pure pursuit's yaw rate plus the offset integral (step 6): `offset` is the centreline's
+        c_0, the corridor centre's distance to the robot's left."""
+        limit = self.config.omega_max
+        total = omega + self._integrator.term
+        saturated = abs(total) >= limit and total * offset > 0
+        return clip(omega + self._integrator.update(offset, self._stamp, saturated), -limit, limit)
 
     def _pursuit(self, y_goal: float) -> tuple[float, float]:
         """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""
