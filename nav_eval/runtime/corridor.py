@@ -73,6 +73,15 @@ the robot frame. From there:
    alpha = atan2(y_L, L) sets the speed as in the paper, v = v_max (1 - (alpha / alpha_max)^2)
    with alpha_max the half field of view, and omega = v_max kappa, clipped; both are smoothed with the
    paper's EMA.
+6. **Holding the centre under slip** (`controller` "pursuit_integral"; "pursuit", the default,
+   stops at 5). Linearised, pure pursuit is omega = (2 v / L^2) c_0 + (2 v / L) c_1 + 2 v c_2: a
+   law on offset and heading with the bend as feedforward. Against a steady sideways disturbance
+   (a skid-steer robot creeping downhill across a slope, tracks under-turning on rough ground) it
+   balances only with a standing offset, L times the drift angle. The offset integral removes it:
+   I += c_0 dt, omega += `integral_gain` I (`OffsetIntegrator`: dt from the masks' stamps, the
+   term clamped to `integral_limit` rad/s, offsets beyond `integral_band` and commands saturated
+   towards the offset not integrated, frames without a centreline integrate nothing, `stop` and
+   `reset` clear it). The gains and their reasons: docs/reference/equations.md.
 
 The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` is a
 `MaskNavigator` (nav_eval.runtime.protocols) like the paper's `Navigator`, so the runtime drives
