@@ -25,7 +25,7 @@ CORRIDOR_STEP_TARGET = SpeedTarget("median_ms", "segcorridor median", 0.5, "ms")
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
     """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
     SegCorridor's on a closed canopy over trunks (its trunk mode: another code path) and with the
-    offset integral of a slipping robot (stamped frames, so that it integrates)."""
+    drift observer of a slipping robot (stamped frames, so that it observes)."""
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
     # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
@@ -34,7 +34,7 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     canopy = [(mask, depth, None, rgb)]
     runs = [(method, method, frames, "pursuit") for method in METHODS] + [
         ("segcorridor", "segcorridor, trunk mode", canopy, "pursuit"),
-        ("segcorridor", "segcorridor, integral", frames, "pursuit_integral"),
+        ("segcorridor", "segcorridor, drift observer", frames, "drift_observer"),
     ]
     rows = []
     for method, label, inputs, controller in runs:
@@ -54,8 +54,8 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
 
 
 def _stepper(navigator: Navigator | CorridorNavigator, controller: str) -> Callable[[tuple], object]:
-    """One step on a frame; with the offset integral the frames are stamped at the commands' 5 Hz
-    (unstamped, it would integrate nothing and cost less than on a robot)."""
+    """One step on a frame; with the drift observer the frames are stamped at the commands' 5 Hz
+    (unstamped, it would observe nothing and cost less than on a robot)."""
     if controller == "pursuit":
         return lambda frame: navigator.step(*frame)
     assert isinstance(navigator, CorridorNavigator)

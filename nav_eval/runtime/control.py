@@ -9,6 +9,7 @@ numpy only (part of the bare robot install).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,50 +63,54 @@ class CommandSmoother:
         return self.v, self.omega
 
 
-class OffsetIntegrator:
-    """The integral term of a path-following law: `gain` times the time integral of the lateral
-    offset (metres, > 0: the path lies to the robot's left), added to the yaw rate.
+class DriftObserver:
+    """Estimates a steady sideways drift d (m/s, > 0: towards the robot's left) from how the
+    robot's offset to its path changes against what its heading explains: e' = v sin(psi) + d.
 
-    A proportional-derivative law (pure pursuit is one) balances a steady sideways disturbance
-    only with a standing offset: a robot that creeps downhill across a slope, or tracks that turn
-    less than commanded on rough ground, hold the row off centre. The integral grows until it
-    cancels the disturbance. Anti-windup, so that it never drives the robot into a row:
+    A proportional-derivative law (pure pursuit is one) balances a steady drift only with a
+    standing offset: a skid-steer robot creeping downhill across a slope holds the row off centre.
+    Knowing d, the law can point the robot uphill by the drift angle instead. Unlike an integral of
+    the offset it does not wind up on a start or a bend taken late: there the offset changes as the
+    heading says, the innovation is zero and the estimate stays.
 
-    - the term is clamped to +-`limit` rad/s (the integral stops growing there);
-    - offsets beyond `band` metres are not integrated: they are transients (the start, a bend
-      seen late, a wrong fit), which the proportional part removes, and integrating them would
-      overshoot by as much afterwards;
-    - nothing is integrated while the command is saturated towards the offset.
-
-    The time step is the difference of the commands' stamps (seconds): never an assumed rate. The
-    first update after `reset`, and one whose stamp is not after the previous, integrate nothing;
-    an update without an offset (no path seen) only moves the stamp on, so the time without a
-    path is not integrated either. Its state is one run's: `reset` forgets it.
+    Per update, with the offset e and heading psi relative to the path measured at stamp t (the
+    time step is the stamps' difference, never an assumed rate) and v the commanded speed:
+    d <- clip(d + min(1, dt / `time_constant`) (de/dt - v sin(psi) - d), -`limit`, +`limit`).
+    Anti-windup: the clamp; a step whose offset changes faster than `max_lateral_speed` (a jump of
+    the fit: a row lost through a gap, the other row found) or more than 1 s after the previous
+    one is not used. `forget_track` (a frame without a measured path) keeps d but starts the next
+    difference afresh; `reset` forgets d: a new run, or a stop.
     """
 
-    def __init__(self, gain: float, limit: float, band: float) -> None:
-        self.gain = gain
+    def __init__(self, time_constant: float, limit: float, max_lateral_speed: float) -> None:
+        self.time_constant = time_constant
         self.limit = limit
-        self.band = band
+        self.max_lateral_speed = max_lateral_speed
         self.reset()
 
     def reset(self) -> None:
-        """Forget the integral and the last stamp."""
-        self.integral = 0.0
-        self._stamp: float | None = None
+        """Forget the drift and the last measurement."""
+        self.drift = 0.0
+        self.forget_track()
 
-    @property
-    def term(self) -> float:
-        """The yaw rate (rad/s) the integral adds now."""
-        return self.gain * self.integral
+    def forget_track(self) -> None:
+        """Keep the drift, but take the next measurement as the first of a new track."""
+        self._last: tuple[float, float] | None = None
 
-    def update(self, offset: float | None, stamp: float, saturated: bool = False) -> float:
-        """Integrate `offset` over the time since the previous stamp (unless an anti-windup rule
-        holds it) and return the term; `saturated`: the command is at its limit towards the offset."""
-        previous, self._stamp = self._stamp, stamp if self._stamp is None else max(self._stamp, stamp)
-        if offset is None or previous is None or stamp <= previous or saturated or abs(offset) > self.band:
-            return self.term
-        if self.gain > 0:
-            bound = self.limit / self.gain
-            self.integral = clip(self.integral + offset * (stamp - previous), -bound, bound)
-        return self.term
+    def update(self, offset: float, heading: float, speed: float, stamp: float) -> float:
+        """One measurement: `offset` (m, the robot left of its path > 0), `heading` (rad, the robot
+        turned left of its path > 0), `speed` (m/s, commanded over the step) at `stamp` (s).
+        Returns the drift estimate (m/s)."""
+        last = self._last
+        if last is not None and stamp <= last[0]:
+            return self.drift  # no time has passed: nothing to difference
+        self._last = (stamp, offset)
+        if last is None or stamp - last[0] > 1.0:
+            return self.drift
+        lateral_speed = (offset - last[1]) / (stamp - last[0])
+        if abs(lateral_speed) > self.max_lateral_speed:
+            return self.drift
+        innovation = lateral_speed - speed * math.sin(heading) - self.drift
+        gain = min(1.0, (stamp - last[0]) / self.time_constant)
+        self.drift = clip(self.drift + gain * innovation, -self.limit, self.limit)
+        return self.drift

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from segmin.nav_eval.runtime.protocols import MaskNavigator
 
 # SegCorridor's steering law on the skid-steer robot when the config names none (make_navigator).
-SLIP_CONTROLLER = "pursuit_integral"
+SLIP_CONTROLLER = "drift_observer"
 
 
 def field_label(field: str) -> str:
@@ -91,8 +91,8 @@ def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -
     the paper's `Navigator` (its `navigator` section), or SegCorridor (its `corridor` section,
     with the evaluation camera's intrinsics and mount).
 
-    On the skid-steer robot SegCorridor steers with the offset integral that holds the centre
-    under slip (`corridor.controller: pursuit_integral`) unless the config names a controller:
+    On the skid-steer robot SegCorridor steers with the heading damping and drift observer that
+    hold the centre under slip (`corridor.controller: drift_observer`) unless the config names a controller:
     the kinematic unicycle has no slip to hold against, and its results stay the paper
     comparison's."""
     if method == "segcorridor":
