@@ -21,9 +21,6 @@ if TYPE_CHECKING:
     from segmin.nav_eval.runtime.follower import RowFollower
     from segmin.nav_eval.runtime.protocols import MaskNavigator
 
-# SegCorridor's steering law on the skid-steer robot when the config names none (make_navigator).
-SLIP_CONTROLLER = "drift_observer"
-
 
 def field_label(field: str) -> str:
     """Short name of a field for tables and files: the spec name for a path."""
@@ -89,20 +86,12 @@ def make_segmenter(model: str, threads: int = 1) -> FrameSegmenter:
 def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> MaskNavigator:
     """The method's navigator with the evaluation's fusion window (perception.fuse_frames):
     the paper's `Navigator` (its `navigator` section), or SegCorridor (its `corridor` section,
-    with the evaluation camera's intrinsics and mount).
-
-    On the skid-steer robot SegCorridor steers with the heading damping and drift observer that
-    hold the centre under slip (`corridor.controller: drift_observer`) unless the config names a controller:
-    the kinematic unicycle has no slip to hold against, and its results stay the paper
-    comparison's."""
+    with the evaluation camera's intrinsics and mount)."""
     if method == "segcorridor":
         from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
 
-        settings = dict(config.corridor)
-        if config.robot.model == "skid_steer":
-            settings.setdefault("controller", SLIP_CONTROLLER)
         corridor = CorridorConfig(
-            depth_threshold=depth_threshold, fuse_frames=config.perception.fuse_frames, **settings
+            depth_threshold=depth_threshold, fuse_frames=config.perception.fuse_frames, **config.corridor
         )
         return CorridorNavigator(corridor, CameraGeometry.from_camera(nav_camera(config)))
     from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
