@@ -56,7 +56,14 @@ def test_navigate_demo_rejects_a_tiny_size(capsys: pytest.CaptureFixture[str]) -
 def test_bench_navigator_prints_every_method(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "navigator", "--size", "64", "--steps", "20"]) == 0
     out = capsys.readouterr().out
-    for method in ("segmin", "segmind", "segzeros", "segcorridor", "segcorridor, trunk mode"):
+    for method in (
+        "segmin",
+        "segmind",
+        "segzeros",
+        "segcorridor",
+        "segcorridor, trunk mode",
+        "segcorridor, drift observer",
+    ):
         assert re.search(rf"^  {method} +median [0-9.]+ ms  p95 [0-9.]+ ms", out, re.M), out
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,18 +24,22 @@ CORRIDOR_STEP_TARGET = SpeedTarget("median_ms", "segcorridor median", 0.5, "ms")
 
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
     """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
-    and SegCorridor's on a closed canopy over trunks (its trunk mode: another code path)."""
+    SegCorridor's on a closed canopy over trunks (its trunk mode: another code path) and with the
+    drift observer of a slipping robot (stamped frames, so that it observes)."""
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
     # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
     # the check removes nothing here).
     rgb = np.where(mask[..., None], np.uint8([60, 140, 50]), np.uint8([90, 60, 40])).astype(np.uint8)
     canopy = [(mask, depth, None, rgb)]
-    runs = [(method, method, frames) for method in METHODS] + [("segcorridor", "segcorridor, trunk mode", canopy)]
+    runs = [(method, method, frames, "pursuit") for method in METHODS] + [
+        ("segcorridor", "segcorridor, trunk mode", canopy, "pursuit"),
+        ("segcorridor", "segcorridor, drift observer", frames, "drift_observer"),
+    ]
     rows = []
-    for method, label, inputs in runs:
-        navigator = _navigator(method, size)
-        ms = time_calls(lambda frame, nav=navigator: nav.step(*frame), runs=steps, warmup=warmup, inputs=inputs) * 1e3
+    for method, label, inputs, controller in runs:
+        navigator = _navigator(method, size, controller)
+        ms = time_calls(_stepper(navigator, controller), runs=steps, warmup=warmup, inputs=inputs) * 1e3
         rows.append(
             {
                 "method": method,
@@ -47,8 +53,19 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     return rows
 
 
-def _navigator(method: str, size: int) -> object:
-    """A paper navigator, or SegCorridor with the simulator's camera at `size` x `size`."""
+def _stepper(navigator: Navigator | CorridorNavigator, controller: str) -> Callable[[tuple], object]:
+    """One step on a frame; with the drift observer the frames are stamped at the commands' 5 Hz
+    (unstamped, it would observe nothing and cost less than on a robot)."""
+    if controller == "pursuit":
+        return lambda frame: navigator.step(*frame)
+    assert isinstance(navigator, CorridorNavigator)
+    stamps = itertools.count(0.0, 0.2)
+    return lambda frame: navigator.step(*frame, stamp=next(stamps))
+
+
+def _navigator(method: str, size: int, controller: str) -> Navigator | CorridorNavigator:
+    """A paper navigator, or SegCorridor with the simulator's camera at `size` x `size` steering
+    with `controller`."""
     if method != "segcorridor":
         return Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
     from segmin.data.synth.camera import CameraModel
@@ -59,7 +76,8 @@ def _navigator(method: str, size: int) -> object:
         CorridorConfig.trunk_min_points, max(1, round(CorridorConfig.trunk_min_points * (size / 224) ** 2))
     )
     return CorridorNavigator(
-        CorridorConfig(depth_threshold=5.0, fuse_frames=3, trunk_min_points=trunk_min_points), camera
+        CorridorConfig(depth_threshold=5.0, fuse_frames=3, trunk_min_points=trunk_min_points, controller=controller),
+        camera,
     )
 
 

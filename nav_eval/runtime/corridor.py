@@ -73,6 +73,16 @@ the robot frame. From there:
    alpha = atan2(y_L, L) sets the speed as in the paper, v = v_max (1 - (alpha / alpha_max)^2)
    with alpha_max the half field of view, and omega = v_max kappa, clipped; both are smoothed with the
    paper's EMA.
+6. **Holding the centre under slip** (`controller` "drift_observer"; "pursuit", the default,
+   stops at 5). Linearised, pure pursuit is omega = (2 v / L^2) c_0 + (2 v / L) c_1 + 2 v c_2: a
+   law on offset and heading with the bend as feedforward. With actuation latency and wheel noise
+   it is underdamped, and against a steady sideways drift d (a skid-steer robot creeping downhill
+   across a slope) it balances only with a standing offset, L d / v. On row fits (modes "both"
+   and "one_side", whose c_1 is a measured heading) the law adds `heading_gain` atan(c_1) of
+   heading damping, and points the robot against the drift that a `DriftObserver` estimates from
+   the offset's change against what the heading explains (time constant `drift_time`, clamped to
+   `drift_limit`; time steps from the masks' stamps; `stop` and `reset` forget it). Trunk mode
+   (c_1 = 0) and the fallback steer as before. Gains and reasons: docs/reference/equations.md.
 
 The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` is a
 `MaskNavigator` (nav_eval.runtime.protocols) like the paper's `Navigator`, so the runtime drives
@@ -94,7 +104,7 @@ import numpy as np
 
 from .camera import CameraGeometry
 from .checks import check_depth_threshold, check_positive
-from .control import Command, CommandSmoother, clip
+from .control import Command, CommandSmoother, DriftObserver, clip
 from .navigator import (
     Navigator,
     NavigatorConfig,
@@ -109,6 +119,10 @@ from .navigator import (
 from .protocols import MaskNavigator, NavigatorInputs
 
 MODES = ("both", "one_side", "trunks", "fallback")
+# pursuit: pure pursuit alone (step 5); drift_observer: plus heading damping and the drift
+# observer that hold the centre under slip (step 6)
+CONTROLLERS = ("pursuit", "drift_observer")
+OBSERVED_MODES = ("both", "one_side")  # the modes whose centreline has a measured heading
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
 
@@ -153,6 +167,10 @@ class CorridorConfig:
     v_max: float = 0.5
     omega_max: float = 1.0
     ema_lambda: float = 0.5
+    controller: str = "pursuit"
+    heading_gain: float = 0.3
+    drift_time: float = 4.0
+    drift_limit: float = 0.05
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -186,8 +204,11 @@ class CorridorConfig:
             "trunk_h_max",
             "trunk_max_lateral",
             "roof_opening_reach",
+            "drift_time",
+            "drift_limit",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
+        self._check_controller()
         if not (math.isfinite(self.significance) and self.significance >= 0.0):
             raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
         for name in ("x_min", "h_min", "trunk_h_min", "trunk_max_excess_green"):
@@ -218,6 +239,14 @@ class CorridorConfig:
         for name in ("ema_lambda", "width_memory", "centre_memory", "roof_share"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
+
+    def _check_controller(self) -> None:
+        """The steering law's name and the heading gain (0: no heading damping)."""
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        gain = self.heading_gain
+        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
+            raise ValueError(f"corridor.heading_gain must be a finite number >= 0, got {gain!r}")
 
     def _check_rows_can_be_seen(self) -> None:
         """Limits that each pass alone but together leave no row ever seen: every frame would
@@ -421,6 +450,8 @@ class CorridorNavigator:
         # placed with the camera; SegMinD's fallback needs depth.
         self.inputs = NavigatorInputs(depth=True, rgb=True, attitude=True, camera=camera)
         self._smoother = CommandSmoother(config.ema_lambda)
+        # A lateral speed above half the top speed is a jump of the fit, not motion.
+        self._observer = DriftObserver(config.drift_time, config.drift_limit, 0.5 * config.v_max)
         self._fusion = Navigator(
             NavigatorConfig(
                 method="segmind",
@@ -436,8 +467,11 @@ class CorridorNavigator:
 
     # ---- the navigator interface ---------------------------------------------------------------
     def reset(self) -> None:
-        """Forget masks, the centreline, the corridor width, the EMA and the mode counts."""
+        """Forget masks, the centreline, the corridor width, the EMA, the drift estimate and the
+        mode counts."""
         self._fusion.reset()
+        self._observer.reset()
+        self._stamp = 0.0  # the newest mask's stamp: the time of the next command
         self._centre: tuple[float, ...] | None = None
         self._width: float | None = None
         self._trunk_width: float | None = None
@@ -463,18 +497,21 @@ class CorridorNavigator:
         depth: np.ndarray,
         attitude: tuple[float, float] | None = None,
         rgb: np.ndarray | None = None,
+        stamp: float = 0.0,
     ) -> CorridorCommand:
-        """Take one mask + depth frame (and the IMU's (roll, pitch) and the image, if any) and
-        return the smoothed command."""
+        """Take one mask + depth frame taken at `stamp` seconds (and the IMU's (roll, pitch) and
+        the image, if any) and return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
-        self._fusion.push_mask(mask_b)
+        self.push_mask(mask_b, stamp)
         fused = self._fusion.fused_mask()
         assert fused is not None
         return self._command(fused, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
-        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`)."""
+        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`); its stamp
+        is the time of the next command (the drift observer's time step)."""
         self._fusion.push_mask(mask, stamp)
+        self._stamp = float(stamp)
 
     def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
         """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
@@ -494,9 +531,11 @@ class CorridorNavigator:
         return self._command(mask_b, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
-        """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
+        """An invalid stop; the EMA restarts from rest, the centreline and the drift estimate are
+        forgotten (the robot stands: a drift that comes with rolling is gone until it moves again)."""
         self._smoother.rest()
         self._centre = None
+        self._observer.reset()
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
     # ---- one command -----------------------------------------------------------------------------
@@ -526,6 +565,8 @@ class CorridorNavigator:
             )
             column = histogram_minimum(histogram)
             v, omega = control_law(column, fused.shape[1], self._fusion.config)
+            if config.controller == "drift_observer":  # no path seen: the estimate holds still
+                self._observer.forget_track()
         else:
             if self._centre is not None:  # the row moves little between commands: average out noise
                 memory = config.centre_memory
@@ -533,6 +574,8 @@ class CorridorNavigator:
             self._centre = centre
             y_goal = float(polyval(config.lookahead, centre))
             v, omega = self._pursuit(y_goal)
+            if config.controller == "drift_observer":
+                omega = self._hold_centre(centre, mode, omega)
             column = self.camera.column_of(config.lookahead, y_goal)
         self.mode_counts[mode] += 1
         v, omega = self._smoother.update(v, omega)
@@ -733,6 +776,23 @@ class CorridorNavigator:
             rays = self.camera.ray_coefficients(rows.ravel().astype(np.float32), cols.ravel().astype(np.float32))
             self._ray_grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
         return self._ray_grids[(*shape, s)]
+
+    def _hold_centre(self, centre: tuple[float, ...], mode: str, omega: float) -> float:
+        """Pure pursuit's yaw rate plus heading damping and the drift compensation (step 6).
+
+        Only a fit of the rows measures the heading; the trunks' centreline runs along the robot,
+        so in trunk mode pure pursuit steers alone and the observer starts a new track after it."""
+        config = self.config
+        if mode not in OBSERVED_MODES:
+            self._observer.forget_track()
+            return omega
+        heading = math.atan(centre[1])  # of the path, seen from the robot (left > 0)
+        drift = self._observer.update(-centre[0], -heading, self._smoother.v, self._stamp)
+        # With the heading damped by 2 v / L + k_h in all, pointing the robot by the drift angle
+        # -d / v against the drift takes this much yaw rate.
+        heading_damping = 2.0 * config.v_max / config.lookahead + config.heading_gain
+        omega += config.heading_gain * heading - heading_damping * drift / config.v_max
+        return clip(omega, -config.omega_max, config.omega_max)
 
     def _pursuit(self, y_goal: float) -> tuple[float, float]:
         """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""
