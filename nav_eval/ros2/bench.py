@@ -189,6 +189,11 @@ def bench_ros2(
     for wall, stamp in feeder.received:
         if stamp in stamps and stamp not in first:
             first[stamp] = wall
+    if not first:
+        raise RuntimeError(
+            f"the bench received no command from the node in {seconds:.0f} s (exit code {node.returncode}; "
+            "its log is above): nothing to measure"
+        )
     latency = np.array([first[s] - s / NS for s in sorted(first)])
     sent = [wall for wall, stamp in feeder.received if stamp in stamps] if on_timer else sorted(first.values())
     periods = np.diff(sent)

@@ -105,7 +105,13 @@ def _bench(args: argparse.Namespace) -> int:
         return 2
     from segmin.nav_eval.ros2.bench import bench_ros2
 
-    print(bench_ros2(args.model, args.bag, args.seconds, args.threads, args.method, args.depth_threshold, args.timer))
+    try:
+        print(
+            bench_ros2(args.model, args.bag, args.seconds, args.threads, args.method, args.depth_threshold, args.timer)
+        )
+    except RuntimeError as exc:  # the node gave nothing to measure: one line, not a traceback
+        print(f"segmin: bench ros2: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 
