@@ -49,26 +49,6 @@ def test_gl_mask_is_exactly_the_plant_bodies(bullet_client):
     assert np.array_equal(frame.depth != without.depth, frame.mask)
 
 
-def test_gl_depth_matches_an_analytic_ground_plane(bullet_client):
-    raw = tiny(terrain={"roughness": 0.0, "slope": [0.0, 0.0], "grass_tufts": 0.0}, structures={"poles": False})
-    world = build_world(spec_from_dict(raw), bullet_client)
-    camera = CameraModel(width=64, height=48)
-    frame = Renderer(world, camera, backend="gl").render(
-        *world.gap_pose(world.eval_gap, 1.0), pose_offset=(0.0, 0.0, -0.7, 0.05)
-    )
-    ground = {b for c in world.chunks if c.kind == "ground" for b in c.bodies}
-    is_ground = np.isin(frame.body_ids, list(ground))
-    assert is_ground.mean() > 0.3
-    k = camera.intrinsics()
-    v, u = np.mgrid[0:48, 0:64]
-    rays = np.stack([(u - k["cx"]) / k["fx"], (v - k["cy"]) / k["fy"], np.ones_like(u, float)], -1)
-    pose = frame.camera_pose
-    expect = -pose[2, 3] / (rays @ pose[:3, :3].T)[..., 2]
-    rel = np.abs(frame.depth[is_ground] - expect[is_ground]) / expect[is_ground]
-    assert rel.max() <= 1e-3, f"max relative depth error {rel.max():.2e}"
-    assert np.all(frame.depth[frame.body_ids < 0] == 0)
-
-
 def test_the_backend_is_validated():
     assert load_world_spec("straight_vineyard", ["render.backend=gl"]).render.backend == "gl"
     with pytest.raises(ConfigError, match="render.backend"):
