@@ -20,6 +20,7 @@ from segmin.app.cli import main
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.core import LOG_EVERY_S, FollowerCore, Outgoing
 from segmin.nav_eval.ros2.params import DEFAULTS, DESCRIPTIONS, GROUPS, defaults_yaml, load_params_file, node_params
+from segmin.nav_eval.ros2.phase import CommandPhase
 from segmin.nav_eval.ros2.sensors import attitude_from_imu, geometry_from_camera_info
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
 
@@ -214,6 +215,7 @@ def test_on_the_timer_only_the_timer_publishes_the_command_in_force(run) -> None
     frames, commands = run
     core, out = _core(publish_on_timer=True)
     for t, colour, depth in frames[:13]:  # commands at 0, 0.2, 0.4
+        core.schedule_tick(t + 0.005 - 0.2)  # the next tick 5 ms away: fresh commands wait for it
         core.on_colour(colour, t)
         core.on_depth(depth, t)
     assert out.sent == []
@@ -223,6 +225,35 @@ def test_on_the_timer_only_the_timer_publishes_the_command_in_force(run) -> None
     assert [(o.command.v, _stamp_s(o.stamp)) for o in out.sent] == [(commands[2][1], pytest.approx(0.4))] * 2
     core.tick(now + 0.6, now + 0.6)
     assert out.sent[-1].command.v == 0.0 and out.sent[-1].reason.startswith("frame_timeout")
+
+
+def test_on_the_timer_a_command_that_misses_its_tick_goes_out_at_once_unpaced(run) -> None:
+    frames, commands = run
+    core, out = _core(publish_on_timer=True)
+    tick = frames[0][0] - 0.2
+    for i, (t, colour, depth) in enumerate(frames[:19]):  # commands at 0, 0.2, 0.4, 0.6
+        while tick < t:
+            tick = core.schedule_tick(tick)  # the command thread: free-running, then locked
+        late = 0.1 if i == 18 else 0.0  # the last command's step ends 100 ms late: its tick went by
+        core.on_colour(colour, t + late)
+        core.on_depth(depth, t + late)
+    sent = [(o.command.v, o.paced) for o in out.sent]
+    assert sent == [(commands[0][1], False), (commands[3][1], False)]  # the first, before any lock, and the late one
+
+
+def test_the_timer_locks_onto_the_command_deadlines_and_then_only_slews() -> None:
+    phase = CommandPhase(0.2)
+    assert phase.next_tick(10.05) == pytest.approx(10.25)  # free-running before any command
+    leads = [0.006, 0.007, 0.008, 0.007, 0.009, 0.006, 0.007, 0.030, 0.007, 0.008]  # one slow step
+    for k, lead in enumerate(leads):
+        phase.observe(0.2 * k, 0.2 * k + lead)
+    offset = phase.offset()
+    assert offset == pytest.approx(np.quantile(leads, 0.9) + 0.001)
+    grid = 0.2 * (len(leads) - 1) + offset
+    tick = phase.next_tick(grid + 0.05)  # 50 ms off the grid: re-lock at once
+    assert (tick - grid) / 0.2 == pytest.approx(round((tick - grid) / 0.2), abs=1e-9) and tick > grid + 0.15
+    assert phase.next_tick(tick + 0.003) == pytest.approx(tick + 0.2 + 0.002)  # 3 ms off: 1 ms a tick back
+    assert phase.next_tick(tick - 0.0005) == pytest.approx(tick + 0.2)  # within the slew: on the grid
 
 
 def test_without_a_depth_topic_colour_drives_alone(run) -> None:

@@ -9,8 +9,12 @@ are tested in the normal suite and the bench can drive it.
 - A fresh command is published at once (the latency from image to `cmd_vel` is the step's own,
   the period jitters with it); the `tick(now)` watchdog, called at `command_hz`, publishes
   `command_at(now)` whenever no command went out for 1.5 periods: the command in force while
-  frames come late, a stop once none came for `frame_timeout_s`. With `publish_on_timer`, only
-  `tick` publishes, every period: a regular period, commands up to one period older.
+  frames come late, a stop once none came for `frame_timeout_s`. With `publish_on_timer`, `tick`
+  publishes every period (a regular period), and the node puts its ticks just after the
+  runtime's command deadlines (`phase.CommandPhase`, fed here with when each command was ready),
+  so a command waits only a small margin; one whose tick is further than `HOLD_SHARE` of a period
+  away (a slow step missed it, or the lock is not there yet) goes out at once, without pacing the
+  timer.
 - Any bad frame (an encoding the decoder refuses, mismatched sizes, a stamp out of order) is a
   log line naming the topic (at most one per topic every LOG_EVERY_S), the frame is dropped,
   and while enabled a stop goes out at once and the watchdog keeps the robot stopped until the
@@ -45,6 +49,7 @@ import numpy as np
 from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth, stamp_seconds
 from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
 from segmin.nav_eval.ros2.params import NodeParams
+from segmin.nav_eval.ros2.phase import CommandPhase
 from segmin.nav_eval.ros2.sensors import attitude_from_imu, geometry_from_camera_info
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig, CorridorNavigator
@@ -52,6 +57,7 @@ from segmin.nav_eval.runtime.follower import STOP, FollowerOutput, RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator
 
 WATCHDOG_PERIODS = 1.5  # the watchdog speaks after this many command periods of silence
+HOLD_SHARE = 0.1  # with publish_on_timer, a fresh command waits for its tick at most this share of a period
 LOG_EVERY_S = 5.0  # a topic's bad frames are logged at most this often (30 Hz of warnings helps no one)
 
 
@@ -89,6 +95,8 @@ class FollowerCore:
         self.enabled = params.node.enabled
         self.fault: str | None = None  # why the robot is held stopped (bad input), until a fresh command
         self._last_sent: float | None = None  # node clock of the last publication
+        self.next_tick: float | None = None  # node clock of the command thread's next tick (publish_on_timer)
+        self.phase = CommandPhase(1.0 / params.runtime.command_hz)
         self._stamp: Any = None  # stamp of the image that gave the command in force
         self._logged: dict[str, float] = {}  # topic -> node clock of its last warning
         self.frames = 0
@@ -230,20 +238,42 @@ class FollowerCore:
             output = self.follower.step(rgb, depth, t, attitude=attitude)
         except ValueError as exc:
             return self._reject(f"{self.params.node.colour_topic}: {exc}", now)
-        self.step_s.append(self._wall() - start)
+        took = self._wall() - start
+        self.step_s.append(took)
         self.frames += 1
         self.last_output, self.last_rgb = output, rgb
         if output.fresh:
+            on_timer = self.params.node.publish_on_timer
+            if output.command_t is not None:
+                self.phase.observe(output.command_t, now + took)
+            late = on_timer and self._misses_tick(now + took)
             with self._lock:
                 self.fault = None
                 self._stamp = stamp
-                send = self.enabled and not self.params.node.publish_on_timer
+                send = self.enabled and (late or not on_timer)
                 if send:
                     self._last_sent = now
             if send:
                 reason = None if output.command.valid else output.stopped
-                self.publish(Outgoing(output.command, stamp, reason, paced=True))
+                self.publish(Outgoing(output.command, stamp, reason, paced=not on_timer))
         return output
+
+    def schedule_tick(self, previous: float) -> float:
+        """With publish_on_timer: the command thread's next tick after the one at `previous`
+        (node clock, s), phase-locked to the runtime's command deadlines; remembered for the
+        hold-or-send decision of fresh commands."""
+        tick = self.phase.next_tick(previous)
+        with self._lock:
+            self.next_tick = tick
+        return tick
+
+    def _misses_tick(self, ready: float) -> bool:
+        """Whether a command ready at `ready` (node clock) has no tick within HOLD_SHARE of a period
+        ahead (a slow step missed its tick, or the timer is not locked yet): it then goes out at once."""
+        period = 1.0 / self.params.runtime.command_hz
+        with self._lock:
+            tick = self.next_tick
+        return tick is None or not 0.0 <= tick - ready <= HOLD_SHARE * period
 
     def _reject(self, why: str, now: float) -> None:
         """Drop a frame: a log line (throttled per topic), the robot stopped until a fresh command."""
@@ -291,6 +321,7 @@ class FollowerCore:
         self.params, self.segmenter = params, segmenter
         self.follower = self._new_follower()
         self.pairer = StampPairer(params.node.slop_s, max_pending=2)
+        self.phase = CommandPhase(1.0 / params.runtime.command_hz)  # the runtime's grid starts again
         self._unpaired = 0
         if params.node.enabled != self.enabled:
             self.log(self.set_enabled(params.node.enabled))

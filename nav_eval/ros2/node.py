@@ -9,12 +9,14 @@ handled: a player that waits for it feeds the node frame by frame, so the comman
 images' stamps alone, not on when DDS delivered them). The service `~/enable` (std_srvs/SetBool) and the
 parameter `enabled` start and stop driving; both are off at start-up.
 
-Two callback groups on a multi-threaded executor: the images (segmentation runs there) and the
-control side (diagnostics, the service, parameter changes). The watchdog (and, with
-`publish_on_timer`, every command) runs on a thread of its own that sleeps to absolute
+One single-threaded executor runs the callbacks: the images (segmentation runs there), the
+diagnostics, the service and parameter changes, which wait at most one step. The watchdog (and,
+with `publish_on_timer`, every command) runs on a thread of its own that sleeps to absolute
 deadlines on the node's clock (`Clock.sleep_until`: the system clock, or /clock with
-use_sim_time), not on an executor timer: its period then does not wait for the executor to
-dispatch it behind image callbacks. A parameter set while running is checked as at start-up
+use_sim_time), not on an executor timer, so inference never delays it; with `publish_on_timer`
+its ticks are phase-locked to the runtime's command deadlines (`phase.CommandPhase`). rclpy's
+multi-threaded executor was measured slower here: on 2 cores its Python dispatch delayed image
+callbacks by 5-30 ms and dropped a third of the frames. A parameter set while running is checked as at start-up
 (`params.node_params`): a bad value is refused with its reason, logged, and the robot stopped;
 a good one is applied at the next frame (the runtime restarts: masks and EMA cleared). Topics
 and outputs are read-only after start-up.
@@ -36,12 +38,12 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Twist, TwistStamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu
 from std_msgs.msg import Header
 from std_srvs.srv import SetBool
@@ -61,13 +63,17 @@ SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Re
 
 
 def load_segmenter(params: NodeParams) -> Any:
-    """The ONNX segmenter of `params` (ValueError naming the parameter when it cannot be loaded)."""
+    """The ONNX segmenter of `params` (ValueError naming the parameter when it cannot be loaded).
+
+    onnxruntime's worker threads do not busy-wait between frames here: spinning kept a core busy
+    (about 60 % of one) between 20 Hz inferences and slowed the node's DDS and Python threads on
+    a 2-core computer: image-to-command latency p95 56-64 ms with spinning against 13 ms without."""
     from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
     if not params.node.model:
         raise ValueError("parameter model: not set (give the exported .onnx file)")
     try:
-        return OnnxSegmenter(params.node.model, threads=params.node.threads)
+        return OnnxSegmenter(params.node.model, threads=params.node.threads, spin=False)
     except (OSError, ValueError) as exc:
         raise ValueError(f"parameter model: {exc}") from None
 
@@ -92,23 +98,12 @@ class RowFollowerNode(Node):
         self.core = FollowerCore(params, segmenter, self._publish, self.get_logger().warning)
         self._pending: tuple[NodeParams, Any] | None = None
         self._pending_lock = threading.Lock()
-        images, control = MutuallyExclusiveCallbackGroup(), MutuallyExclusiveCallbackGroup()
-        self.create_subscription(
-            _image_type(settings.colour_topic),
-            settings.colour_topic,
-            self._on_colour,
-            SENSOR_QOS,
-            callback_group=images,
-        )
+        self.create_subscription(_image_type(settings.colour_topic), settings.colour_topic, self._on_colour, SENSOR_QOS)
         if settings.depth_topic:
             self.create_subscription(
-                _image_type(settings.depth_topic),
-                settings.depth_topic,
-                self._on_depth,
-                SENSOR_QOS,
-                callback_group=images,
+                _image_type(settings.depth_topic), settings.depth_topic, self._on_depth, SENSOR_QOS
             )
-        self._subscribe_corridor_inputs(settings, images)
+        self._subscribe_corridor_inputs(settings)
         self._cmd = self.create_publisher(TwistStamped if settings.twist_stamped else Twist, settings.cmd_vel_topic, 10)
         self._overlay = self.create_publisher(Image, "~/overlay", 1) if settings.publish_overlay else None
         self._diagnostics = (
@@ -121,8 +116,8 @@ class RowFollowerNode(Node):
         self._command_thread = threading.Thread(target=self._command_loop, name="commands", daemon=True)
         self._command_thread.start()
         if self._diagnostics is not None:
-            self.create_timer(1.0, self._diagnose, callback_group=control)
-        self.create_service(SetBool, "~/enable", self._on_enable, callback_group=control)
+            self.create_timer(1.0, self._diagnose)
+        self.create_service(SetBool, "~/enable", self._on_enable)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._frames_at_diagnosis = 0
         self.get_logger().info(
@@ -131,10 +126,9 @@ class RowFollowerNode(Node):
             + f" -> {settings.cmd_vel_topic}; driving {'enabled' if settings.enabled else 'disabled (call ~/enable)'}"
         )
 
-    def _subscribe_corridor_inputs(self, settings: Any, group: MutuallyExclusiveCallbackGroup) -> None:
+    def _subscribe_corridor_inputs(self, settings: Any) -> None:
         """SegCorridor's CameraInfo and Imu, subscribed at start-up when it is the method (an IMU at
-        200 Hz would cost the other methods CPU for nothing); in the images' group, so they never
-        race a frame."""
+        200 Hz would cost the other methods CPU for nothing)."""
         if self.params.navigator.method != "segcorridor":
             return
         if settings.camera_info_topic and not settings.intrinsics_given:
@@ -143,7 +137,6 @@ class RowFollowerNode(Node):
                 settings.camera_info_topic,
                 lambda m: self.core.on_camera_info(m, self._seconds()),
                 SENSOR_QOS,
-                callback_group=group,
             )
         if settings.imu_topic:
             self.create_subscription(
@@ -151,7 +144,6 @@ class RowFollowerNode(Node):
                 settings.imu_topic,
                 lambda m: self.core.on_imu(m, self._seconds()),
                 SENSOR_QOS,
-                callback_group=group,
             )
         source = "the parameters" if settings.intrinsics_given else f"CameraInfo on {settings.camera_info_topic}"
         imu = f"roll and pitch from {settings.imu_topic}" if settings.imu_topic else "no IMU: level ground"
@@ -213,7 +205,8 @@ class RowFollowerNode(Node):
             )
 
     def _command_loop(self) -> None:
-        """The watchdog's thread: `core.tick` at command_hz on absolute deadlines of the node's clock.
+        """The watchdog's thread: `core.tick` at command_hz on absolute deadlines of the node's clock
+        (with `publish_on_timer`, phase-locked to the runtime's command deadlines).
 
         A deadline missed (a loaded machine) is skipped, not caught up in a burst; a clock that
         jumps (a new /clock source) restarts the schedule."""
@@ -221,7 +214,7 @@ class RowFollowerNode(Node):
         deadline = clock.now()
         while not self._stopping.is_set():
             period = Duration(nanoseconds=10**9 // self.core.params.runtime.command_hz)
-            deadline = deadline + period
+            deadline = self._next_tick(deadline, period)
             if not clock.sleep_until(deadline, context=self.context):
                 if not self.context.ok():
                     return
@@ -233,6 +226,12 @@ class RowFollowerNode(Node):
             now = clock.now()
             if now - deadline > period:
                 deadline = now
+
+    def _next_tick(self, previous: Time, period: Duration) -> Time:
+        if not self.core.params.node.publish_on_timer:
+            return previous + period
+        seconds = self.core.schedule_tick(previous.nanoseconds * 1e-9)
+        return Time(nanoseconds=round(seconds * 1e9), clock_type=previous.clock_type)
 
     def destroy_node(self) -> None:
         """Stop the command thread first (it wakes within one period), so it never publishes on a destroyed node."""
@@ -312,7 +311,7 @@ def run(name: str, values: dict[str, Any], base: Path | None, ros_args: list[str
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     rclpy.init(args=["segmin", "--ros-args", *ros_args] if ros_args else None)
     node = RowFollowerNode(name, params, segmenter, use_sim_time)
-    executor = MultiThreadedExecutor(num_threads=3)
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         executor.spin()

@@ -146,8 +146,9 @@ DESCRIPTIONS: dict[str, str] = {
     "twist_stamped": "publish geometry_msgs/TwistStamped (stamped with the image that gave the command) "
     "instead of Twist",
     "publish_on_timer": "false: a fresh command goes out as soon as it is computed (lowest latency; its period "
-    "jitters with the inference time); true: commands go out only from the command_hz timer (regular period, "
-    "up to one period older)",
+    "jitters with the frames and the inference time); true: commands go out from the command_hz timer (a regular "
+    "period), whose ticks lock onto the runtime's command deadlines just after a command is usually ready; one "
+    "that misses its tick goes out at once",
     "base_frame": "frame id of TwistStamped commands",
     "slop_s": "colour and depth pair when their stamps differ by at most this, s",
     "publish_overlay": "publish ~/overlay: the camera image with the fused mask and the chosen column",
