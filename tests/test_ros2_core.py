@@ -56,6 +56,7 @@ def test_parameter_names_follow_the_runtime_configs() -> None:
         ({"command_hz": 3}, "parameter segment_hz: segment_hz (20) must be a multiple of command_hz (3)"),
         ({"depth_topic": ""}, "parameter depth_topic: segmind needs depth"),
         ({"slop_s": 0.6}, "parameter slop_s: slop_s must be"),
+        ({"command_priority": 99}, "parameter command_priority: command_priority must be 0 (normal scheduling)"),
     ],
 )
 def test_bad_parameters_are_named(values, message) -> None:
@@ -230,15 +231,14 @@ def test_on_the_timer_only_the_timer_publishes_the_command_in_force(run) -> None
 def test_on_the_timer_a_command_that_misses_its_tick_goes_out_at_once_unpaced(run) -> None:
     frames, commands = run
     core, out = _core(publish_on_timer=True)
-    tick = frames[0][0] - 0.2
+    tick = frames[0][0] - 0.2 + 0.005  # ticks 5 ms after the command deadlines
     for i, (t, colour, depth) in enumerate(frames[:19]):  # commands at 0, 0.2, 0.4, 0.6
         while tick < t:
-            tick = core.schedule_tick(tick)  # the command thread: free-running, then locked
+            tick = core.schedule_tick(tick)  # the command thread (free-running: fewer commands than a lock needs)
         late = 0.1 if i == 18 else 0.0  # the last command's step ends 100 ms late: its tick went by
         core.on_colour(colour, t + late)
         core.on_depth(depth, t + late)
-    sent = [(o.command.v, o.paced) for o in out.sent]
-    assert sent == [(commands[0][1], False), (commands[3][1], False)]  # the first, before any lock, and the late one
+    assert [(o.command.v, o.paced) for o in out.sent] == [(commands[3][1], False)]  # the others wait for their tick
 
 
 def test_the_timer_locks_onto_the_command_deadlines_and_then_only_slews() -> None:
@@ -254,6 +254,10 @@ def test_the_timer_locks_onto_the_command_deadlines_and_then_only_slews() -> Non
     assert (tick - grid) / 0.2 == pytest.approx(round((tick - grid) / 0.2), abs=1e-9) and tick > grid + 0.15
     assert phase.next_tick(tick + 0.003) == pytest.approx(tick + 0.2 + 0.002)  # 3 ms off: 1 ms a tick back
     assert phase.next_tick(tick - 0.0005) == pytest.approx(tick + 0.2)  # within the slew: on the grid
+    assert phase.next_tick(tick + 0.05) == pytest.approx(tick + 0.2 + 0.049)  # locked: slews, never jumps
+    phase.observe(0.2 * len(leads) + 0.07, 0.2 * len(leads) + 0.077)  # the runtime restarted: a new grid
+    moved = phase.next_tick(tick)
+    assert moved - tick == pytest.approx(0.2 + 0.07 - 0.2 * round(0.07 / 0.2), abs=0.02) and moved > tick + 0.1
 
 
 def test_without_a_depth_topic_colour_drives_alone(run) -> None:
@@ -436,14 +440,22 @@ def test_command_timing_reports_the_nodes_latency_and_period_jitter() -> None:
     from segmin.nav_eval.ros2.timing import CommandTiming
 
     timing = CommandTiming()
+    timing.published(None, now_ns=0, monotonic_s=99.5, paced=True)  # a stop before the first frame: no period
     for k in range(5):
         stamp = 10**9 * k
         timing.image_received(stamp, received_ns=stamp + 1_000_000)
         late = 0.004 if k == 3 else 0.0  # one command 4 ms late
-        timing.published(stamp, now_ns=stamp + 11_000_000, monotonic_s=100.0 + 0.2 * k + late)
-    timing.published(None, now_ns=0, monotonic_s=101.0)  # a tick without a fresh image: a period, no latency
+        timing.published(stamp, now_ns=stamp + 11_000_000, monotonic_s=100.0 + 0.2 * k + late, paced=True)
+        timing.published(stamp, now_ns=stamp + 99_000_000, monotonic_s=100.1 + 0.2 * k, paced=False)  # again
+    timing.image_received(7 * 10**9, received_ns=7 * 10**9)
+    timing.published(7 * 10**9, now_ns=7 * 10**9 + 30_000_000, monotonic_s=100.95, paced=False)  # missed its tick
+    timing.published(None, now_ns=0, monotonic_s=101.0, paced=True)  # the camera stalled: the chain breaks
+    timing.published(8 * 10**9, now_ns=0, monotonic_s=101.5, paced=True)
     summary = timing.summary(command_hz=5)
-    assert summary["latency image received to command published median ms"] == "10.00"
-    assert summary["command period median ms"] == "200.00" and summary["command periods timed"] == "5"
+    assert summary["latency image received to command published median ms"] == "10.00"  # first publications
+    assert np.percentile([10.0] * 5 + [30.0], 95) == pytest.approx(
+        float(summary["latency image received to command published p95 ms"])
+    )
+    assert summary["command period median ms"] == "200.00" and summary["command periods timed"] == "4"
     assert float(summary["command period jitter p99 ms"]) == pytest.approx(4.0, abs=0.1)
     assert CommandTiming().summary(5)["command period jitter p99 ms"] == "-"

@@ -86,7 +86,7 @@ def drive(exported, tmp_path_factory) -> dict:
     folder = tmp_path_factory.mktemp("ros2")
     model = exported[0]
     _episode(OnnxSegmenter(model, threads=1), bag=folder / "run")
-    params = _params(folder / "params.yaml", model, use_sim_time=True, publish_frame_acks=True)
+    params = _params(folder / "params.yaml", model, use_sim_time=True, publish_frame_acks=True, command_priority=10)
     env = ros_env()
     result = confined(
         [str(env / "bin" / "python"), str(ROOT / "tests" / "ros2_driver.py"), str(folder / "run"), str(params),
@@ -141,6 +141,11 @@ def test_a_bad_parameter_is_refused_and_the_node_lives(drive) -> None:
     successful, reason = drive["phases"]["bad_parameter"]
     assert not successful and reason.startswith("parameter v_max:"), reason
     assert drive["alive"] and drive["node_exit"] == 0, drive["node_log"]
+
+
+def test_the_command_thread_runs_at_the_real_time_priority_asked(drive) -> None:
+    """CI runs as root, so SCHED_FIFO is granted (elsewhere the node logs why not and carries on)."""
+    assert "command thread: SCHED_FIFO priority 10" in drive["node_log"], drive["node_log"]
 
 
 def test_disabling_stops_the_robot_once_and_then_publishes_nothing(drive) -> None:

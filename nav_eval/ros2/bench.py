@@ -157,7 +157,14 @@ def _feed(feeder: _Feeder, frames: list[tuple[int, str, bytes]], seconds: float,
 
 
 def bench_ros2(
-    model: Path, bag: Path, seconds: float, threads: int, method: str, depth_threshold: float, on_timer: bool = False
+    model: Path,
+    bag: Path,
+    seconds: float,
+    threads: int,
+    method: str,
+    depth_threshold: float,
+    on_timer: bool = False,
+    priority: int = 0,
 ) -> str:
     """Run the bench (see the module docstring); returns the report lines. `on_timer`: the node
     publishes from its timer only (`publish_on_timer`); the period is then that of every message."""
@@ -168,7 +175,7 @@ def bench_ros2(
     frames = read_frames(bag, colour, depth)
     values = {"model": str(model), "threads": threads, "method": method, "depth_threshold": depth_threshold}
     values |= {"enabled": True, "twist_stamped": True, "colour_topic": colour, "depth_topic": depth}
-    values["publish_on_timer"] = on_timer
+    values |= {"publish_on_timer": on_timer, "command_priority": priority}
     own = runtime_step_s(frames, values)
     with tempfile.TemporaryDirectory() as folder:
         params = Path(folder) / "params.yaml"
@@ -205,7 +212,8 @@ def bench_ros2(
     ratio = f"{float(node_p95) / own_p95:.2f}" if node_p95 != "-" else "-"
     lines = [
         f"segmin bench ros2: {method}, {Path(model).name}, {len(frames) // 2} frames looped for {seconds:.0f} s at 30 Hz, "
-        f"commands {'from the timer' if on_timer else 'at once'}; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}; "
+        f"commands {'from the timer' if on_timer else 'at once'}, command thread "
+        f"{f'SCHED_FIFO {priority}' if priority else 'at normal priority'}; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}; "
         f"FASTDDS_BUILTIN_TRANSPORTS={os.environ.get('FASTDDS_BUILTIN_TRANSPORTS', '(default)')}",
         f"runtime's own step (FollowerCore, no ROS, frames giving a command): median {1e3 * np.median(own):.1f} ms, "
         f"p95 {own_p95:.1f} ms ({own.size} steps)",

@@ -62,6 +62,12 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     b.add_argument("--method", default="segmind", choices=("segmin", "segmind", "segzeros"))
     b.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
     b.add_argument("--timer", action="store_true", help="the node publishes from its timer only (publish_on_timer)")
+    b.add_argument(
+        "--command-priority",
+        type=int,
+        default=0,
+        help="the node's command_priority: SCHED_FIFO priority of its command thread (default 0: normal)",
+    )
     b.set_defaults(func=_bench)
 
 
@@ -107,7 +113,16 @@ def _bench(args: argparse.Namespace) -> int:
 
     try:
         print(
-            bench_ros2(args.model, args.bag, args.seconds, args.threads, args.method, args.depth_threshold, args.timer)
+            bench_ros2(
+                args.model,
+                args.bag,
+                args.seconds,
+                args.threads,
+                args.method,
+                args.depth_threshold,
+                args.timer,
+                args.command_priority,
+            )
         )
     except RuntimeError as exc:  # the node gave nothing to measure: one line, not a traceback
         print(f"segmin: bench ros2: {exc}", file=sys.stderr)

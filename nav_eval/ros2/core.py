@@ -57,7 +57,7 @@ from segmin.nav_eval.runtime.follower import STOP, FollowerOutput, RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator
 
 WATCHDOG_PERIODS = 1.5  # the watchdog speaks after this many command periods of silence
-HOLD_SHARE = 0.1  # with publish_on_timer, a fresh command waits for its tick at most this share of a period
+HOLD_SHARE = 0.5  # with publish_on_timer, a fresh command waits for its tick at most this share of a period
 LOG_EVERY_S = 5.0  # a topic's bad frames are logged at most this often (30 Hz of warnings helps no one)
 
 

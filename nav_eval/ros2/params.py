@@ -36,6 +36,7 @@ from segmin.nav_eval.runtime.navigator import NavigatorConfig
 NODE_NAME = "segmin_row_follower"
 # ROS's own parameters a node always has: passed through to rclpy, not checked here.
 ROS_PARAMETERS = ("use_sim_time",)
+MAX_PRIORITY = 98  # SCHED_FIFO's 99 is left to the kernel's own threads, as real-time guides advise
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,7 @@ class NodeSettings:
     cmd_vel_topic: str = topics.CMD_VEL
     twist_stamped: bool = False
     publish_on_timer: bool = False
+    command_priority: int = 0
     base_frame: str = topics.BASE_FRAME
     slop_s: float = 0.01
     publish_overlay: bool = False
@@ -71,6 +73,11 @@ class NodeSettings:
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {self.threads!r}")
+        if not 0 <= self.command_priority <= MAX_PRIORITY:
+            raise ValueError(
+                f"command_priority must be 0 (normal scheduling) or a SCHED_FIFO priority 1-{MAX_PRIORITY}, "
+                f"got {self.command_priority!r}"
+            )
         if not (math.isfinite(self.slop_s) and 0 <= self.slop_s < 0.5):
             raise ValueError(f"slop_s must be a number of seconds within [0, 0.5), got {self.slop_s!r}")
         for name in ("colour_topic", "cmd_vel_topic"):
@@ -149,6 +156,9 @@ DESCRIPTIONS: dict[str, str] = {
     "jitters with the frames and the inference time); true: commands go out from the command_hz timer (a regular "
     "period), whose ticks lock onto the runtime's command deadlines just after a command is usually ready; one "
     "that misses its tick goes out at once",
+    "command_priority": "0: the command thread is scheduled as any other; 1-98: it runs SCHED_FIFO at this "
+    "priority, so a busy computer does not delay its ticks (needs the rtprio limit or CAP_SYS_NICE; without them "
+    "the node logs one line and runs at normal priority)",
     "base_frame": "frame id of TwistStamped commands",
     "slop_s": "colour and depth pair when their stamps differ by at most this, s",
     "publish_overlay": "publish ~/overlay: the camera image with the fused mask and the chosen column",
@@ -174,7 +184,7 @@ DESCRIPTIONS: dict[str, str] = {
 GROUPS = (
     ("driving", ("enabled", "method", "model", "depth_threshold", "threads")),
     ("topics", ("colour_topic", "depth_topic", "cmd_vel_topic", "twist_stamped", "base_frame", "slop_s")),
-    ("timing", ("publish_on_timer",)),
+    ("timing", ("publish_on_timer", "command_priority")),
     ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
     ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
     ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
@@ -194,6 +204,7 @@ DEFAULTS: dict[str, Any] = {
 }
 # Parameters fixed at start-up (subscriptions and publishers are made from them).
 STARTUP_ONLY = (
+    "command_priority",
     "colour_topic",
     "depth_topic",
     "cmd_vel_topic",

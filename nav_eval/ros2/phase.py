@@ -5,15 +5,15 @@ period after it was computed (100 ms on average at 5 Hz). The runtime computes i
 fixed grid of image-stamp times (`RowFollower`: one every 1 / command_hz from the first frame),
 each when the frame at that deadline has been segmented. So the timer can tick on the same grid,
 shifted by how long a command takes to be ready: the period stays regular (its jitter is the
-thread's wake-up delay plus at most `slew_s`) and a command waits only for the margin.
+thread's wake-up delay plus at most SLEW_S) and a command waits only for the margin.
 
 `lead` is the node clock when a fresh command was ready minus its deadline in stamp time: the
 transport, the queue and the step, plus any constant offset between the camera's clock and the
-node's, which the lock absorbs. The timer aims `quantile` of recent leads plus `margin_s` past
-each deadline; it moves by at most `slew_s` a tick (a jump only when it is more than
-`relock_share` of a period off: at start-up, or when the camera restarts), so a slow step now
-and then does not drag the period. A command not ready at its tick goes out when it is ready
-(`FollowerCore`), without pacing the timer.
+node's, which the lock absorbs. The timer aims QUANTILE of recent leads plus MARGIN_S past
+each deadline. It jumps onto that grid once, after MIN_LEADS commands, and again only when the
+runtime's grid moves (a restart after a frame timeout, new parameters); otherwise it moves by at
+most SLEW_S a tick, so a slow step now and then does not drag the period. A command that misses
+its tick goes out when it is ready (`FollowerCore`), without pacing the timer.
 """
 
 from __future__ import annotations
@@ -23,10 +23,11 @@ from collections import deque
 import numpy as np
 
 WINDOW = 50  # leads kept: 10 s of commands at 5 Hz
+MIN_LEADS = 10  # commands seen before the first lock (2 s at 5 Hz): one slow first step must not set the phase
 QUANTILE = 0.9  # the tick waits for this share of recent commands
 MARGIN_S = 0.001  # past that quantile
 SLEW_S = 0.001  # the most a tick moves from the nominal period once locked
-RELOCK_SHARE = 0.2  # an error larger than this share of the period re-locks at once
+GRID_TOLERANCE_S = 0.001  # a deadline further than this from the locked grid means the runtime restarted
 
 
 class CommandPhase:
@@ -36,15 +37,21 @@ class CommandPhase:
         self.period_s = float(period_s)
         self._leads: deque[float] = deque(maxlen=WINDOW)
         self._deadline: float | None = None  # the newest command deadline seen, stamp time
+        self._jump = True  # the next tick may jump onto the grid: not locked yet, or the grid moved
 
     def observe(self, deadline: float, ready: float) -> None:
         """A fresh command for the deadline `deadline` (stamp time) was ready at `ready` (node clock)."""
+        if self._deadline is not None:
+            periods = (deadline - self._deadline) / self.period_s
+            if abs(periods - round(periods)) * self.period_s > GRID_TOLERANCE_S:
+                self._jump = True  # the runtime restarted (a frame timeout, new parameters): a new grid
         self._leads.append(ready - deadline)
         self._deadline = deadline
 
     def offset(self) -> float | None:
-        """How long after a deadline the tick aims to fall (node clock minus stamp time), or None."""
-        if not self._leads:
+        """How long after a deadline the tick aims to fall (node clock minus stamp time), or None
+        before MIN_LEADS commands."""
+        if len(self._leads) < MIN_LEADS:
             return None
         return float(np.quantile(np.fromiter(self._leads, dtype=float), QUANTILE)) + MARGIN_S
 
@@ -53,10 +60,10 @@ class CommandPhase:
         nominal = previous + self.period_s
         offset = self.offset()
         if offset is None or self._deadline is None:
-            return nominal  # free-running until the first fresh command
+            return nominal  # free-running until the lock
         grid = self._deadline + offset  # a tick on the runtime's grid
         target = grid + round((nominal - grid) / self.period_s) * self.period_s
-        error = target - nominal
-        if abs(error) > RELOCK_SHARE * self.period_s:
+        if self._jump:  # one irregular period to lock, never a period under half the nominal one
+            self._jump = False
             return target if target > previous + 0.5 * self.period_s else target + self.period_s
-        return nominal + max(-SLEW_S, min(SLEW_S, error))
+        return nominal + max(-SLEW_S, min(SLEW_S, target - nominal))
