@@ -116,6 +116,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
     import pybullet as p
 
     from segmin.data.overlay import MAGENTA, depth_colours, tint_mask
+    from segmin.data.synth.nets import shade_under_nets
     from segmin.data.synth.render import Renderer
     from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.world import build_world
@@ -135,6 +136,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
                 if rng is not None:
                     renderer.randomize_appearance(rng)
                 f = renderer.render(x, y, yaw, rng=rng)
+                shade_under_nets(f, world, renderer.camera)
                 overlay = tint_mask(f.rgb, f.mask, MAGENTA, opacity=0.55)
                 row = np.concatenate([f.rgb, overlay, depth_colours(f.depth)], axis=1)
                 label = f"{spec.name}  s={s:.0f} m"

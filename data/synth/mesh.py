@@ -246,3 +246,22 @@ def ellipsoid_area(radii: np.ndarray) -> float:
     a, b, c = radii
     p = 1.6075
     return float(4 * np.pi * (((a * b) ** p + (a * c) ** p + (b * c) ** p) / 3) ** (1 / p))
+
+
+def ribbons(p0: np.ndarray, p1: np.ndarray, width: np.ndarray, facing: np.ndarray, normal: np.ndarray) -> Mesh:
+    """Flat strips from p0 to p1 (n, 3), `width` wide, whose front faces look along `facing` (n, 3);
+    `normal` (n, 3) is what shading sees, which need not be the face's own direction (a thin net lit
+    through from above: faces down, normal up)."""
+    p0, p1 = np.atleast_2d(p0).astype(float), np.atleast_2d(p1).astype(float)
+    n = len(p0)
+    if n == 0:
+        return Mesh()
+    side = _unit(np.cross(p1 - p0, facing)) * (0.5 * np.broadcast_to(width, (n,)))[:, None]
+    quad = np.stack([p0 - side, p0 + side, p1 + side, p1 - side], axis=1)  # n, 4, 3
+    tri = np.array([0, 1, 2, 0, 2, 3])
+    flip = (np.cross(quad[:, 1] - quad[:, 0], quad[:, 2] - quad[:, 0]) * facing).sum(axis=1) < 0
+    order = np.where(flip[:, None], tri[[0, 2, 1, 3, 5, 4]][None, :], tri[None, :])  # front faces `facing`
+    idx = (np.arange(n)[:, None] * 4 + order).reshape(-1)
+    uvs = np.tile([[0.1, 0.1], [0.9, 0.1], [0.9, 0.9], [0.1, 0.9]], (n, 1))
+    normals = np.repeat(_unit(np.broadcast_to(normal, (n, 3))), 4, axis=0)
+    return Mesh(quad.reshape(-1, 3), normals, uvs, idx.astype(np.int64))

@@ -35,6 +35,8 @@ class Plant:
     seed: int
     segments: list[tuple[np.ndarray, np.ndarray, float, float]] = field(default_factory=list)
     clusters: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    # One-year canes of a dormant vine: wood, but the canopy of a winter row, so meshed with the leaves.
+    canes: list[tuple[np.ndarray, np.ndarray, float, float]] = field(default_factory=list)
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
         """Local (a, c, h) points (n, 3) to world coordinates."""
@@ -47,16 +49,24 @@ class Plant:
         """Triangles at level of detail `level` (0 = finest, see LOD_FACTORS): leaves, then wood."""
         return Mesh.concat(list(self.mesh_parts(level)))
 
+    def _segment_arrays(self, segments) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """World end points and radii (p0, p1, r0, r1) of skeleton segments."""
+        return (
+            self.to_world(np.array([s[0] for s in segments])),
+            self.to_world(np.array([s[1] for s in segments])),
+            np.array([s[2] for s in segments]),
+            np.array([s[3] for s in segments]),
+        )
+
     def mesh_parts(self, level: int) -> tuple[Mesh, Mesh]:
-        """(leaves, wood) at level of detail `level`, so the mask can label the canopy only."""
+        """(canopy, wood) at level of detail `level`, so the mask can label the canopy only. The
+        canopy is the leaves and, on a dormant vine, its canes (kept at every level: a far winter
+        row is its canes)."""
         fine = level == 0
         rng = np.random.default_rng([self.seed, level])
         parts = []
         if self.segments:
-            p0 = self.to_world(np.array([s[0] for s in self.segments]))
-            p1 = self.to_world(np.array([s[1] for s in self.segments]))
-            r0 = np.array([s[2] for s in self.segments])
-            r1 = np.array([s[3] for s in self.segments])
+            p0, p1, r0, r1 = self._segment_arrays(self.segments)
             trunk = r0 >= 0.6 * self.trunk_radius
             if level <= 1:
                 parts.append(cylinders(p0[trunk], p1[trunk], r0[trunk], r1[trunk], 6 if fine else 4))
@@ -64,6 +74,15 @@ class Plant:
             else:
                 keep = r0 >= 0.012
                 parts.append(cylinders(p0[keep], p1[keep], r0[keep], r1[keep], 3))
+        canes = Mesh()
+        if self.canes:
+            canes = cylinders(*self._segment_arrays(self.canes), 4 if fine else 3)
+        if self.density <= 0:  # a bare dormant vine
+            return canes, Mesh.concat(parts)
+        return Mesh.concat([self._leaves(level, rng), canes]), Mesh.concat(parts)
+
+    def _leaves(self, level: int, rng: np.random.Generator) -> Mesh:
+        """Leaf triangles over the clusters' visible surface at level of detail `level`."""
         # Candidate leaf positions on every cluster's shell; drop those buried inside another
         # cluster, so leaves go where they can be seen (the union's outer surface).
         areas = np.array([ellipsoid_area(r) for _, r in self.clusters])
@@ -90,7 +109,7 @@ class Plant:
         pick = pick[np.argsort(-np.abs(local[pick, 1]), kind="stable")]
         sizes = size * rng.uniform(0.75, 1.25, size=len(pick))
         facing = self.to_world(outward[pick]) - self.base[None, :]
-        return leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0), Mesh.concat(parts)
+        return leaves(self.to_world(local[pick]), sizes, rng, facing=facing, up_bias=0.0)
 
 
 def _u(rng: np.random.Generator, pair) -> float:
@@ -115,8 +134,11 @@ def make_plant(spec: WorldSpec, rng: np.random.Generator, base: np.ndarray, alon
     )
     if ps.sparse_probability > 0 and rng.uniform() < ps.sparse_probability:
         plant.density = ps.leaf_density * float(rng.uniform(0.3, 0.55))  # young shoots on the wires
+    dormant = ps.dormant_probability > 0 and rng.uniform() < ps.dormant_probability
     builder = {"vineyard": _vine, "pear": _pear, "tree": _tree, "pergola": _pergola}[spec.crop]
     builder(plant, spec, rng, row_index)
+    if dormant:
+        _dormant(plant, spec, rng)
     _low_branches(plant, spec, rng)
     _hanging_shoots(plant, spec, rng)
     return plant
@@ -159,6 +181,30 @@ def _vine(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: in
     plant.clusters.append(
         (np.array([rng.normal(0, 0.1), 0.0, height - 0.18]), np.array([span * 0.9, 0.5 * width * 0.8, 0.18]))
     )
+
+
+def _dormant(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> None:
+    """A winter vine: the leaves mostly gone, one-year canes rising from the cordon.
+
+    Canes start at spurs along the cordon arms (the vine's segments 1 and 2, see `_vine`) and rise
+    in three slightly bent pieces, some arching over sideways, to about the summer canopy's top.
+    """
+    ps = spec.plants
+    plant.density = ps.leaf_density * ps.dormant_leaves
+    top = max(c[0][2] + c[1][2] for c in plant.clusters)
+    for _ in range(_i(rng, ps.canes)):
+        arm = plant.segments[int(rng.integers(1, 3))]
+        t = rng.uniform(0.1, 1.0)
+        start = arm[0] + t * (arm[1] - arm[0])
+        length = rng.uniform(0.35, 1.0) * max(top - start[2], 0.3)
+        lean = np.array([rng.normal(0, 0.25), rng.normal(0, 0.12), 1.0])
+        bend = np.array([rng.normal(0, 0.3), rng.normal(0, 0.15), -rng.uniform(0.0, 0.6)])
+        radius = rng.uniform(0.005, 0.009)
+        for k in range(3):  # each piece turns a little further towards `bend`
+            d = lean + bend * (k / 2)
+            end = start + d / np.linalg.norm(d) * length / 3
+            plant.canes.append((start, end, radius * (1 - 0.2 * k), radius * (0.8 - 0.2 * k)))
+            start = end
 
 
 def _pear(plant: Plant, spec: WorldSpec, rng: np.random.Generator, row_index: int) -> None:

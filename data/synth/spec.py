@@ -31,6 +31,9 @@ TEST_FIELDS: tuple[str, ...] = (
 Range = tuple[float, float]
 # Ground styles of textures.GROUND_STYLES (kept here so the spec does not import pybullet code).
 GROUND_STYLE_NAMES: tuple[str, ...] = ("patchy", "mown", "long", "dry", "soil", "litter")
+# Colours of anti-hail nets and materials of posts (their looks: nets.py, posts.py).
+NET_COLOUR_NAMES: tuple[str, ...] = ("black", "grey", "white")
+POST_STYLE_NAMES: tuple[str, ...] = ("wood", "concrete", "metal")
 
 # The narrowest free gap a world may have: the evaluation robot's footprint (a Clearpath Jackal,
 # 0.43 m wide, see nav_eval.robot.RobotConfig; data must not import nav_eval) plus 0.1 m either
@@ -41,6 +44,8 @@ MIN_GAP_WIDTH = 0.63
 # inner side folds back over itself by 2 h tan(theta / 2): beyond a few centimetres the
 # inner rows cross themselves and their neighbours, whatever the segment lengths.
 MAX_POLYLINE_FOLD = 0.1
+# How far an anti-hail net's ridge (over a row line) stays above the tallest plant.
+NET_CLEARANCE = 0.2
 
 
 def _check_range(name: str, value: Range, *, low: float | None = 0.0, strict: bool = False) -> None:
@@ -72,6 +77,15 @@ def _check_positive(name: str, value: float) -> None:
 def _check_fraction(name: str, value: float) -> None:
     if not 0.0 <= value <= 1.0:
         raise ValueError(f"{name}: must be within [0, 1], got {value}")
+
+
+def _check_names(name: str, values: list[str], allowed: tuple[str, ...]) -> None:
+    """A non-empty list of names out of `allowed` (styles, colours)."""
+    if not values:
+        raise ValueError(f"{name}: at least one of {list(allowed)}")
+    for v in values:
+        if v not in allowed:
+            raise ValueError(f"{name}: unknown value {v!r}; choose from {list(allowed)}")
 
 
 @dataclass
@@ -159,7 +173,10 @@ class PlantsSpec:
     leaf_density: float = 0.7  # 0..1, how much of each cluster's shell is covered
     hanging_shoots: tuple[int, int] = (0, 0)  # shoots per plant hanging from the canopy into the row
     sparse_probability: float = 0.0  # chance a plant is a sparse young vine (a third to half the leaves)
-    label: Literal["canopy", "plant"] = "canopy"  # canopy: leaves only are 1 (trunks, branches = 0)
+    dormant_probability: float = 0.0  # chance a vine is dormant (winter): bare canes, few or no leaves
+    dormant_leaves: float = 0.1  # leaf density of a dormant vine, as a share of leaf_density (0 = bare)
+    canes: tuple[int, int] = (6, 12)  # one-year canes per dormant vine: the canopy of a winter row
+    label: Literal["canopy", "plant"] = "canopy"  # canopy: leaves (and canes) only are 1 (trunks, cordons = 0)
 
     def __post_init__(self) -> None:
         _check_positive("plants.spacing", self.spacing)
@@ -172,7 +189,7 @@ class PlantsSpec:
         _check_range("plants.canopy_bottom", self.canopy_bottom)
         _check_range("plants.canopy_width", self.canopy_width, strict=True)
         _check_range("plants.leaf_size", self.leaf_size, strict=True)
-        for name in ("clusters", "branches", "low_branches", "hanging_shoots"):
+        for name in ("clusters", "branches", "low_branches", "hanging_shoots", "canes"):
             a, b = getattr(self, name)
             if a < 0 or a > b:
                 raise ValueError(f"plants.{name}: need 0 <= low <= high, got [{a}, {b}]")
@@ -182,11 +199,56 @@ class PlantsSpec:
             raise ValueError(f"plants.low_branch_reach: must be >= 0, got {self.low_branch_reach}")
         _check_fraction("plants.leaf_density", self.leaf_density)
         _check_fraction("plants.sparse_probability", self.sparse_probability)
+        _check_fraction("plants.dormant_probability", self.dormant_probability)
+        _check_fraction("plants.dormant_leaves", self.dormant_leaves)
         for name in ("canopy_bottom", "trunk_height"):  # a plant's height is its top: both lie below it
             if getattr(self, name)[1] >= self.height[0]:
                 raise ValueError(
                     f"plants.{name}: {list(getattr(self, name))} must lie below plants.height {list(self.height)}"
                 )
+
+
+@dataclass
+class NetsSpec:
+    """Anti-hail nets over the rows: seen in depth, never vegetation, and darker under them.
+
+    Drawn per world build (a closed-loop episode builds its own world): whether there is a net,
+    over the whole field or strips over single rows, its colour, height, mesh and how much light
+    it takes away. Strands are opaque (neither renderer blends): a mesh finer than a pixel reads
+    as a veil of the net's colour over the sky, like a real net seen from below.
+    """
+
+    probability: float = 0.0  # chance a world has nets
+    field_probability: float = 0.5  # given nets: one net over the whole field, else strips over rows
+    row_probability: float = 0.7  # strips: chance each row has one (at least one row has)
+    height: Range = (2.8, 3.6)  # ridge over the row lines (m above the ground)
+    sag: Range = (0.2, 0.6)  # how far the net hangs down between the ridges (m)
+    colours: list[str] = field(default_factory=lambda: list(NET_COLOUR_NAMES))
+    strand_spacing: Range = (0.06, 0.16)  # distance between strands of the drawn mesh (m)
+    strand_width: Range = (0.006, 0.015)  # width of a drawn strand (m)
+    drape_probability: float = 0.3  # chance the net hangs down the outer sides of what it covers
+    dimming: Range = (0.1, 0.3)  # share of the light the net takes from everything under it
+
+    def __post_init__(self) -> None:
+        for name in ("probability", "field_probability", "row_probability", "drape_probability"):
+            _check_fraction(f"structures.nets.{name}", getattr(self, name))
+        _check_range("structures.nets.height", self.height, strict=True)
+        _check_range("structures.nets.sag", self.sag)
+        if self.sag[1] >= 0.5 * self.height[0]:
+            raise ValueError(
+                f"structures.nets.sag: {list(self.sag)} must stay below half the net height {self.height[0]}"
+            )
+        _check_names("structures.nets.colours", self.colours, NET_COLOUR_NAMES)
+        _check_range("structures.nets.strand_spacing", self.strand_spacing, strict=True)
+        _check_range("structures.nets.strand_width", self.strand_width, strict=True)
+        if self.strand_width[1] >= self.strand_spacing[0]:
+            raise ValueError(
+                f"structures.nets.strand_width: {list(self.strand_width)} must be narrower than the strand "
+                f"spacing {list(self.strand_spacing)}"
+            )
+        _check_range("structures.nets.dimming", self.dimming)
+        if self.dimming[1] > 0.9:
+            raise ValueError(f"structures.nets.dimming: within [0, 0.9], got {list(self.dimming)}")
 
 
 @dataclass
@@ -202,6 +264,12 @@ class StructuresSpec:
     pergola_height: float = 2.6  # height of the overhead frame and vine canopy
     free_band_width: float = 1.2  # free band over each gap (pergola only)
     free_band_offset: float = 0.0  # band centre offset from the gap middle, + = left (asymmetry)
+    post_styles: list[str] = field(default_factory=list)  # varied posts: wood, concrete, metal ([] = plain poles)
+    post_radius: Range = (0.035, 0.07)  # half-width of a varied post, drawn per post (m)
+    square_probability: float = 0.5  # share of square varied posts (concrete, sawn wood, steel profiles)
+    end_anchor_probability: float = 0.0  # chance a row end post leans outwards on an anchor wire
+    wire_radius: Range = (0.006, 0.006)  # trellis wire radius, drawn per row and wire (m)
+    nets: NetsSpec = field(default_factory=NetsSpec)
 
     def __post_init__(self) -> None:
         _check_positive("structures.pole_spacing", self.pole_spacing)
@@ -213,6 +281,12 @@ class StructuresSpec:
         if self.pergola:
             _check_positive("structures.pergola_height", self.pergola_height)
             _check_positive("structures.free_band_width", self.free_band_width)
+        if self.post_styles:
+            _check_names("structures.post_styles", self.post_styles, POST_STYLE_NAMES)
+        _check_range("structures.post_radius", self.post_radius, strict=True)
+        _check_fraction("structures.square_probability", self.square_probability)
+        _check_fraction("structures.end_anchor_probability", self.end_anchor_probability)
+        _check_range("structures.wire_radius", self.wire_radius, strict=True)
 
 
 @dataclass
@@ -226,6 +300,9 @@ class TerrainSpec:
     margin: float = 8.0  # ground beyond the outer rows and row ends (m)
     grass_tufts: float = 0.6  # tufts per square metre (not vegetation)
     texture_scale: float = 2.0  # metres per repeat of the ground texture (finer = sharper blades)
+    row_weeds: float = 0.0  # tall weed tufts per metre of row, at the row base (not vegetation)
+    row_weed_height: Range = (0.4, 0.9)  # up into the canopy band (m)
+    row_weed_reach: float = 0.4  # how far from the row line they grow (m)
 
     def __post_init__(self) -> None:
         if self.roughness < 0:
@@ -237,6 +314,13 @@ class TerrainSpec:
         _check_positive("terrain.texture_scale", self.texture_scale)
         if self.grass_tufts < 0:
             raise ValueError(f"terrain.grass_tufts: must be >= 0, got {self.grass_tufts}")
+        if self.row_weeds < 0:
+            raise ValueError(f"terrain.row_weeds: must be >= 0, got {self.row_weeds}")
+        _check_range("terrain.row_weed_height", self.row_weed_height, strict=True)
+        if self.row_weed_height[1] > 1.5:
+            raise ValueError(f"terrain.row_weed_height: weeds up to 1.5 m, got {list(self.row_weed_height)}")
+        if self.row_weed_reach < 0:
+            raise ValueError(f"terrain.row_weed_reach: must be >= 0, got {self.row_weed_reach}")
 
 
 @dataclass
@@ -253,17 +337,21 @@ class AppearanceSpec:
     ground_detail: float = 0.5  # amplitude of the grass-blade fine detail (0 = smooth)
     leaf_detail: float = 0.35  # amplitude of per-texel leaf detail (0 = smooth)
     texture_variants: int = 3
+    shade_probability: float = 0.0  # chance a leaf texture variant is canopy in deep shade (under nets, back-lit)
+    shade_value: Range = (0.08, 0.22)  # leaf brightness of a deep-shade variant
+    shade_saturation: Range = (0.15, 0.45)  # grey-green: shade takes colour as well as light
 
     def __post_init__(self) -> None:
         _check_range("appearance.leaf_hue", self.leaf_hue)
         if self.leaf_hue[1] > 360:
             raise ValueError(f"appearance.leaf_hue: degrees within [0, 360], got {list(self.leaf_hue)}")
-        for name in ("leaf_saturation", "leaf_value", "bark_value", "ground_green"):
+        for name in ("leaf_saturation", "leaf_value", "bark_value", "ground_green", "shade_value", "shade_saturation"):
             value = getattr(self, name)
             _check_range(f"appearance.{name}", value)
             if value[1] > 1:
                 raise ValueError(f"appearance.{name}: values within [0, 1], got {list(value)}")
         _check_fraction("appearance.autumn_probability", self.autumn_probability)
+        _check_fraction("appearance.shade_probability", self.shade_probability)
         if self.texture_variants < 1:
             raise ValueError(f"appearance.texture_variants: at least 1, got {self.texture_variants}")
         if not self.ground_styles:
@@ -421,6 +509,7 @@ class WorldSpec:
                 f"rows.spacing: {self.rows.spacing} m leaves a free gap of {free:.2f} m between the rows "
                 f"(canopy and trunks subtracted); the robot needs more than {MIN_GAP_WIDTH} m"
             )
+        self._check_levers()
         if (
             self.structures.pergola
             and self.structures.free_band_width / 2 + abs(self.structures.free_band_offset) >= self.rows.spacing / 2
@@ -429,6 +518,19 @@ class WorldSpec:
                 "structures.free_band_width: the free band (with its offset) must fit between the rows "
                 f"({self.structures.free_band_width} + 2*{abs(self.structures.free_band_offset)} >= {self.rows.spacing})"
             )
+
+    def _check_levers(self) -> None:
+        """Data-engine levers that only make sense for some fields: say which key is wrong and why."""
+        nets, plants = self.structures.nets, self.plants
+        if nets.probability > 0:
+            top = max(plants.height[1], self.structures.pergola_height if self.structures.pergola else 0.0)
+            if nets.height[0] < top + NET_CLEARANCE:
+                raise ValueError(
+                    f"structures.nets.height: {list(nets.height)} must clear the plants' top {top} m by "
+                    f"{NET_CLEARANCE} m, or the net would cut through the canopy"
+                )
+        if plants.dormant_probability > 0 and self.crop != "vineyard":
+            raise ValueError(f"plants.dormant_probability: dormant canes are built for vineyards, not {self.crop!r}")
 
     @property
     def free_gap_width(self) -> float:
@@ -481,10 +583,13 @@ __all__ = [
     "GROUND_STYLE_NAMES",
     "MAX_POLYLINE_FOLD",
     "MIN_GAP_WIDTH",
+    "NET_COLOUR_NAMES",
+    "POST_STYLE_NAMES",
     "TEST_FIELDS",
     "AppearanceSpec",
     "BackdropSpec",
     "CaptureSpec",
+    "NetsSpec",
     "PlantsSpec",
     "RenderSpec",
     "RowsSpec",

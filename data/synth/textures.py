@@ -40,8 +40,9 @@ def _hsv(h_deg: float, s: float, v: float) -> np.ndarray:
     return np.array(colorsys.hsv_to_rgb((h_deg % 360) / 360.0, float(np.clip(s, 0, 1)), float(np.clip(v, 0, 1))))
 
 
-def plant_atlas(rng: np.random.Generator, appearance, autumn: bool) -> np.ndarray:
-    """RGB uint8 atlas: bark on the left half, leaves on the right half."""
+def plant_atlas(rng: np.random.Generator, appearance, autumn: bool, shade: bool = False) -> np.ndarray:
+    """RGB uint8 atlas: bark on the left half, leaves on the right half; `shade`: canopy in deep
+    shade (under nets, seen against the light), dark and grey-green."""
     size = SIZE
     img = np.zeros((size, size, 3), np.float32)
     half = size // 2
@@ -59,6 +60,9 @@ def plant_atlas(rng: np.random.Generator, appearance, autumn: bool) -> np.ndarra
         hue = rng.uniform(*appearance.leaf_hue)
         sat = rng.uniform(*appearance.leaf_saturation)
     val = rng.uniform(*appearance.leaf_value)
+    if shade:  # drawn after the usual colour: the draws of unshaded variants stay as they were
+        sat = rng.uniform(*appearance.shade_saturation)
+        val = rng.uniform(*appearance.shade_value)
     mottle = _noise(rng, size, (8, 16, 32, 64))[:, half:]
     hue_field = hue + (mottle - 0.5) * (30 if autumn else 14)
     hsv = np.stack(
@@ -186,6 +190,26 @@ def structure_texture(rng: np.random.Generator) -> np.ndarray:
     return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
 
+def plain_texture(rng: np.random.Generator) -> np.ndarray:
+    """Near-white with faint mottling: nets and posts take their colour from the chunk's tint."""
+    img = (0.85 + 0.15 * _noise(rng, SIZE, (8, 32)))[..., None] * np.ones(3, np.float32)
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
+def load_textures(client_id: int, images: dict[str, np.ndarray]) -> dict[str, int]:
+    """pybullet texture ids of RGB images, through PNG files that live only as long as the load."""
+    folder = Path(tempfile.mkdtemp(prefix="segmin_tex_"))
+    try:
+        ids = {}
+        for name, img in images.items():
+            path = folder / f"{name}.png"
+            cv2.imwrite(str(path), img[:, :, ::-1])
+            ids[name] = p.loadTexture(str(path), physicsClientId=client_id)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    return ids
+
+
 class TextureSet:
     """Texture ids loaded into one pybullet client: plant variants, ground variants, structures."""
 
@@ -194,21 +218,17 @@ class TextureSet:
         self.autumn = [bool(rng.uniform() < appearance.autumn_probability) for _ in range(n)]
         # Keep at least one green variant: the default look of a world is summer.
         self.autumn[0] = False
-        images = {f"plant{i}": plant_atlas(rng, appearance, self.autumn[i]) for i in range(n)}
+        self.shade = [False] * n  # variant 0 stays in the light too
+        if appearance.shade_probability > 0:
+            self.shade[1:] = [bool(rng.uniform() < appearance.shade_probability) for _ in range(n - 1)]
+        images = {f"plant{i}": plant_atlas(rng, appearance, self.autumn[i], self.shade[i]) for i in range(n)}
         styles = list(appearance.ground_styles)
         self.ground_style = [styles[int(rng.integers(len(styles)))] if i else styles[0] for i in range(n)]
         images.update({f"ground{i}": ground_texture(rng, appearance, self.ground_style[i]) for i in range(n)})
         images.update({f"grass{i}": grass_texture(rng, appearance) for i in range(n)})
         images["structure"] = structure_texture(rng)
-        folder = Path(tempfile.mkdtemp(prefix="segmin_tex_"))
-        try:
-            ids = {}
-            for name, img in images.items():
-                path = folder / f"{name}.png"
-                cv2.imwrite(str(path), img[:, :, ::-1])
-                ids[name] = p.loadTexture(str(path), physicsClientId=client_id)
-        finally:
-            shutil.rmtree(folder, ignore_errors=True)
+        ids = load_textures(client_id, images)
+        self.client_id = client_id
         self.plant = [ids[f"plant{i}"] for i in range(n)]
         self.ground = [ids[f"ground{i}"] for i in range(n)]
         self.grass = [ids[f"grass{i}"] for i in range(n)]
@@ -217,3 +237,13 @@ class TextureSet:
         self.images = {ids[name]: img for name, img in images.items()}
         # Mean colour of each ground texture (0..1), used to paint ground beyond the tiles.
         self.ground_mean = [images[f"ground{i}"].reshape(-1, 3).mean(axis=0) / 255.0 * 0.8 for i in range(n)]
+        self._plain: int | None = None
+
+    def plain(self) -> int:
+        """The near-white texture of nets and posts, loaded the first time a world needs it (worlds
+        without them keep their texture ids as they were); one fixed pattern, the tint varies."""
+        if self._plain is None:
+            img = plain_texture(np.random.default_rng(0))
+            self._plain = load_textures(self.client_id, {"plain": img})["plain"]
+            self.images[self._plain] = img
+        return self._plain

@@ -19,7 +19,9 @@ import pybullet as p
 
 from segmin.data.synth.backdrop import backdrop_meshes
 from segmin.data.synth.mesh import Mesh, blades, cylinders, grid_surface
+from segmin.data.synth.nets import NetShade, net_meshes, net_shade, plan_nets
 from segmin.data.synth.plants import LOD_FACTORS, Plant, make_plant
+from segmin.data.synth.posts import END_POST_FACTOR, RADIUS_FACTOR, PostLook, anchor, post_looks, post_mesh
 from segmin.data.synth.spec import WorldSpec
 from segmin.data.synth.textures import TextureSet
 
@@ -141,6 +143,7 @@ class World:
     chunks: list[Chunk]
     textures: TextureSet
     n_triangles: dict[str, list[int]] = field(default_factory=dict)  # per chunk kind and level
+    net_shade: NetShade | None = None  # where an anti-hail net darkens the frame (see nets.shade_under_nets)
 
     def terrain_height(self, x, y):
         """Ground height at (x, y); scalars give a float, arrays an array."""
@@ -216,7 +219,7 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     """Build `spec` into the (DIRECT) pybullet client `client_id`; `seed` overrides `spec.seed`.
 
     Each part draws from a random stream of its own (terrain, plants, structures, textures,
-    ground, backdrop), so a change to one part of a spec leaves the others as they were.
+    ground, backdrop, nets, row weeds), so a change to one part of a spec leaves the others as they were.
     """
     seed = spec.seed if seed is None else int(seed)
     rng_terrain, rng_plants, rng_struct, rng_tex, rng_ground = (np.random.default_rng([seed, k]) for k in range(5))
@@ -232,6 +235,8 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     obstacles = _structures(spec, layout, terrain, rng_struct, client_id, textures, chunks, n_chunks, tris)
     _ground(spec, layout, terrain, rng_ground, client_id, textures, chunks, tris)
     _backdrop(spec, layout, terrain, np.random.default_rng([seed, 5]), client_id, textures, chunks, tris)
+    shade = _nets(spec, layout, terrain, np.random.default_rng([seed, 6]), client_id, textures, chunks, tris)
+    _row_weeds(spec, layout, terrain, np.random.default_rng([seed, 7]), client_id, textures, chunks, tris)
 
     centre_offsets, half_widths = _gap_geometry(spec, layout.offsets)
     s_line = np.arange(0.0, spec.rows.length + 1e-9, CENTRELINE_STEP)
@@ -250,6 +255,7 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
         chunks=chunks,
         textures=textures,
         n_triangles=tris,
+        net_shade=shade,
     )
 
 
@@ -347,24 +353,22 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
     pole_s = np.arange(0.0, rs.length + 1e-6, st.pole_spacing)
     if pole_s[-1] < rs.length - 0.5:
         pole_s = np.append(pole_s, rs.length)
-    top_h = st.pergola_height if st.pergola else st.pole_height
+    looks = post_looks(st.post_styles, st.square_probability, rng) if st.post_styles else {}
+    styled: dict[tuple[int, str], list[Mesh]] = {}
     for offset in layout.offsets:
-        xy, _ = layout.at(pole_s, offset + 0.0)
-        z = terrain.height(xy[:, 0], xy[:, 1])
-        for k, s in enumerate(pole_s):
-            lean = rng.normal(0, 0.02, size=2)
-            p0 = np.array([xy[k, 0], xy[k, 1], z[k] - 0.2])
-            p1 = np.array([xy[k, 0] + lean[0], xy[k, 1] + lean[1], z[k] + top_h])
-            parts.setdefault(int(s // chunk_len), []).append(cylinders(p0, p1, st.pole_radius, st.pole_radius * 0.9, 5))
-            obstacles.append((xy[k, 0], xy[k, 1], st.pole_radius))
+        _row_posts(spec, layout, terrain, rng, offset, pole_s, looks, parts, styled, obstacles)
         # Wires between consecutive poles (thin triangular prisms).
         for h in [] if st.pergola else st.wire_heights:
+            lo, hi = st.wire_radius
+            radius = rng.uniform(lo, hi) if hi > lo else lo
             for k in range(len(pole_s) - 1):
                 ss = _wire_stations(pole_s[k], pole_s[k + 1])
                 wxy, _ = layout.at(ss, offset)
                 wz = terrain.height(wxy[:, 0], wxy[:, 1]) + h
                 pts = np.column_stack([wxy, wz])
-                parts.setdefault(int(pole_s[k] // chunk_len), []).append(cylinders(pts[:-1], pts[1:], 0.006, 0.006, 3))
+                parts.setdefault(int(pole_s[k] // chunk_len), []).append(
+                    cylinders(pts[:-1], pts[1:], radius, radius, 3)
+                )
     if st.pergola:
         # Cross beams over every gap at each pole station and wires along the rows overhead.
         for g in range(len(layout.offsets) - 1):
@@ -391,7 +395,87 @@ def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, 
         tint = (0.9, 0.9, 0.9, 1.0)
         chunks.append(_chunk(client, [mesh], "structure", textures.structure, tint))
         tris["structure"][0] += mesh.n_triangles
+    if styled:  # own texture and tint per material: the `backdrop` kind keeps them
+        tris["posts"] = [0]
+    for (_, style), meshes in sorted(styled.items()):
+        mesh = Mesh.concat(meshes)
+        texture = textures.structure if style == "wood" else textures.plain()
+        chunks.append(_chunk(client, [mesh], "backdrop", texture, looks[style].tint))
+        tris["posts"][0] += mesh.n_triangles
     return obstacles
+
+
+def _row_posts(
+    spec, layout, terrain, rng, offset, pole_s, looks: dict[str, PostLook], parts, styled, obstacles
+) -> None:
+    """The posts of one row: plain poles into `parts`, or with `looks` (varied posts) a material per
+    post into `styled[(chunk, material)]`; end posts on anchors with `structures.end_anchor_probability`."""
+    st = spec.structures
+    chunk_len = spec.render.chunk_length
+    top_h = st.pergola_height if st.pergola else st.pole_height
+    xy, t = layout.at(pole_s, offset + 0.0)
+    z = terrain.height(xy[:, 0], xy[:, 1])
+    ends = {0: -1.0, len(pole_s) - 1: 1.0}  # pole index -> direction out of the row along it
+    for k, s in enumerate(pole_s):
+        lean = rng.normal(0, 0.02, size=2)
+        p0 = np.array([xy[k, 0], xy[k, 1], z[k] - 0.2])
+        p1 = np.array([xy[k, 0] + lean[0], xy[k, 1] + lean[1], z[k] + top_h])
+        key = int(s // chunk_len)
+        if k in ends and st.end_anchor_probability > 0 and rng.uniform() < st.end_anchor_probability:
+            outward = np.array([t[k, 0], t[k, 1], 0.0]) * ends[k]
+            p1 = p1 + outward * rng.uniform(0.1, 0.3)  # pulled outwards by the anchor wire
+            parts.setdefault(key, []).extend(anchor(p1, p0, outward, terrain.height, rng))
+        if not looks:
+            parts.setdefault(key, []).append(cylinders(p0, p1, st.pole_radius, st.pole_radius * 0.9, 5))
+            obstacles.append((xy[k, 0], xy[k, 1], st.pole_radius))
+            continue
+        look = looks[st.post_styles[int(rng.integers(len(st.post_styles)))]]
+        radius = rng.uniform(*st.post_radius) * RADIUS_FACTOR[look.style] * (END_POST_FACTOR if k in ends else 1.0)
+        styled.setdefault((key, look.style), []).append(post_mesh(p0, p1, radius, look.square))
+        obstacles.append((xy[k, 0], xy[k, 1], radius * (np.sqrt(2) if look.square else 1.0)))
+
+
+def _nets(spec, layout, terrain, rng, client, textures, chunks, tris) -> NetShade | None:
+    """Anti-hail nets (`structures.nets`), drawn for this build: strand chunks at two levels of
+    detail, and the height map of the shade they cast; None without a net."""
+    plan = plan_nets(spec, layout.offsets, rng)
+    if plan is None:
+        return None
+    tris["net"] = [0, 0]
+    fine, coarse = (net_meshes(spec, layout, terrain, plan, c) for c in (False, True))
+    tint = (plan.grey, plan.grey, plan.grey, 1.0)
+    for key in sorted(fine):
+        levels = [fine[key], coarse.get(key, fine[key])]
+        chunks.append(_chunk(client, levels, "backdrop", textures.plain(), tint))  # own colour: see posts
+        tris["net"] = [a + m.n_triangles for a, m in zip(tris["net"], levels)]
+    return net_shade(spec, layout, terrain, plan)
+
+
+def _row_weeds(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
+    """Tall weeds and grass at the row base, up into the canopy band (`terrain.row_weeds`): not
+    vegetation in the mask, like grass; drawn to the second level-of-detail distance."""
+    ts = spec.terrain
+    if ts.row_weeds <= 0:
+        return
+    tris["weeds"] = [0, 0]
+    chunk_len = spec.render.chunk_length
+    n_pieces = int(np.ceil(spec.rows.length / chunk_len))
+    for offset in layout.offsets:
+        for piece in range(n_pieces):
+            n = rng.poisson(ts.row_weeds * chunk_len)
+            if not n:
+                continue
+            s = rng.uniform(piece * chunk_len, min((piece + 1) * chunk_len, spec.rows.length), n)
+            xy, _ = layout.at(s, offset + rng.uniform(-ts.row_weed_reach, ts.row_weed_reach, n))
+            bases = np.column_stack([xy, terrain.height(xy[:, 0], xy[:, 1]) - 0.01])
+            heights = rng.uniform(*ts.row_weed_height, n)
+            fine = blades(bases, heights, rng, per_tuft=6)
+            coarse = blades(bases[: max(1, n // 2)], heights[: max(1, n // 2)], rng, per_tuft=4)
+            ch = _chunk(client, [fine, coarse], "grass", textures.grass[0])
+            ch.bodies.append(-1)  # beyond the second level-of-detail distance: not drawn
+            ch.triangles.append(0)
+            chunks.append(ch)
+            tris["weeds"] = [a + m.n_triangles for a, m in zip(tris["weeds"], (fine, coarse))]
 
 
 def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:

@@ -38,6 +38,7 @@ from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir, make_dirs
 from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.nets import shade_under_nets
 from segmin.data.synth.spec import WorldSpec
 
 FORMAT = "segmin-synth/1"
@@ -299,6 +300,7 @@ class FrameRenderer:
             noisy_depth=False,
             pose_offset=plan.pose_offset,
         )
+        shade_under_nets(out, self.world, self.renderer.camera)  # before depth noise: shade from the true depth
         if self.noisy_depth:
             out.depth = self.renderer.camera.apply_depth_noise(
                 out.depth, np.random.default_rng([self.job_seed, 3, frame])
