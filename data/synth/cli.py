@@ -136,7 +136,7 @@ def preview_sheet(worlds: list[str], frames: int, camera, overrides=()):
                 if rng is not None:
                     renderer.randomize_appearance(rng)
                 f = renderer.render(x, y, yaw, rng=rng)
-                shade_under_nets(f, world, renderer.camera)
+                shade_under_nets(f, world.net_shade, renderer.camera)
                 overlay = tint_mask(f.rgb, f.mask, MAGENTA, opacity=0.55)
                 row = np.concatenate([f.rgb, overlay, depth_colours(f.depth)], axis=1)
                 label = f"{spec.name}  s={s:.0f} m"

@@ -21,11 +21,9 @@ import numpy as np
 
 from segmin.data.synth.mesh import Mesh, ribbons
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # world.py and render.py import this module: their types stay unnamed here
     from segmin.data.synth.camera import CameraModel
-    from segmin.data.synth.render import RenderedFrame
     from segmin.data.synth.spec import WorldSpec
-    from segmin.data.synth.world import RowLayout, Terrain, World
 
 # Grey level of each net colour (times the near-white plain texture), before per-episode tints.
 NET_GREY = {"black": (0.05, 0.12), "grey": (0.3, 0.5), "white": (0.8, 0.95)}
@@ -103,16 +101,14 @@ def _lift(plan: NetPlan, lateral: np.ndarray, row_spacing: float) -> np.ndarray:
     return plan.ridge - plan.sag * 0.5 * (1 - np.cos(phase))
 
 
-def _points(plan, layout: RowLayout, terrain: Terrain, s: np.ndarray, lateral: np.ndarray, phase0: float, spacing):
+def _points(plan, layout, terrain, s: np.ndarray, lateral: np.ndarray, phase0: float, spacing):
     """World points of the net surface at arclengths `s` and lateral offsets (same shapes)."""
     xy, _ = layout.at(s.reshape(-1), lateral.reshape(-1))
     z = terrain.height(xy[:, 0], xy[:, 1]) + _lift(plan, lateral.reshape(-1) - phase0, spacing)
     return np.column_stack([xy, z])
 
 
-def net_meshes(
-    spec: WorldSpec, layout: RowLayout, terrain: Terrain, plan: NetPlan, coarse: bool
-) -> dict[tuple[int, int], Mesh]:
+def net_meshes(spec: WorldSpec, layout, terrain, plan: NetPlan, coarse: bool) -> dict[tuple[int, int], Mesh]:
     """The strands of the net (and its drapes), keyed by (piece along the rows, span): culling units.
 
     `coarse`: the far level of detail, half as many strands, twice as wide (same cover)."""
@@ -195,7 +191,7 @@ def _drape(out, span, plan, layout, terrain, lateral, s_range, step, width, chun
             _add(out, span, s, chunk, ribbons(a, b, width, sign * facing, UP))
 
 
-def net_shade(spec: WorldSpec, layout: RowLayout, terrain: Terrain, plan: NetPlan) -> NetShade:
+def net_shade(spec: WorldSpec, layout, terrain, plan: NetPlan) -> NetShade:
     """The net's height over a grid of SHADE_CELL cells, from a lattice twice as fine over its surface."""
     s = np.arange(-END_MARGIN, spec.rows.length + END_MARGIN, SHADE_CELL / 2)
     points = []
@@ -212,9 +208,9 @@ def net_shade(spec: WorldSpec, layout: RowLayout, terrain: Terrain, plan: NetPla
     return NetShade(origin=origin, height=height, dimming=plan.dimming)
 
 
-def shade_under_nets(frame: RenderedFrame, world: World, camera: CameraModel) -> None:
-    """Darken, in place, the pixels of `frame` whose points lie under the world's net (no net: nothing)."""
-    shade = world.net_shade
+def shade_under_nets(frame, shade: NetShade | None, camera: CameraModel) -> None:
+    """Darken, in place, the pixels of a RenderedFrame whose points lie under the net of `shade`
+    (a world's `net_shade`; None: nothing to do)."""
     if shade is None:
         return
     hit = frame.depth > 0

@@ -41,8 +41,8 @@ def post_looks(styles: list[str], square_probability: float, rng: np.random.Gene
     for style in styles:
         lo, hi = (np.asarray(v) for v in POST_TINTS[style])
         t = rng.uniform(0, 1)  # one brightness across the channels: greys stay grey
-        tint = lo + t * (hi - lo)
-        looks[style] = PostLook(style, (*map(float, tint), 1.0), bool(rng.uniform() < square_probability))
+        r, g, b = (float(v) for v in lo + t * (hi - lo))
+        looks[style] = PostLook(style, (r, g, b, 1.0), bool(rng.uniform() < square_probability))
     return looks
 
 

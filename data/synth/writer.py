@@ -300,7 +300,8 @@ class FrameRenderer:
             noisy_depth=False,
             pose_offset=plan.pose_offset,
         )
-        shade_under_nets(out, self.world, self.renderer.camera)  # before depth noise: shade from the true depth
+        # Before the depth noise: the shade follows the true depth.
+        shade_under_nets(out, self.world.net_shade, self.renderer.camera)
         if self.noisy_depth:
             out.depth = self.renderer.camera.apply_depth_noise(
                 out.depth, np.random.default_rng([self.job_seed, 3, frame])
