@@ -28,7 +28,7 @@ if TYPE_CHECKING:  # world.py and render.py import this module: their types stay
 # Grey level of each net colour (times the near-white plain texture), before per-episode tints.
 NET_GREY = {"black": (0.05, 0.12), "grey": (0.3, 0.5), "white": (0.8, 0.95)}
 ALONG_PIECE = 1.0  # strands along the rows in pieces this long (TinyRenderer scans each triangle's box)
-ACROSS_PIECE = 0.3  # strands across the rows in pieces this long: they follow the sag
+ACROSS_PIECE = 0.4  # strands across the rows in pieces this long: they follow the sag
 SHADE_CELL = 0.1  # resolution of the height map that says what lies under the net (m)
 END_MARGIN = 0.5  # the net runs this far beyond the row ends (onto the end posts)
 DOWN, UP = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0])  # strands face down, lit from above
@@ -108,72 +108,80 @@ def _points(plan, layout, terrain, s: np.ndarray, lateral: np.ndarray, phase0: f
     return np.column_stack([xy, z])
 
 
-def net_meshes(spec: WorldSpec, layout, terrain, plan: NetPlan, coarse: bool) -> dict[tuple[int, int], Mesh]:
-    """The strands of the net (and its drapes), keyed by (piece along the rows, span): culling units.
+def net_meshes(spec: WorldSpec, layout, terrain, plan: NetPlan, coarse: bool) -> dict[tuple[int, int, int], Mesh]:
+    """The strands of the net (and its drapes) keyed by (piece along the rows, span, band across
+    them one row spacing wide): culling units, small enough for levels of detail to matter.
 
-    `coarse`: the far level of detail, half as many strands, twice as wide (same cover)."""
+    The mesh is rectangular, like a real net's (across strands twice as far apart as the strands
+    along the rows). `coarse`: the far level of detail, half as many strands, twice as wide."""
     step = plan.spacing * (2 if coarse else 1)
     width = plan.width * (2 if coarse else 1)
     s0, s1 = -END_MARGIN, spec.rows.length + END_MARGIN
     phase0, rs = float(layout.offsets[0]), spec.rows.spacing
     chunk = spec.render.chunk_length
-    out: dict[tuple[int, int], list[Mesh]] = {}
+    out: dict[tuple[int, int, int], list[Mesh]] = {}
     for k, (lo, hi) in enumerate(plan.spans):
+
+        def band(lateral: np.ndarray, lo: float = lo) -> np.ndarray:
+            return np.floor((lateral - lo) / rs).astype(int)
+
         along = (s0, s1, phase0, rs, chunk)
-        _along(out, k, plan, layout, terrain, np.arange(lo, hi + 1e-9, step), width, along)
+        lat = np.arange(lo, hi + 1e-9, step)
+        _along(out, k, plan, layout, terrain, lat, band(lat), width, along)
         # Ridge cables over the row lines: three strands wide, what a real net shows most of.
         ridges = layout.offsets[(layout.offsets >= lo) & (layout.offsets <= hi)]
         if len(ridges):
-            _along(out, k, plan, layout, terrain, ridges, 3 * width, along)
+            _along(out, k, plan, layout, terrain, ridges, band(ridges), 3 * width, along)
         # Strands across the rows: constant arclength, pieces of ACROSS_PIECE following the sag.
-        ss = np.arange(s0, s1 + 1e-9, step)
+        ss = np.arange(s0, s1 + 1e-9, 2 * step)
         lat = np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / ACROSS_PIECE)) + 1))
         grid_s, grid_l = np.meshgrid(ss, lat, indexing="ij")
         pts = _points(plan, layout, terrain, grid_s, grid_l, phase0, rs).reshape(len(ss), len(lat), 3)
         a, b = pts[:, :-1].reshape(-1, 3), pts[:, 1:].reshape(-1, 3)
-        _add(out, k, np.repeat(ss, len(lat) - 1), chunk, ribbons(a, b, width, DOWN, UP))
+        bands = np.tile(band(0.5 * (lat[:-1] + lat[1:])), len(ss))
+        _add(out, (k, bands), np.repeat(ss, len(lat) - 1), chunk, ribbons(a, b, width, DOWN, UP))
         if plan.drapes:
             for side in (lo, hi):
-                _drape(out, k, plan, layout, terrain, side, (s0, s1), step, width, chunk, phase0, rs)
+                edge = int(band(np.array([min(side, hi - 1e-6)]))[0])
+                _drape(out, (k, edge), plan, layout, terrain, side, (s0, s1), step, width, chunk, phase0, rs)
     return {key: Mesh.concat(parts) for key, parts in out.items()}
 
 
-def _along(out: dict, span: int, plan: NetPlan, layout, terrain, lateral: np.ndarray, width: float, along) -> None:
-    """Strands along the rows at constant lateral offsets, in pieces of ALONG_PIECE; `along` is
-    (first arclength, last arclength, lateral phase of the ridges, row spacing, chunk length)."""
+def _along(out: dict, span: int, plan, layout, terrain, lateral: np.ndarray, bands: np.ndarray, width, along) -> None:
+    """Strands along the rows at constant lateral offsets (in `bands`), in pieces of ALONG_PIECE;
+    `along` is (first arclength, last arclength, lateral phase of the ridges, row spacing, chunk length)."""
     s0, s1, phase0, rs, chunk = along
     ss = np.linspace(s0, s1, max(2, int(np.ceil((s1 - s0) / ALONG_PIECE)) + 1))
     grid_s, grid_l = np.meshgrid(ss, lateral, indexing="ij")
     pts = _points(plan, layout, terrain, grid_s, grid_l, phase0, rs).reshape(len(ss), len(lateral), 3)
     a, b = pts[:-1].reshape(-1, 3), pts[1:].reshape(-1, 3)
     mid_s = np.repeat(0.5 * (ss[:-1] + ss[1:]), len(lateral))
-    _add(out, span, mid_s, chunk, ribbons(a, b, width, DOWN, UP))
+    _add(out, (span, np.tile(bands, len(ss) - 1)), mid_s, chunk, ribbons(a, b, width, DOWN, UP))
 
 
-def _add(out: dict, span: int, s: np.ndarray, chunk: float, mesh: Mesh) -> None:
-    """Sort the ribbons of `mesh` (4 vertices and 6 indices each, one per start point) into culling
-    units by their arclength `s`."""
-    keys = np.floor(s / chunk).astype(int)
-    for key in np.unique(keys):
-        pick = np.nonzero(keys == key)[0]
+def _add(out: dict, where: tuple, s: np.ndarray, chunk: float, mesh: Mesh) -> None:
+    """Sort the ribbons of `mesh` (4 vertices and 6 indices each) into culling units by their
+    arclength `s` and `where` = (span, band across the rows: one for all or one per ribbon)."""
+    span, band = where
+    keys = np.column_stack([np.floor(s / chunk).astype(int), np.broadcast_to(band, s.shape)])
+    for key in np.unique(keys, axis=0):
+        pick = np.nonzero((keys == key).all(axis=1))[0]
         verts = (pick[:, None] * 4 + np.arange(4)).reshape(-1)
-        idx = (mesh.indices.reshape(-1, 6)[pick] - (pick * 4)[:, None] + (np.arange(len(pick)) * 4)[:, None]).reshape(
-            -1
-        )
-        part = Mesh(mesh.vertices[verts], mesh.normals[verts], mesh.uvs[verts], idx)
-        out.setdefault((int(key), span), []).append(part)
+        idx = mesh.indices.reshape(-1, 6)[pick] - (pick * 4)[:, None] + (np.arange(len(pick)) * 4)[:, None]
+        part = Mesh(mesh.vertices[verts], mesh.normals[verts], mesh.uvs[verts], idx.reshape(-1))
+        out.setdefault((int(key[0]), span, int(key[1])), []).append(part)
 
 
-def _drape(out, span, plan, layout, terrain, lateral, s_range, step, width, chunk, phase0, rs) -> None:
+def _drape(out, where, plan, layout, terrain, lateral, s_range, step, width, chunk, phase0, rs) -> None:
     """A side curtain from the net's edge down to a metre above the ground, seen from both sides
-    (from the gap beside a strip, or from inside a field net)."""
+    (from the gap beside a strip, or from inside a field net); `where` = (span, band)."""
     s0, s1 = s_range
     top = float(_lift(plan, np.array([lateral - phase0]), rs)[0])
     heights = np.arange(1.0, top + 1e-9, step)
     if len(heights) < 2:
         return
     ss = np.linspace(s0, s1, max(2, int(np.ceil((s1 - s0) / ALONG_PIECE)) + 1))
-    cols = np.arange(s0, s1 + 1e-9, step)
+    cols = np.arange(s0, s1 + 1e-9, 2 * step)
     pieces = []
     for stations, rows in ((ss, heights), (cols, heights[[0, -1]])):
         xy, t = layout.at(stations, lateral)
@@ -188,7 +196,7 @@ def _drape(out, span, plan, layout, terrain, lateral, s_range, step, width, chun
         pieces.append((a, b, s, facing))
     for a, b, s, facing in pieces:
         for sign in (1.0, -1.0):
-            _add(out, span, s, chunk, ribbons(a, b, width, sign * facing, UP))
+            _add(out, where, s, chunk, ribbons(a, b, width, sign * facing, UP))
 
 
 def net_shade(spec: WorldSpec, layout, terrain, plan: NetPlan) -> NetShade:
@@ -213,12 +221,11 @@ def shade_under_nets(frame, shade: NetShade | None, camera: CameraModel) -> None
     (a world's `net_shade`; None: nothing to do)."""
     if shade is None:
         return
-    hit = frame.depth > 0
-    if not hit.any():
+    v, u = np.nonzero(frame.depth > 0)
+    if not len(v):
         return
-    pose = frame.camera_pose
-    rays = camera.pixel_rays()[hit] * frame.depth[hit][:, None]
-    points = rays @ pose[:3, :3].T + pose[:3, 3]
-    under = np.zeros_like(hit)
-    under[hit] = shade.under(points)
-    frame.rgb[under] = (frame.rgb[under] * (1.0 - shade.dimming)).astype(np.uint8)
+    k, pose, z = camera.intrinsics(), frame.camera_pose, frame.depth[v, u]
+    local = np.column_stack([(u - k["cx"]) / k["fx"] * z, (v - k["cy"]) / k["fy"] * z, z])  # camera frame
+    under = shade.under(local @ pose[:3, :3].T + pose[:3, 3])
+    v, u = v[under], u[under]
+    frame.rgb[v, u] = (frame.rgb[v, u] * (1.0 - shade.dimming)).astype(np.uint8)
