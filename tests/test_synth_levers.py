@@ -171,3 +171,19 @@ def test_row_weeds_reach_into_the_canopy_band_and_are_not_vegetation(client):
     frame, _ = _frame(world, size=64)
     on_weed = np.isin(frame.body_ids, [b for c in weeds for b in c.bodies if b >= 0])
     assert on_weed.mean() > 0.005 and not frame.mask[on_weed].any()
+
+
+def test_dataset_frames_carry_the_net_shade():
+    """The writer shades its frames: the same net taking 30 % of the light or none."""
+    from segmin.data.synth.writer import FrameRenderer
+
+    frames = []
+    for dimming in (0.0, 0.3):
+        spec = spec_from_dict(tiny(structures={"nets": {**NETS, "dimming": [dimming, dimming]}}))
+        renderer = FrameRenderer(spec, CameraModel(width=32, height=32), 1, 10, False)
+        frames.append(renderer.render(0))
+        renderer.close()
+    lit, shaded = frames
+    assert np.array_equal(lit.depth, shaded.depth)
+    assert not np.any(shaded.rgb > lit.rgb)
+    assert np.any(shaded.rgb < lit.rgb, axis=-1).mean() > 0.2
