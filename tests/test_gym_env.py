@@ -271,6 +271,23 @@ def test_obs_keys_pick_the_observation_and_its_space() -> None:
     assert obs["mask"].dtype == np.uint8 and np.array_equal(obs["mask"].astype(bool), info["mask"])
 
 
+def test_observations_without_rgb_are_rendered_without_colour() -> None:
+    """mask + depth asks the simulator for colour-free frames, with the depth and mask of the
+    colour frames an rgb observation gets (same seed, same actions)."""
+    world = FakeWorld()
+    renderers = [FakeRenderer(world, size=32) for _ in range(2)]
+    envs = [
+        RowFollowEnv(None, config=_config(), world=world, renderer=r, obs_keys=keys)
+        for r, keys in zip(renderers, [("rgb", "depth", "mask"), ("mask", "depth")])
+    ]
+    observations = [env.reset(seed=3)[0] for env in envs]
+    for _ in range(4):
+        assert np.array_equal(observations[0]["depth"], observations[1]["depth"])
+        assert np.array_equal(observations[0]["mask"], observations[1]["mask"])
+        observations = [env.step(np.array([0.4, 0.05]))[0] for env in envs]
+    assert renderers[0].colour_calls == renderers[0].calls == 5 and renderers[1].colour_calls == 0
+
+
 @pytest.mark.parametrize(
     ("option", "message"),
     [

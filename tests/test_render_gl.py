@@ -49,6 +49,36 @@ def test_gl_mask_is_exactly_the_plant_bodies(bullet_client):
     assert np.array_equal(frame.depth != without.depth, frame.mask)
 
 
+@pytest.mark.parametrize("multi_draw", [True, False])
+def test_a_frame_without_colour_has_the_colour_frames_depth_mask_and_ids(bullet_client, multi_draw):
+    """The depth + ids pass (one indirect multi-draw, or one draw per body on a GL 3.3 driver)
+    draws the full pass's depth and ids pixel for pixel, and leaves the image out."""
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="gl")
+    renderer.raster.multi_draw = multi_draw and renderer.raster.ctx.version_code >= 430
+    for along in (0.5, 1.5, 3.0):
+        x, y, yaw = world.gap_pose(world.eval_gap, along)
+        full, bare = renderer.render(x, y, yaw), renderer.render(x, y, yaw, colour=False)
+        assert bare.rgb is None and full.rgb is not None and full.mask.any()
+        assert np.array_equal(bare.depth, full.depth) and np.array_equal(bare.body_ids, full.body_ids)
+        assert np.array_equal(bare.mask, full.mask)
+
+
+def test_tinyrenderer_frames_without_colour_leave_only_the_image_out(bullet_client):
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="tiny")
+    pose = world.gap_pose(world.eval_gap, 1.0)
+    full, bare = renderer.render(*pose), renderer.render(*pose, colour=False)
+    assert bare.rgb is None and np.array_equal(bare.depth, full.depth) and np.array_equal(bare.mask, full.mask)
+
+
+def test_a_frame_without_colour_refuses_a_randomised_look(bullet_client):
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="gl")
+    with pytest.raises(ValueError, match="colour=False"):
+        renderer.render(*world.gap_pose(world.eval_gap, 1.0), rng=np.random.default_rng(0), colour=False)
+
+
 def test_the_backend_is_validated():
     assert load_world_spec("straight_vineyard", ["render.backend=gl"]).render.backend == "gl"
     with pytest.raises(ConfigError, match="render.backend"):

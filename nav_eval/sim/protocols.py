@@ -29,8 +29,8 @@ class SimFrame(Protocol):
     """A rendered camera frame as perception reads it."""
 
     @property
-    def rgb(self) -> np.ndarray:
-        """uint8 H x W x 3 image."""
+    def rgb(self) -> np.ndarray | None:
+        """uint8 H x W x 3 image; None for a frame rendered without colour."""
         ...
 
     @property
@@ -126,7 +126,15 @@ class SimRenderer(Protocol):
         ...
 
     def render(
-        self, x: float, y: float, yaw: float, *, rng: np.random.Generator | None = None, noisy_depth: bool = False
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        *,
+        rng: np.random.Generator | None = None,
+        noisy_depth: bool = False,
+        colour: bool = True,
     ) -> SimFrame:
-        """The frame of a robot at (x, y, yaw); `rng` randomises light and sky (None: fixed)."""
+        """The frame of a robot at (x, y, yaw); `rng` randomises light and sky (None: fixed);
+        `colour=False`: depth and mask only (`rgb` None), as the colour frame has them."""
         ...
