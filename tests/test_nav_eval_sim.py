@@ -125,6 +125,34 @@ def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
     assert np.max(np.abs(episode.trajectory.y)) < 0.4
 
 
+@pytest.mark.parametrize("method", ["segmind", "segcorridor"])
+def test_the_oracle_renders_colour_only_for_a_navigator_that_reads_it(method: str) -> None:
+    """The oracle reads masks, SegMinD depth: their frames come without colour; SegCorridor
+    declares rgb (its trunk test), so its frames have it. The runs are the same either way."""
+    episode, renderer, _env = _run(method, length_m=2.0)
+    assert renderer.calls > 10 and episode.reason == "success"
+    assert renderer.colour_calls == (renderer.calls if method == "segcorridor" else 0)
+    world, config = FakeWorld(), _config(length_m=2.0)
+    follower = make_follower(method, 5.0, config)
+    with_colour = _ColourReader()
+    same = run_episode(RowEnv(world, FakeRenderer(world), config), follower, with_colour, 3)
+    assert np.array_equal(same.trajectory.x, episode.trajectory.x) and with_colour.images == renderer.calls
+
+
+class _ColourReader(OracleSegmenter):
+    """The oracle, declaring (and checking) that it reads each frame's image."""
+
+    reads_colour = True
+
+    def __init__(self) -> None:
+        self.images = 0
+
+    def segment_frame(self, frame) -> np.ndarray:
+        assert frame.rgb is not None
+        self.images += 1
+        return super().segment_frame(frame)
+
+
 def test_frames_render_on_demand_at_the_current_pose() -> None:
     world = FakeWorld()
     renderer = FakeRenderer(world)

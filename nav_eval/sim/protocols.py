@@ -51,7 +51,12 @@ class FrameSegmenter(Protocol):
     segments on a helper thread while the next frame renders: the part that must run on the
     caller's thread now, and the rest as a call for the helper. A class that subclasses this
     protocol gets the default (all of it in the call).
+
+    `reads_colour`: whether it reads `frame.rgb`. One that does not (the oracle) lets nav-eval
+    render frames without colour when nothing else wants the image.
     """
+
+    reads_colour: bool = True
 
     def segment_frame(self, frame: SimFrame) -> np.ndarray:
         """bool H x W vegetation mask of `frame`."""
