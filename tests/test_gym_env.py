@@ -332,11 +332,24 @@ def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
             assert np.array_equal(a[key], b[key]) and np.array_equal(a[key], c[key]), key
 
 
-def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env() -> None:
+def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env_and_the_first_backend() -> None:
     from segmin.nav_eval.bench.gym import GymBenchRow, format_gym_rows, time_env
 
-    rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard")
+    rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard", backend="gl")
     table = format_gym_rows(
-        [GymBenchRow("single", 1, "mask+depth", 16, rate / 2), GymBenchRow("sync", 2, "mask+depth", 16, rate)]
+        [
+            GymBenchRow("single", 1, "mask+depth", 16, rate / 4, "tiny"),
+            GymBenchRow("single", 1, "mask+depth", 16, rate / 2, "gl"),
+            GymBenchRow("sync", 2, "mask+depth", 16, rate, "gl"),
+        ]
     )
-    assert rate > 0 and "| mask+depth | 16 | sync | 2 |" in table and "| 2.00 |" in table
+    assert rate > 0 and "| mask+depth | 16 | gl | sync | 2 |" in table
+    assert "| mask+depth | 16 | gl | single | 1 |" in table and "| 1.00 | 2.00 |" in table  # x single, x tiny
+    assert "| 2.00 | nan |" in table  # no tiny vector was timed
+
+
+def test_bench_gym_names_a_bad_backend(capsys) -> None:
+    from segmin.app.cli import main
+
+    assert main(["bench", "gym", "--backends", "vulkan"]) == 2
+    assert "--backends vulkan" in capsys.readouterr().err
