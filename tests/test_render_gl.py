@@ -3,6 +3,8 @@ clear line for a bad backend name or a machine without EGL."""
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -100,6 +102,28 @@ def test_no_egl_is_one_line(monkeypatch):
     monkeypatch.setattr(moderngl, "create_context", refuse)
     with pytest.raises(OSError, match=r"render.backend=gl found no headless OpenGL .* libEGL.so"):
         gl_raster.open_context()
+
+
+def test_a_forked_process_is_told_to_spawn_instead_of_hanging(bullet_client):
+    """OpenGL does not survive a fork: a child of a process that rendered with gl says so in one
+    line (its first frame used to wait forever)."""
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    Renderer(world, SMALL, backend="gl").render(*world.gap_pose(world.eval_gap, 1.0))
+    child = multiprocessing.get_context("fork").Process(target=_render_in_child)
+    child.start()
+    child.join(timeout=120)
+    if child.is_alive():
+        child.kill()
+    assert child.exitcode == 3, child.exitcode  # 3: refused with the message; None: it hung
+
+
+def _render_in_child() -> None:
+    client = p.connect(p.DIRECT)
+    try:
+        Renderer(build_world(spec_from_dict(tiny()), client), SMALL, backend="gl")
+    except OSError as err:
+        os._exit(3 if "forked" in str(err) and "spawn" in str(err) else 4)
+    os._exit(5)
 
 
 def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):

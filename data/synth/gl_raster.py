@@ -110,11 +110,27 @@ void main() {
 SHININESS = 4.0
 
 
-@functools.cache
 def _context():
     """The process's one headless context: contexts are costly, a process renders one frame at a
-    time, and GL objects must be released in the context that made them."""
-    return open_context()
+    time, and GL objects must be released in the context that made them.
+
+    A process forked from one that had opened it cannot render (llvmpipe's threads stay in the
+    parent, and a new context shares the inherited display): its first frame would wait forever,
+    so it gets one line saying to spawn instead."""
+    ctx, opened_by = _opened_context()
+    if opened_by != os.getpid():
+        raise OSError(
+            "render.backend=gl: this process was forked from one that had already rendered with gl, and "
+            "OpenGL does not survive a fork; start the workers with 'spawn' (for Gymnasium's async "
+            "vectors: vector_kwargs={'context': 'spawn'})"
+        )
+    return ctx
+
+
+@functools.cache
+def _opened_context():
+    """The context this process opened first, and the process id that opened it."""
+    return open_context(), os.getpid()
 
 
 def open_context():

@@ -54,7 +54,9 @@ def time_env(
         env = gymnasium.make(segmin.envs.ROW_FOLLOW, **options)
         action = np.array([0.4, 0.0])
     else:
-        env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **options)
+        # Async workers spawn: a forked worker of a process that already rendered with gl cannot render.
+        spawn = {"vector_kwargs": {"context": "spawn"}} if mode == "async" else {}
+        env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **spawn, **options)
         action = np.tile([0.4, 0.0], (num_envs, 1))
     try:
         env.reset(seed=0)
