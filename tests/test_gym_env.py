@@ -271,6 +271,23 @@ def test_obs_keys_pick_the_observation_and_its_space() -> None:
     assert obs["mask"].dtype == np.uint8 and np.array_equal(obs["mask"].astype(bool), info["mask"])
 
 
+def test_observations_without_rgb_are_rendered_without_colour() -> None:
+    """mask + depth asks the simulator for colour-free frames, with the depth and mask of the
+    colour frames an rgb observation gets (same seed, same actions)."""
+    world = FakeWorld()
+    renderers = [FakeRenderer(world, size=32) for _ in range(2)]
+    envs = [
+        RowFollowEnv(None, config=_config(), world=world, renderer=r, obs_keys=keys)
+        for r, keys in zip(renderers, [("rgb", "depth", "mask"), ("mask", "depth")])
+    ]
+    observations = [env.reset(seed=3)[0] for env in envs]
+    for _ in range(4):
+        assert np.array_equal(observations[0]["depth"], observations[1]["depth"])
+        assert np.array_equal(observations[0]["mask"], observations[1]["mask"])
+        observations = [env.step(np.array([0.4, 0.05]))[0] for env in envs]
+    assert renderers[0].colour_calls == renderers[0].calls == 5 and renderers[1].colour_calls == 0
+
+
 @pytest.mark.parametrize(
     ("option", "message"),
     [
@@ -315,11 +332,24 @@ def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
             assert np.array_equal(a[key], b[key]) and np.array_equal(a[key], c[key]), key
 
 
-def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env() -> None:
+def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env_and_the_first_backend() -> None:
     from segmin.nav_eval.bench.gym import GymBenchRow, format_gym_rows, time_env
 
-    rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard")
+    rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard", backend="gl")
     table = format_gym_rows(
-        [GymBenchRow("single", 1, "mask+depth", 16, rate / 2), GymBenchRow("sync", 2, "mask+depth", 16, rate)]
+        [
+            GymBenchRow("single", 1, "mask+depth", 16, rate / 4, "tiny"),
+            GymBenchRow("single", 1, "mask+depth", 16, rate / 2, "gl"),
+            GymBenchRow("sync", 2, "mask+depth", 16, rate, "gl"),
+        ]
     )
-    assert rate > 0 and "| mask+depth | 16 | sync | 2 |" in table and "| 2.00 |" in table
+    assert rate > 0 and "| mask+depth | 16 | gl | sync | 2 |" in table
+    assert "| mask+depth | 16 | gl | single | 1 |" in table and "| 1.00 | 2.00 |" in table  # x single, x tiny
+    assert "| 2.00 | nan |" in table  # no tiny vector was timed
+
+
+def test_bench_gym_names_a_bad_backend(capsys) -> None:
+    from segmin.app.cli import main
+
+    assert main(["bench", "gym", "--backends", "vulkan"]) == 2
+    assert "--backends vulkan" in capsys.readouterr().err

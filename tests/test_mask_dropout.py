@@ -41,6 +41,13 @@ def test_the_corruption_is_seeded() -> None:
     assert _corrupted(7, 0.3) != _corrupted(8, 0.3)
 
 
+def test_it_reads_colour_when_the_wrapped_segmenter_does() -> None:
+    """nav-eval renders colour for a segmenter that reads it; the wrapper must not hide that."""
+    reader = OracleSegmenter()
+    reader.reads_colour = True  # as a model on images does
+    assert not MaskDropout(OracleSegmenter(), 0.1).reads_colour and MaskDropout(reader, 0.1).reads_colour
+
+
 def test_erode_shrinks_the_vegetation_and_drop_empties_the_mask() -> None:
     mask = _frame().mask
     eroded = corrupt(mask, "erode")  # 1/16 of 224 px: a 15 px kernel, 7 px off each side

@@ -26,7 +26,7 @@ from segmin.nav_eval.sim.row_env import RowEnv
 
 @dataclasses.dataclass
 class Frame:
-    rgb: np.ndarray
+    rgb: np.ndarray | None
     depth: np.ndarray
     mask: np.ndarray
     camera_pose: tuple
@@ -62,10 +62,11 @@ class FakeRenderer:
         self.f = (size / 2) / math.tan(math.radians(hfov_deg) / 2)
         # Its size for the simulator; noise-free depth (the stand-in has no sensor model).
         self.camera = CameraModel(width=size, height=size, hfov_deg=hfov_deg, depth_noise_enabled=False)
-        self.calls = 0
+        self.calls = self.colour_calls = 0
 
-    def render(self, x, y, yaw, *, rng=None, noisy_depth=False, pose_offset=None) -> Frame:
+    def render(self, x, y, yaw, *, rng=None, noisy_depth=False, pose_offset=None, colour=True) -> Frame:
         self.calls += 1
+        self.colour_calls += colour
         n = self.size
         cx, cy = x + 0.2 * math.cos(yaw), y + 0.2 * math.sin(yaw)
         depth = np.full((n, n), np.inf, dtype=np.float32)
@@ -94,7 +95,7 @@ class FakeRenderer:
             ground = ground + rng.normal(0, 0.01, ground.shape).astype(np.float32) * (ground > 0)
         rgb = np.zeros((n, n, 3), dtype=np.uint8)
         rgb[mask] = (40, 160, 40)
-        return Frame(rgb, ground, mask, (cx, cy, yaw))
+        return Frame(rgb if colour else None, ground, mask, (cx, cy, yaw))
 
 
 def _config(**run) -> NavEvalConfig:
@@ -124,6 +125,34 @@ def test_oracle_run_succeeds_on_the_stand_in_row() -> None:
     assert np.max(np.abs(episode.trajectory.y)) < 0.4
 
 
+@pytest.mark.parametrize("method", ["segmind", "segcorridor"])
+def test_the_oracle_renders_colour_only_for_a_navigator_that_reads_it(method: str) -> None:
+    """The oracle reads masks, SegMinD depth: their frames come without colour; SegCorridor
+    declares rgb (its trunk test), so its frames have it. The runs are the same either way."""
+    episode, renderer, _env = _run(method, length_m=2.0)
+    assert renderer.calls > 10 and episode.reason == "success"
+    assert renderer.colour_calls == (renderer.calls if method == "segcorridor" else 0)
+    world, config = FakeWorld(), _config(length_m=2.0)
+    follower = make_follower(method, 5.0, config)
+    with_colour = _ColourReader()
+    same = run_episode(RowEnv(world, FakeRenderer(world), config), follower, with_colour, 3)
+    assert np.array_equal(same.trajectory.x, episode.trajectory.x) and with_colour.images == renderer.calls
+
+
+class _ColourReader(OracleSegmenter):
+    """The oracle, declaring (and checking) that it reads each frame's image."""
+
+    reads_colour = True
+
+    def __init__(self) -> None:
+        self.images = 0
+
+    def segment_frame(self, frame) -> np.ndarray:
+        assert frame.rgb is not None
+        self.images += 1
+        return super().segment_frame(frame)
+
+
 def test_frames_render_on_demand_at_the_current_pose() -> None:
     world = FakeWorld()
     renderer = FakeRenderer(world)
@@ -135,6 +164,27 @@ def test_frames_render_on_demand_at_the_current_pose() -> None:
     ended, info = env.step((0.4, 0.0))
     assert not ended and env.tick == 2 and info["t"] == pytest.approx(2 / 60)  # one camera period
     assert env.frame() is not first and renderer.calls == 2
+
+
+def test_a_frame_without_colour_keeps_its_depth_when_colour_is_asked_later() -> None:
+    """Depth noise is drawn once a tick: a colour-free frame, then colour at the same tick, gives
+    the frames of a run that asked colour from the start (same depth, same image)."""
+    world = FakeWorld()
+    config = dataclasses.replace(_config(), perception=Perception(width=48, height=48, depth_noise=True))
+    with_colour, without = FakeRenderer(world), FakeRenderer(world)
+    with_colour.camera = without.camera = CameraModel(width=48, height=48)  # the sensor's depth noise on
+    runs = [RowEnv(world, r, config) for r in (with_colour, without)]
+    for env in runs:
+        env.reset(seed=5)
+    for _ in range(3):
+        bare = runs[1].frame(colour=False)
+        assert bare.rgb is None
+        full, later = runs[0].frame(), runs[1].frame()
+        assert np.array_equal(full.depth, later.depth) and np.array_equal(full.rgb, later.rgb)
+        assert later.depth is bare.depth and np.any(later.depth != 0)
+        for env in runs:
+            env.step((0.4, 0.0))
+    assert without.calls == 6 and without.colour_calls == 3
 
 
 def test_same_seed_same_trajectory_and_seeded_start() -> None:

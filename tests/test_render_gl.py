@@ -3,6 +3,8 @@ clear line for a bad backend name or a machine without EGL."""
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -49,6 +51,36 @@ def test_gl_mask_is_exactly_the_plant_bodies(bullet_client):
     assert np.array_equal(frame.depth != without.depth, frame.mask)
 
 
+@pytest.mark.parametrize("multi_draw", [True, False])
+def test_a_frame_without_colour_has_the_colour_frames_depth_mask_and_ids(bullet_client, multi_draw):
+    """The depth + ids pass (one indirect multi-draw, or one draw per body on a GL 3.3 driver)
+    draws the full pass's depth and ids pixel for pixel, and leaves the image out."""
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="gl")
+    renderer.raster.multi_draw = multi_draw and renderer.raster.ctx.version_code >= 430
+    for along in (0.5, 1.5, 3.0):
+        x, y, yaw = world.gap_pose(world.eval_gap, along)
+        full, bare = renderer.render(x, y, yaw), renderer.render(x, y, yaw, colour=False)
+        assert bare.rgb is None and full.rgb is not None and full.mask.any()
+        assert np.array_equal(bare.depth, full.depth) and np.array_equal(bare.body_ids, full.body_ids)
+        assert np.array_equal(bare.mask, full.mask)
+
+
+def test_tinyrenderer_frames_without_colour_leave_only_the_image_out(bullet_client):
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="tiny")
+    pose = world.gap_pose(world.eval_gap, 1.0)
+    full, bare = renderer.render(*pose), renderer.render(*pose, colour=False)
+    assert bare.rgb is None and np.array_equal(bare.depth, full.depth) and np.array_equal(bare.mask, full.mask)
+
+
+def test_a_frame_without_colour_refuses_a_randomised_look(bullet_client):
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="gl")
+    with pytest.raises(ValueError, match="colour=False"):
+        renderer.render(*world.gap_pose(world.eval_gap, 1.0), rng=np.random.default_rng(0), colour=False)
+
+
 def test_the_backend_is_validated():
     assert load_world_spec("straight_vineyard", ["render.backend=gl"]).render.backend == "gl"
     with pytest.raises(ConfigError, match="render.backend"):
@@ -70,6 +102,28 @@ def test_no_egl_is_one_line(monkeypatch):
     monkeypatch.setattr(moderngl, "create_context", refuse)
     with pytest.raises(OSError, match=r"render.backend=gl found no headless OpenGL .* libEGL.so"):
         gl_raster.open_context()
+
+
+def test_a_forked_process_is_told_to_spawn_instead_of_hanging(bullet_client):
+    """OpenGL does not survive a fork: a child of a process that rendered with gl says so in one
+    line (its first frame used to wait forever)."""
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    Renderer(world, SMALL, backend="gl").render(*world.gap_pose(world.eval_gap, 1.0))
+    child = multiprocessing.get_context("fork").Process(target=_render_in_child)
+    child.start()
+    child.join(timeout=120)
+    if child.is_alive():
+        child.kill()
+    assert child.exitcode == 3, child.exitcode  # 3: refused with the message; None: it hung
+
+
+def _render_in_child() -> None:
+    client = p.connect(p.DIRECT)
+    try:
+        Renderer(build_world(spec_from_dict(tiny()), client), SMALL, backend="gl")
+    except OSError as err:
+        os._exit(3 if "forked" in str(err) and "spawn" in str(err) else 4)
+    os._exit(5)
 
 
 def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from concurrent.futures import Future
+
 import numpy as np
 import pytest
 
@@ -71,6 +73,40 @@ def test_30_hz_frames_give_20_hz_masks_and_5_hz_commands_fusing_the_last_3() -> 
             assert set(np.flatnonzero(out.fused[0])) == frames, out.command_t
     # Between commands the command in force is returned unchanged.
     assert outputs[1].command is outputs[0].command and not outputs[1].fresh
+
+
+class _WatchedFuture(Future):
+    """A finished future that records when its mask was first asked for."""
+
+    def __init__(self, mask: np.ndarray, asked: list[int], index: int) -> None:
+        super().__init__()
+        self.set_result(mask)
+        self.asked, self.index = asked, index
+
+    def result(self, timeout=None):
+        if self.index not in self.asked:
+            self.asked.append(self.index)
+        return super().result(timeout)
+
+
+def test_mask_futures_are_waited_for_only_at_the_next_command_with_the_same_commands() -> None:
+    """A background segmenter's masks between commands join the window at the command, in order:
+    the commands are those of masks given at once, and the follower never waits earlier."""
+    follower, segmenter = _follower(fuse=3)
+    immediate = [follower.step(_rgb(i), DEPTH, i / 30, mask=segmenter.segment(_rgb(i))) for i in range(61)]
+    follower, segmenter = _follower(fuse=3)
+    asked: list[int] = []
+    for i, reference in enumerate(immediate):
+        future = _WatchedFuture(segmenter.segment(_rgb(i)), asked, i)
+        out = follower.step(_rgb(i), DEPTH, i / 30, mask=future)
+        assert out.fresh == reference.fresh, i
+        same = (out.command.v, out.command.omega, out.command.target_column)
+        assert same == (reference.command.v, reference.command.omega, reference.command.target_column), i
+        if out.fresh:
+            assert np.array_equal(out.fused, reference.fused), i
+        assert all(j <= i for j in asked)
+        assert out.fresh or not asked or asked[-1] < i, f"frame {i} waited for a mask no command needed yet"
+    assert sorted(asked) == asked and len(asked) == 1 + 10 * 3  # every fused mask, in deadline order
 
 
 def test_the_runtime_matches_navigator_step_on_the_same_masks() -> None:

@@ -11,6 +11,12 @@ texel times the body's tint, truncated to integers), with nearest, repeating tex
 Depth is the planar distance itself, interpolated per pixel, and a second float target carries
 the body id, so depth and mask need no decoding. Not drawn: TinyRenderer's shadows.
 
+A frame whose colour nobody reads (`shoot_depth_ids`: a learner's mask + depth observations) is
+drawn by a second program with no texture or light and one float target: the same vertices and
+the same depth expression, so depth and ids are those of the full pass, pixel for pixel. Every
+vertex carries its body id there, so all bodies go in one multi-draw call (GL 4.3's indirect
+draw; one call per body on a 3.3 driver), in the same front-to-back order as the full pass.
+
 llvmpipe starts as many threads as the machine has cores unless `LP_NUM_THREADS` says otherwise;
 we default it to 1 (one per worker process: workers run side by side), set before the first
 context starts.
@@ -23,6 +29,7 @@ import functools
 import importlib
 import importlib.util
 import os
+from typing import Any
 
 import numpy as np
 
@@ -73,16 +80,57 @@ void main() {
 }
 """
 
+_IDS_VERTEX_SHADER = """
+#version 330
+uniform mat4 clip_from_world;
+uniform vec4 depth_row;
+in vec3 in_pos;
+in float in_body;
+out float v_depth;
+flat out float v_body;
+void main() {
+    gl_Position = clip_from_world * vec4(in_pos, 1.0);
+    v_depth = dot(depth_row, vec4(in_pos, 1.0));
+    v_body = in_body;
+}
+"""
+
+_IDS_FRAGMENT_SHADER = """
+#version 330
+in float v_depth;
+flat in float v_body;
+layout(location = 0) out vec2 depth_and_body;
+void main() {
+    depth_and_body = vec2(v_depth, v_body + 1.0);
+}
+"""
+
 # TinyRenderer's specular exponent comes from a texture's specular map we do not give it; this one
 # makes the mean colour of every kind of surface agree within a few percent (render-agreement bench).
 SHININESS = 4.0
 
 
-@functools.cache
 def _context():
     """The process's one headless context: contexts are costly, a process renders one frame at a
-    time, and GL objects must be released in the context that made them."""
-    return open_context()
+    time, and GL objects must be released in the context that made them.
+
+    A process forked from one that had opened it cannot render (llvmpipe's threads stay in the
+    parent, and a new context shares the inherited display): its first frame would wait forever,
+    so it gets one line saying to spawn instead."""
+    ctx, opened_by = _opened_context()
+    if opened_by != os.getpid():
+        raise OSError(
+            "render.backend=gl: this process was forked from one that had already rendered with gl, and "
+            "OpenGL does not survive a fork; start the workers with 'spawn' (for Gymnasium's async "
+            "vectors: vector_kwargs={'context': 'spawn'})"
+        )
+    return ctx
+
+
+@functools.cache
+def _opened_context():
+    """The context this process opened first, and the process id that opened it."""
+    return open_context(), os.getpid()
 
 
 def open_context():
@@ -138,7 +186,8 @@ class GlRasteriser:
 
         self.ctx = ctx = _context()
         self.program = ctx.program(vertex_shader=_VERTEX_SHADER, fragment_shader=_FRAGMENT_SHADER)
-        vertices, indices, self.ranges = _pack(world)
+        self.ids_program = ctx.program(vertex_shader=_IDS_VERTEX_SHADER, fragment_shader=_IDS_FRAGMENT_SHADER)
+        vertices, body_of_vertex, indices, self.ranges = _pack(world)
         self.centre = np.zeros((max(self.ranges) + 1, 3))
         for chunk in world.chunks:
             self.centre[[b for b in chunk.bodies if b >= 0]] = chunk.centre
@@ -147,6 +196,17 @@ class GlRasteriser:
         self.vao = ctx.vertex_array(
             self.program, [(vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv")], index_buffer=ibo, index_element_size=4
         )
+        self.ids_vao = ctx.vertex_array(
+            self.ids_program,
+            [(vbo, "3f 20x", "in_pos"), (ctx.buffer(body_of_vertex.tobytes()), "1f", "in_body")],
+            index_buffer=ibo,
+            index_element_size=4,
+        )
+        # Indirect draw commands (count, instances, first index, base vertex, base instance) per body.
+        self.commands = np.zeros((len(self.ranges), 5), np.uint32)
+        self.commands[:, 1] = 1
+        self.multi_draw = ctx.version_code >= 430
+        self.command_buffer = ctx.buffer(reserve=self.commands.nbytes) if self.multi_draw else None
         self.textures = {}
         for tid, img in world.textures.images.items():
             tex = ctx.texture((img.shape[1], img.shape[0]), 3, np.ascontiguousarray(img[::-1]).tobytes())
@@ -154,20 +214,40 @@ class GlRasteriser:
             tex.repeat_x = tex.repeat_y = True
             self.textures[tid] = tex
         self.blank = ctx.texture((1, 1), 3, bytes([255, 255, 255]))
-        self._size: tuple[int, int] | None = None
+        self._targets: dict[tuple[int, int, bool], Any] = {}
 
-    def _target(self, width: int, height: int):
-        if self._size != (width, height):
+    def _target(self, width: int, height: int, colour: bool):
+        """The framebuffer of a frame size: colour, (depth, body) and a depth buffer, or without colour."""
+        key = (width, height, colour)
+        if key not in self._targets:
             ctx = self.ctx
-            self.fbo = ctx.framebuffer(
-                color_attachments=[
-                    ctx.renderbuffer((width, height), 4),
-                    ctx.renderbuffer((width, height), 2, dtype="f4"),
-                ],
-                depth_attachment=ctx.depth_renderbuffer((width, height)),
+            attachments = [ctx.renderbuffer((width, height), 4)] if colour else []
+            attachments.append(ctx.renderbuffer((width, height), 2, dtype="f4"))
+            self._targets[key] = ctx.framebuffer(
+                color_attachments=attachments, depth_attachment=ctx.depth_renderbuffer((width, height))
             )
-            self._size = (width, height)
-        return self.fbo
+        return self._targets[key]
+
+    def _begin(self, program, camera: CameraModel, pose: np.ndarray, colour: bool):
+        """Bind and clear the frame's target and set the camera's uniforms; returns the target."""
+        ctx = self.ctx
+        fbo = self._target(camera.width, camera.height, colour)
+        fbo.use()
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.enable(ctx.CULL_FACE)  # TinyRenderer draws front faces only (leaves are one-sided)
+        ctx.front_face = "cw"  # our projection keeps the image top row first, which mirrors the winding
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        clip, depth_row = clip_matrix(camera, pose)
+        program["clip_from_world"].write(clip.T.astype("f4").tobytes())
+        program["depth_row"].value = tuple(depth_row)
+        return fbo
+
+    def _front_to_back(self, pose: np.ndarray, bodies: list[int]) -> list[int]:
+        """`bodies` nearest first: the depth test then skips most hidden fragments' shading."""
+        if not bodies:
+            return []
+        order = np.argsort(np.linalg.norm(self.centre[bodies] - pose[:3, 3], axis=1))
+        return np.asarray(bodies)[order].tolist()
 
     def shoot(
         self,
@@ -179,16 +259,8 @@ class GlRasteriser:
         texture: dict[int, int],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none)."""
-        ctx, prog = self.ctx, self.program
-        fbo = self._target(camera.width, camera.height)
-        fbo.use()
-        ctx.enable(ctx.DEPTH_TEST)
-        ctx.enable(ctx.CULL_FACE)  # TinyRenderer draws front faces only (leaves are one-sided)
-        ctx.front_face = "cw"  # our projection keeps the image top row first, which mirrors the winding
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        clip, depth_row = clip_matrix(camera, pose)
-        prog["clip_from_world"].write(clip.T.astype("f4").tobytes())
-        prog["depth_row"].value = tuple(depth_row)
+        prog = self.program
+        fbo = self._begin(prog, camera, pose, colour=True)
         direction = np.asarray(light["lightDirection"], float)
         prog["light_dir"].value = tuple(direction / np.linalg.norm(direction))
         prog["light_colour"].value = tuple(light["lightColor"])
@@ -196,9 +268,7 @@ class GlRasteriser:
         prog["backward"].value = tuple(-pose[:3, 2])
         prog["shininess"].value = SHININESS
         tint, body = prog["tint"], prog["body"]
-        eye = pose[:3, 3]
-        order = np.argsort(np.linalg.norm(self.centre[bodies] - eye, axis=1)) if bodies else []
-        for b in np.asarray(bodies)[order].tolist():
+        for b in self._front_to_back(pose, bodies):
             first, count = self.ranges[b]
             self.textures.get(texture[b], self.blank).use(0)
             tint.value = tuple(rgba[b][:3])
@@ -206,20 +276,45 @@ class GlRasteriser:
             self.vao.render(first=first, vertices=count)
         w, h = camera.width, camera.height
         rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3).copy()
-        zid = np.frombuffer(fbo.read(components=2, attachment=1, dtype="f4"), np.float32).reshape(h, w, 2)
-        return rgb, zid[..., 0].copy(), zid[..., 1].astype(np.int32) - 1
+        return (rgb, *_depth_and_ids(fbo, 1, w, h))
+
+    def shoot_depth_ids(
+        self, camera: CameraModel, pose: np.ndarray, bodies: list[int]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Planar depth and body ids as `shoot` gives them, without colour (module docstring)."""
+        fbo = self._begin(self.ids_program, camera, pose, colour=False)
+        ordered = self._front_to_back(pose, bodies)
+        if self.multi_draw and ordered:
+            commands = self.commands[: len(ordered)]
+            commands[:, [2, 0]] = [self.ranges[b] for b in ordered]
+            self.command_buffer.write(commands.tobytes())
+            self.ids_vao.render_indirect(self.command_buffer, count=len(ordered))
+        else:
+            for b in ordered:
+                first, count = self.ranges[b]
+                self.ids_vao.render(first=first, vertices=count)
+        return _depth_and_ids(fbo, 0, camera.width, camera.height)
 
 
-def _pack(world: World) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[int, int]]]:
-    """Every body's mesh in one interleaved float32 vertex array (position, normal, uv) and one
-    uint32 index array; `ranges[body]` = (first index, index count)."""
-    vertex_parts, index_parts, ranges = [], [], {}
+def _depth_and_ids(fbo, attachment: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (depth, body + 1) target read back: float32 depth and int32 body ids (-1 = none)."""
+    zid = np.frombuffer(fbo.read(components=2, attachment=attachment, dtype="f4"), np.float32)
+    zid = zid.reshape(height, width, 2)
+    return zid[..., 0].copy(), zid[..., 1].astype(np.int32) - 1
+
+
+def _pack(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, tuple[int, int]]]:
+    """Every body's mesh in one interleaved float32 vertex array (position, normal, uv), each
+    vertex's body id (float32), and one uint32 index array; `ranges[body]` = (first index, index
+    count)."""
+    vertex_parts, body_parts, index_parts, ranges = [], [], [], {}
     n_vertices = n_indices = 0
     for chunk in world.chunks:
         for body, mesh in zip(chunk.bodies, chunk.meshes):
             vertex_parts.append(np.hstack([mesh.vertices, mesh.normals, mesh.uvs]).astype(np.float32))
+            body_parts.append(np.full(len(mesh.vertices), body, np.float32))
             index_parts.append((mesh.indices + n_vertices).astype(np.uint32))
             ranges[body] = (n_indices, len(mesh.indices))
             n_vertices += len(mesh.vertices)
             n_indices += len(mesh.indices)
-    return np.concatenate(vertex_parts), np.concatenate(index_parts), ranges
+    return np.concatenate(vertex_parts), np.concatenate(body_parts), np.concatenate(index_parts), ranges

@@ -50,7 +50,7 @@ class PoseOffset:
 class RenderedFrame:
     """One camera frame. `camera_pose` is camera-to-world 4x4 (OpenCV axes: x right, y down, z forward)."""
 
-    rgb: np.ndarray  # uint8 H x W x 3
+    rgb: np.ndarray | None  # uint8 H x W x 3; None when rendered without colour (`Renderer.render`)
     depth: np.ndarray  # float32 H x W metres, planar, 0 = invalid / no return
     mask: np.ndarray  # bool H x W, exact vegetation (trunks, branches, leaves)
     camera_pose: np.ndarray  # float64 4 x 4
@@ -360,34 +360,36 @@ class Renderer:
         rng: np.random.Generator | None = None,
         noisy_depth: bool = False,
         pose_offset=None,
+        colour: bool = True,
     ) -> RenderedFrame:
         """Render the camera of a robot at (x, y, yaw); `rng` randomises light, sky and exposure.
 
         The draws from `rng` come in a fixed order (look, sky, exposure, vignetting, depth noise):
         it is part of every frame's bytes.
+
+        `colour=False` leaves the image out (`rgb` is None) for a consumer of depth and mask only:
+        the gl backend then draws depth and ids alone, and no backend draws sky, haze or exposure.
+        Depth, mask and ids are the colour frame's. A randomised look (`rng`) is for colour frames:
+        it is refused without colour rather than drawn in a different order.
         """
+        if not colour and rng is not None:
+            raise ValueError("render(colour=False) takes no rng: light, sky and exposure are colour only")
         cam = self.camera
         pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
         stats = self._cull(pose)
         look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
+        rgb: np.ndarray | None
         if self.raster is None:
             rgb, depth, ids = self._shoot(pose, look)
         else:  # no shadows: the frame's stats say so
             look["shadow"] = False
             bodies = self.bodies[self.state].tolist()
-            rgb, depth, ids = self.raster.shoot(cam, pose, look["light"], bodies, self.rgba, self.texture)
-        hit = ids >= 0
+            if colour:
+                rgb, depth, ids = self.raster.shoot(cam, pose, look["light"], bodies, self.rgba, self.texture)
+            else:
+                rgb, (depth, ids) = None, self.raster.shoot_depth_ids(cam, pose, bodies)
         mask = self.veg_lut[np.clip(ids + 1, 0, len(self.veg_lut) - 1)]
-        if not hit.all():
-            np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
-        if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
-            fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
-            fade[~hit] = 0.0
-            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(
-                np.uint8
-            )
-        if rng is not None:
-            rgb = self._expose(rgb, rng)
+        rgb = self._colour(rgb, pose, rng, look, ids, depth) if colour and rgb is not None else None
         if noisy_depth and cam.depth_noise_enabled:
             depth = cam.apply_depth_noise(depth, rng if rng is not None else self._noise_rng)
         return RenderedFrame(
@@ -399,6 +401,29 @@ class Renderer:
             body_ids=ids,
             stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])},
         )
+
+    def _colour(
+        self,
+        rgb: np.ndarray,
+        pose: np.ndarray,
+        rng: np.random.Generator | None,
+        look: dict,
+        ids: np.ndarray,
+        depth: np.ndarray,
+    ) -> np.ndarray:
+        """The rasterised image finished: sky where nothing was hit, haze, then exposure."""
+        hit = ids >= 0
+        if not hit.all():
+            np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
+        if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
+            fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
+            fade[~hit] = 0.0
+            rgb = (rgb * (1 - fade[..., None]) + (look["horizon"] * 255).astype(np.float32) * fade[..., None]).astype(
+                np.uint8
+            )
+        if rng is not None:
+            rgb = self._expose(rgb, rng)
+        return rgb
 
     def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """TinyRenderer's image from `pose` in `look`'s light: RGB, planar depth (0 where nothing was

@@ -66,6 +66,12 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     gym.add_argument("--steps", type=int, default=150, help="timed steps per setting (default 150)")
     gym.add_argument("--sizes", type=int, nargs="+", default=[224, 112], help="camera sides, px (default 224 112)")
     gym.add_argument("--num-envs", type=int, nargs="+", default=[1, 2], help="vector sizes (default 1 2)")
+    gym.add_argument(
+        "--backends",
+        nargs="+",
+        default=["tiny", "gl"],
+        help="render backends, taking turns on each setting (default: tiny gl; ratios against the first)",
+    )
     gym.set_defaults(func=_bench_gym)
 
     ex = bench.add_parser(
@@ -127,7 +133,9 @@ def _bench_gym(args: argparse.Namespace) -> int:
 
     if args.steps < 1 or any(s < 8 for s in args.sizes) or any(n < 1 for n in args.num_envs):
         raise ValueError("bench gym: --steps, --num-envs must be >= 1 and --sizes >= 8 px")
-    print(format_gym_rows(bench_gym(args.field, args.sizes, args.steps, args.num_envs)))
+    if not args.backends or any(b not in ("tiny", "gl") for b in args.backends):
+        raise ValueError(f"bench gym: --backends {' '.join(args.backends)}: each must be one of tiny, gl")
+    print(format_gym_rows(bench_gym(args.field, args.sizes, args.steps, args.num_envs, args.backends)))
     return 0
 
 

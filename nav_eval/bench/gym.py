@@ -1,9 +1,10 @@
 """`segmin bench gym`: steps per second of `segmin/RowFollow-v0`, alone and under
-`gymnasium.make_vec` (sync and async, 1 and 2 envs), per observation option.
+`gymnasium.make_vec` (sync and async, 1 and 2 envs), per observation option and render backend.
 
 A step of a vector of N envs is N env steps: the figure is env steps per wall second. Every
 setting builds its envs first (the field, a pybullet client each) and times only the steps;
-episodes that end are reset (the vector's own autoreset), as a learner would see them.
+episodes that end are reset (the vector's own autoreset), as a learner would see them. The
+render backends take turns on each setting, so their ratio is measured under the same load.
 """
 
 from __future__ import annotations
@@ -32,20 +33,30 @@ class GymBenchRow:
     observation: str
     size: int
     steps_per_s: float
+    backend: str = "tiny"
 
 
-def time_env(mode: str, num_envs: int, obs_keys: Sequence[str], size: int, steps: int, field: str) -> float:
+def time_env(
+    mode: str, num_envs: int, obs_keys: Sequence[str], size: int, steps: int, field: str, backend: str = "tiny"
+) -> float:
     """Env steps per second of `steps` vector steps (or single-env steps) after one reset."""
     import gymnasium
 
     import segmin.envs
 
-    options = {"field": field, "obs_keys": tuple(obs_keys), "size": size}
+    options = {
+        "field": field,
+        "obs_keys": tuple(obs_keys),
+        "size": size,
+        "overrides": [f"render.backend={backend}"],
+    }
     if mode == "single":
         env = gymnasium.make(segmin.envs.ROW_FOLLOW, **options)
         action = np.array([0.4, 0.0])
     else:
-        env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **options)
+        # Async workers spawn: a forked worker of a process that already rendered with gl cannot render.
+        spawn = {"vector_kwargs": {"context": "spawn"}} if mode == "async" else {}
+        env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **spawn, **options)
         action = np.tile([0.4, 0.0], (num_envs, 1))
     try:
         env.reset(seed=0)
@@ -59,24 +70,43 @@ def time_env(mode: str, num_envs: int, obs_keys: Sequence[str], size: int, steps
         env.close()
 
 
-def bench_gym(field: str, sizes: Sequence[int], steps: int, num_envs: Sequence[int]) -> list[GymBenchRow]:
-    """Every (observation, size, mode, N) setting, printed as it is timed."""
+def bench_gym(
+    field: str, sizes: Sequence[int], steps: int, num_envs: Sequence[int], backends: Sequence[str] = ("tiny", "gl")
+) -> list[GymBenchRow]:
+    """Every (observation, size, mode, N) setting with each backend in turn, printed as it is timed."""
     settings = [("single", 1)] + [(mode, n) for mode in ("sync", "async") for n in num_envs]
     rows = []
     for label, keys in OBSERVATIONS.items():
         for size in sizes:
             for mode, n in settings:
-                rate = time_env(mode, n, keys, size, steps, field)
-                rows.append(GymBenchRow(mode, n, label, size, rate))
-                print(f"{label:>10} {size:>4}px {mode:>6} N={n}: {rate:7.1f} env steps/s ({load_average()})")
+                for backend in backends:
+                    rate = time_env(mode, n, keys, size, steps, field, backend)
+                    rows.append(GymBenchRow(mode, n, label, size, rate, backend))
+                    print(
+                        f"{label:>10} {size:>4}px {backend:>4} {mode:>6} N={n}: {rate:7.1f} env steps/s "
+                        f"({load_average()})"
+                    )
     return rows
 
 
 def format_gym_rows(rows: Sequence[GymBenchRow]) -> str:
-    """A markdown table, with each setting's rate against the single env's at its observation and size."""
-    single = {(r.observation, r.size): r.steps_per_s for r in rows if r.mode == "single"}
-    lines = ["| observation | size | mode | envs | env steps/s | x single |", "|---|---|---|---|---|---|"]
+    """A markdown table, with each setting's rate against the single env's at its observation, size
+    and backend, and against the first backend's at the same setting."""
+    single = {(r.observation, r.size, r.backend): r.steps_per_s for r in rows if r.mode == "single"}
+    first = rows[0].backend if rows else ""
+    reference = {(r.observation, r.size, r.mode, r.num_envs): r.steps_per_s for r in rows if r.backend == first}
+    lines = [
+        f"| observation | size | backend | mode | envs | env steps/s | x single | x {first} |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        ratio = r.steps_per_s / single[(r.observation, r.size)] if single.get((r.observation, r.size)) else float("nan")
-        lines.append(f"| {r.observation} | {r.size} | {r.mode} | {r.num_envs} | {r.steps_per_s:.1f} | {ratio:.2f} |")
+        lines.append(
+            f"| {r.observation} | {r.size} | {r.backend} | {r.mode} | {r.num_envs} | {r.steps_per_s:.1f} "
+            f"| {_ratio(r.steps_per_s, single.get((r.observation, r.size, r.backend)))} "
+            f"| {_ratio(r.steps_per_s, reference.get((r.observation, r.size, r.mode, r.num_envs)))} |"
+        )
     return "\n".join(lines + [f"\n{load_average()}"])
+
+
+def _ratio(rate: float, to: float | None) -> str:
+    return f"{rate / to:.2f}" if to else "nan"

@@ -2,14 +2,17 @@
 
 Nothing here fuses masks or keeps time: the runtime does, exactly as on the robot. The rollout
 drives the simulator (`nav_eval.sim.row_env.RowEnv`) through its public interface, the one the
-Gymnasium env adapts, and adds only the simulator's two economies, which change no command:
+Gymnasium env adapts, and adds only the simulator's three economies, which change no command:
 
 - it asks the runtime whether the next frame will be segmented (`needs_frame`) and asks the
   simulator for that frame only then (with the paper's rates, 15 of the 30 frames per second
   render); a frame that is not rendered reaches the runtime as its timestamp, without image or
   mask, and blank depth;
+- it asks for a frame's colour only when something reads it (a segmenter on images, a
+  navigator that declares `rgb`, the video, a recorder): the oracle's runs of SegMin, SegMinD
+  and SegZeros render depth and mask alone (`RowEnv.frame(colour=False)`);
 - each rendered frame is segmented on a helper thread (`BackgroundSegmenter`) while the next
-  one renders; the runtime waits for that mask only when a deadline needs it.
+  ones render; the runtime waits for that mask only when a command needs it.
 """
 
 from __future__ import annotations
@@ -69,6 +72,7 @@ def run_episode(
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
     ended = info["reason"] is not None
+    colour = video or recorder is not None or segmenter.reads_colour or follower.navigator.inputs.rgb
     render = True  # the first frame always serves deadline 0
     with BackgroundSegmenter(segmenter) as background:
         while not ended:
@@ -76,7 +80,7 @@ def run_episode(
             if recorder is not None:
                 recorder.frame(simulator, t, simulator.frame() if render else None)
             if render:
-                frame = simulator.frame()
+                frame = simulator.frame(colour)
                 out = follower.step(
                     frame.rgb,
                     frame.depth,

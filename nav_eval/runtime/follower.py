@@ -13,6 +13,10 @@ simulator and a robot behave the same):
   command. Between commands `step` returns the command in force.
 - A mask that no command will fuse is not computed (with 20 / 5 Hz and 3 masks, 15 of the 20
   per second are): the commands are the same, the CPU is spared.
+- A mask given as a future (a background segmenter's) is waited for only when a command needs
+  it: the masks of deadlines between commands join the fusion window, in deadline order, at the
+  next command. The commands are the same; the segmentation of those frames overlaps whatever
+  the caller does until then (in nav-eval, rendering the next frames).
 
 Timing faults, all decided from timestamps:
 
@@ -126,6 +130,7 @@ class RowFollower:
         self._newest_depth: np.ndarray | None = None
         self._newest_attitude: tuple[float, float] | None = None
         self._newest_rgb: np.ndarray | None = None
+        self._waiting: list[tuple[_Frame, int]] = []  # (frame, deadline) whose mask future waits for a command
 
     # ---- the robot's calls ----------------------------------------------------------------------
     def step(
@@ -250,7 +255,23 @@ class RowFollower:
         )
 
     def _push(self, source: _Frame, k: int) -> int:
-        """Push the mask of `source` for deadline k; returns 1 when it had to be computed."""
+        """Push the mask of `source` for deadline k, or queue a mask future that no command needs
+        yet (k is not a command deadline); returns 1 when it had to be computed."""
+        if isinstance(source.mask, Future) and k % self._ratio != 0:
+            queued = any(w is source for w, _ in self._waiting)  # a frame may serve two deadlines
+            self._waiting.append((source, k))
+            return 0 if queued else 1
+        self._push_waiting()
+        return self._push_now(source, k)
+
+    def _push_waiting(self) -> None:
+        """Push the queued mask futures, waiting for them, in their deadlines' order."""
+        waiting, self._waiting = self._waiting, []
+        for source, k in waiting:
+            self._push_now(source, k)
+
+    def _push_now(self, source: _Frame, k: int) -> int:
+        """Push the mask of `source` for deadline k now; returns 1 when it had to be computed."""
         computed = 0
         if source.mask is None:
             if source.rgb is None:
@@ -281,6 +302,7 @@ class RowFollower:
 
     def _emit(self, at: float) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
         """Compute the command at deadline time `at` (stale masks left out)."""
+        self._push_waiting()
         fused = self.navigator.fused_mask(not_before=at - self.config.max_mask_age_s - TIME_EPS)
         self._command_t = at
         if fused is None or self._newest_depth is None:

@@ -9,9 +9,9 @@ physics tick), and the observation is the next camera frame. The simulator itsel
   seconds, attitude float64 (roll, pitch) radians: the IMU, REP 103), what
   `nav_eval.runtime.RowFollower.step` takes. `obs_keys` picks the entries (also `mask`, the
   oracle vegetation mask as uint8 0/1, for learning from masks) and `size` the camera's
-  (height, width): a learner that wants mask + depth at the model's size skips copying colour and
-  renders fewer pixels (the renderer draws colour whatever is asked: TinyRenderer has no
-  depth-only pass);
+  (height, width): a learner that wants mask + depth at the model's size renders fewer pixels and
+  no colour (without `rgb` the frame is asked without colour: the gl backend then draws depth and
+  body ids only, and no backend composes sky or exposure; TinyRenderer has no depth-only pass);
 - action: Box([-max_v, -max_omega], [max_v, max_omega]) float64, the robot's hardware limits
   (float64 so a command reaches the robot unrounded);
 - reward: progress along the row's centreline during the step, in metres (negative when the
@@ -172,7 +172,7 @@ class RowFollowEnv(gymnasium.Env):
         return obs, reward, reason in TERMINAL, reason in TRUNCATING, info
 
     def _observe(self, info: dict[str, Any]) -> tuple[dict, dict]:
-        frame = self.simulator.frame()
+        frame = self.simulator.frame(colour="rgb" in self.obs_keys)
         mask = np.asarray(frame.mask, dtype=bool)
         info = dict(info, pose=self.simulator.pose, mask=mask)
         entries: dict[str, Callable[[], np.ndarray]] = {  # only the asked entries are converted

@@ -36,6 +36,7 @@ class MaskDropout(FrameSegmenter):
         if mode not in MODES:
             raise ValueError(f"mask dropout mode {mode!r}: choose from {list(MODES)}")
         self.segmenter = segmenter
+        self.reads_colour = segmenter.reads_colour
         self.share = float(share)
         self.mode = mode
         # Its own stream: the start, depth and actuator noise of the run (nav_eval.sim) stay the same.

@@ -20,6 +20,7 @@ class OracleSegmenter(FrameSegmenter):
     """Returns the rendered frame's exact vegetation mask."""
 
     name = "oracle"
+    reads_colour = False
 
     def segment_frame(self, frame: SimFrame) -> np.ndarray:
         return np.asarray(frame.mask, dtype=bool)

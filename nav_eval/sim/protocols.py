@@ -29,8 +29,8 @@ class SimFrame(Protocol):
     """A rendered camera frame as perception reads it."""
 
     @property
-    def rgb(self) -> np.ndarray:
-        """uint8 H x W x 3 image."""
+    def rgb(self) -> np.ndarray | None:
+        """uint8 H x W x 3 image; None for a frame rendered without colour."""
         ...
 
     @property
@@ -51,7 +51,12 @@ class FrameSegmenter(Protocol):
     segments on a helper thread while the next frame renders: the part that must run on the
     caller's thread now, and the rest as a call for the helper. A class that subclasses this
     protocol gets the default (all of it in the call).
+
+    `reads_colour`: whether it reads `frame.rgb`. One that does not (the oracle) lets nav-eval
+    render frames without colour when nothing else wants the image.
     """
+
+    reads_colour: bool = True
 
     def segment_frame(self, frame: SimFrame) -> np.ndarray:
         """bool H x W vegetation mask of `frame`."""
@@ -126,7 +131,15 @@ class SimRenderer(Protocol):
         ...
 
     def render(
-        self, x: float, y: float, yaw: float, *, rng: np.random.Generator | None = None, noisy_depth: bool = False
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        *,
+        rng: np.random.Generator | None = None,
+        noisy_depth: bool = False,
+        colour: bool = True,
     ) -> SimFrame:
-        """The frame of a robot at (x, y, yaw); `rng` randomises light and sky (None: fixed)."""
+        """The frame of a robot at (x, y, yaw); `rng` randomises light and sky (None: fixed);
+        `colour=False`: depth and mask only (`rgb` None), as the colour frame has them."""
         ...

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from segmin.nav_eval.sim.config import NavEvalConfig
-from segmin.nav_eval.sim.protocols import SimRenderer, SimWorld
+from segmin.nav_eval.sim.protocols import SimFrame, SimRenderer, SimWorld
 from segmin.nav_eval.sim.robot import footprint_distances, imu_attitude
 from segmin.nav_eval.sim.skid_steer import make_robot
 from segmin.nav_eval.sim.track import Trajectory, point_on_polyline, polyline_length, project_onto_polyline
@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 class CameraFrame:
     """A camera frame as the simulated robot receives it: the render, with the sensor's depth noise."""
 
-    rgb: np.ndarray  # uint8 H x W x 3
+    rgb: np.ndarray | None  # uint8 H x W x 3; None for a frame asked without colour (`RowEnv.frame`)
     depth: np.ndarray  # float32 H x W metres, 0 = no reading
     mask: np.ndarray  # bool H x W exact vegetation (for the oracle only)
 
@@ -258,26 +258,33 @@ class RowEnv:
         return {"t": self.t, "s": self._s - self.start_s, "lateral": self._lateral, "reason": self.reason}
 
     # ---- camera -----------------------------------------------------------------------------
-    def frame(self) -> CameraFrame:
+    def frame(self, colour: bool = True) -> CameraFrame:
         """The camera frame at the current tick's pose, rendered on first use (fixed light and
         sky: no flicker) and cached until the robot moves. Not asking for a frame skips its
-        render.
+        render; `colour=False` skips its image (`rgb` is None: a consumer of mask and depth
+        only), and a later colour request at the same tick adds the image to the same depth.
 
         Depth noise is applied here with the run's own generator, not inside the renderer, so a
         run's noise depends on its seed and on which frames were rendered, in tick order (not on
-        the runs a worker did before it).
+        the runs a worker did before it, nor on whether the frames had colour).
         """
         if self._frame is None or self._frame[0] != self._tick:
-            self._frame = (self._tick, self.render(self._noise_rng))
+            self._frame = (self._tick, self.render(self._noise_rng, colour))
+        elif colour and self._frame[1].rgb is None:
+            self._frame = (self._tick, dataclasses.replace(self._frame[1], rgb=self._render_pose(colour=True).rgb))
         return self._frame[1]
 
-    def render(self, noise_rng: np.random.Generator) -> CameraFrame:
+    def render(self, noise_rng: np.random.Generator, colour: bool = True) -> CameraFrame:
         """The camera frame at the current tick's pose, uncached, its depth noise drawn from
         `noise_rng`. A recorder that wants the frames the run skips renders them here with a
         generator of its own, leaving the run's frames and noise as they are."""
-        _, x, y, yaw = self._rows[self._tick][:4]
-        rendered = self.renderer.render(x, y, yaw, rng=None, noisy_depth=False)
+        rendered = self._render_pose(colour)
         depth = rendered.depth
         if self.config.perception.depth_noise and self._depth_camera is not None:
             depth = self._depth_camera.apply_depth_noise(depth, noise_rng)
         return CameraFrame(rendered.rgb, depth, rendered.mask)
+
+    def _render_pose(self, colour: bool) -> SimFrame:
+        """The renderer's noise-free frame at the current tick's pose (fixed light and sky)."""
+        _, x, y, yaw = self._rows[self._tick][:4]
+        return self.renderer.render(x, y, yaw, rng=None, noisy_depth=False, colour=colour)
