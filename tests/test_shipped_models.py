@@ -157,3 +157,16 @@ def test_a_shipped_name_in_a_ros2_parameter_file_is_not_read_from_the_files_fold
 
     assert node_params({"model": "vineyards"}, base=tmp_path).node.model == "vineyards"
     assert node_params({"model": "mine.onnx"}, base=tmp_path).node.model == str(tmp_path / "mine.onnx")
+
+
+def test_models_list_runs_without_torch_or_onnx(registry) -> None:
+    """The bare robot install has neither: the list reads the cards' JSON only."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys; from segmin.app.cli import main; main(['models', 'list']); "
+        "print('heavy:', [m for m in ('torch', 'onnx') if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert "vineyards: not in this install" in out and "heavy: []" in out
