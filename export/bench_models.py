@@ -65,6 +65,7 @@ def run_model_speed(options: ModelSpeedOptions) -> dict[str, Any]:
     import numpy as np
 
     from segmin.export.bench import interleaved
+    from segmin.export.roofline import conv_flops
     from segmin.export.verify import make_session
 
     rng = np.random.default_rng(0)
@@ -76,7 +77,13 @@ def run_model_speed(options: ModelSpeedOptions) -> dict[str, Any]:
             for size in options.sizes:
                 key = f"{arch} @ {size}"
                 path, params = _export_random(arch, size, Path(tmp_dir))
-                rows[key] = {"architecture": arch, "size": size, "params": params, "file_mb": path.stat().st_size / 1e6}
+                rows[key] = {
+                    "architecture": arch,
+                    "size": size,
+                    "params": params,
+                    "file_mb": path.stat().st_size / 1e6,
+                    "conv_gflop": conv_flops(path) / 1e9,
+                }
                 rows[key]["graph"] = _optimised_ops(path, options.threads, Path(tmp_dir) / f"{arch}_{size}.opt.onnx")
                 session = make_session(path, threads=options.threads)
                 feed = {session.get_inputs()[0].name: rng.integers(0, 256, (1, size, size, 3), dtype=np.uint8)}
@@ -84,9 +91,13 @@ def run_model_speed(options: ModelSpeedOptions) -> dict[str, Any]:
         timings = interleaved(calls, runs=options.runs)
     load_after = load_average_1min()
     base_size = max(options.sizes)
-    baseline = timings[f"{ARCHITECTURE} @ {base_size}"]["median_ms"]
+    baseline = timings[f"{ARCHITECTURE} @ {base_size}"]
     for key, row in rows.items():
-        row.update(timings[key], ratio=timings[key]["median_ms"] / baseline)
+        row.update(
+            timings[key],
+            ratio=timings[key]["median_ms"] / baseline["median_ms"],
+            ratio_min=timings[key]["min_ms"] / baseline["min_ms"],
+        )
     summary = {
         "threads": options.threads,
         "baseline": f"{ARCHITECTURE} @ {base_size}",

@@ -26,6 +26,7 @@ def test_model_speed_reports_each_cut_against_the_full_network(tmp_path, capsys)
     full, cut = rows["lraspp_mobilenet_v3_large @ 64"], rows["lraspp_mobilenet_v3_large_cut10 @ 64"]
     assert full["ratio"] == 1.0 and summary["baseline"] == "lraspp_mobilenet_v3_large @ 64"
     assert cut["params"] < full["params"] / 10 and cut["file_mb"] < full["file_mb"] / 5
+    assert 0 < cut["conv_gflop"] < full["conv_gflop"] and full["ratio_min"] == 1.0
     assert cut["graph"]["nodes"] < full["graph"]["nodes"] and full["graph"]["Conv+HardSwish"] > 0
     assert all(row["runs"] == 8 and row["median_ms"] > 0 for row in rows.values())
     printed = capsys.readouterr().out
