@@ -168,14 +168,20 @@ def _print(
         f"on {os.cpu_count()} cores"
     )
     print(
-        f"{'architecture @ px':<42}{'params M':>9}{'MB':>6}{'median ms':>10}{'p95 ms':>8}{f'x full@{base_size}':>11}  graph"
+        f"{'architecture @ px':<38}{'params M':>9}{'MB':>6}{'GFLOP':>7}{'median ms':>10}{'p95 ms':>8}{'min ms':>8}"
+        f"{f'x full@{base_size}':>11}{'(of min)':>9}  graph"
     )
     for key, row in rows.items():
         graph = ", ".join(f"{op} {n}" for op, n in row["graph"].items() if n)
         print(
-            f"{key:<42}{row['params'] / 1e6:>9.2f}{row['file_mb']:>6.1f}{row['median_ms']:>10.2f}"
-            f"{row['p95_ms']:>8.2f}{row['ratio']:>11.2f}  {graph}"
+            f"{key:<38}{row['params'] / 1e6:>9.2f}{row['file_mb']:>6.1f}{row['conv_gflop']:>7.3f}"
+            f"{row['median_ms']:>10.2f}{row['p95_ms']:>8.2f}{row['min_ms']:>8.2f}{row['ratio']:>11.2f}"
+            f"{row['ratio_min']:>9.2f}  {graph}"
         )
+    print(
+        "x full: median over the full network's median; (of min): the same for the minimums, which a "
+        "loaded machine disturbs least. GFLOP: the graph's convolutions (2 per multiply-add)."
+    )
     release = rows.get(f"{RELEASE_ARCHITECTURE} @ 224")
     if release is None or base_size != 224:
         print(f"targets: not checked (they need {RELEASE_ARCHITECTURE} and the full network at 224 px)")
