@@ -3,7 +3,8 @@
 #   1. the wheel holds only segmin/ and its dist-info;
 #   2. `pip install <wheel>[all]`: version, shipped configs, a 3-frame render, a 3 m oracle nav-eval,
 #      and an ONNX export of a tiny untrained model;
-#   3. bare `pip install <wheel>` (the robot runtime): navigator + segmenter on that ONNX file,
+#   3. bare `pip install <wheel>` (the robot runtime): navigator + segmenter on that ONNX file (also by a
+#      shipped name, `segmin models list`),
 #      `segmin navigate-demo --no-figure`, and the one-line error of a command that needs an extra.
 # Prints the wheel size, the lean install's size and its import time.
 set -euo pipefail
@@ -61,10 +62,16 @@ import numpy as np
 from segmin.nav_eval.runtime import Navigator, NavigatorConfig, OnnxSegmenter
 mask = OnnxSegmenter("tiny.onnx", threads=1).segment(np.zeros((48, 64, 3), np.uint8))
 command = Navigator(NavigatorConfig(method="segmind", depth_threshold=5.0)).step(mask, np.full(mask.shape, 3.0, np.float32))
+import os, shutil
+os.makedirs("shipped", exist_ok=True)
+shutil.copy("tiny.onnx", "shipped/vineyards.onnx")
+os.environ["SEGMIN_MODELS_DIR"] = "shipped"  # a registry outside the package: a shipped name resolves offline
+assert OnnxSegmenter("vineyards", threads=1).path.name == "vineyards.onnx"
 loaded = [m for m in ("torch", "pybullet", "matplotlib") if m in sys.modules]
 assert not loaded, loaded
 print(f"robot runtime: mask {mask.shape}, command v={command.v:.3f} omega={command.omega:.3f}")
 PY
+SEGMIN_MODELS_DIR=shipped "$lean/segmin" models list
 "$lean/segmin" navigate-demo --no-figure --out demo --size 96 | tail -n 3
 if "$lean/segmin" train --config quick --out t 2> err.txt; then echo "train ran without torch?"; exit 1; fi
 cat err.txt

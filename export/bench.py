@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.machine import load_average_1min
 from segmin.common.speed_targets import SpeedTarget, verdict_lines, verdicts
 from segmin.common.timing import time_calls
 
@@ -110,7 +111,7 @@ def run_benchmark(options: ExportBenchOptions, step_candidates: StepCandidates |
         if step_candidates is not None:
             candidates.update(step_candidates(files[FP32], frame[0], options.threads))
         flops = _conv_flops(files[FP32])
-        load_before = _load_average()
+        load_before = load_average_1min()
         results, sgemm_peak = _time_with_sgemm_reference(candidates, options, measure_sgemm=flops is not None)
         if "CUDAExecutionProvider" in ort.get_available_providers():
             results.update(_time_fp16_cuda(files[FP32], tmp, frame, options))
@@ -326,15 +327,6 @@ def _stamp_minimal(path: Path, size: int) -> None:
     info = {"threshold": 0.5, "family": "bench", "train_data": "none", "backbone_weights": "none"}
     set_metadata(model, build_metadata(info, input_size=(size, size), exporter="dynamo", opset=18))
     onnx.save(model, str(path))
-
-
-def _load_average() -> float | None:
-    import os
-
-    try:
-        return float(os.getloadavg()[0])
-    except (OSError, AttributeError):
-        return None
 
 
 def _cpu_count() -> int:

@@ -30,6 +30,9 @@ KEY_PRECISION = "precision"  # fp32 | fp16 | int8
 KEY_EXPORTER = "exporter"
 KEY_OPSET = "opset"
 KEY_CHECKPOINT = "source_checkpoint"
+# A released model's card (`segmin models release`): the Markdown people read, and its figures as JSON.
+KEY_MODEL_CARD = "model_card"
+KEY_MODEL_CARD_JSON = "model_card_json"
 
 REQUIRED_KEYS = (KEY_FORMAT, KEY_INPUT_SIZE, KEY_INPUT_LAYOUT, KEY_CHANNEL_ORDER, KEY_THRESHOLD)
 

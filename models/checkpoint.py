@@ -5,7 +5,7 @@ A checkpoint is a plain dict of tensors and primitives, so it always loads with
 Keys:
   format          "segmin-checkpoint-v1"
   model           SegmentationNet state dict
-  model_info      {"architecture", "backbone_weights" (what the backbone started from),
+  model_info      {"architecture" (a name in models.lraspp.ARCHITECTURES), "backbone_weights" (what the backbone started from),
                    "input_size": [h, w], "threshold", "family", "train_data"}
   epoch, metrics  training progress and the last validation metrics
   training_state  optional: optimizer/scheduler/RNG states for exact resume (train/ owns it)
@@ -19,7 +19,8 @@ from typing import Any
 import torch
 
 from segmin.common.atomic import atomic_path
-from segmin.models.lraspp import ARCHITECTURE, SegmentationNet, build_model
+from segmin.models.architectures import ARCHITECTURE, ARCHITECTURES
+from segmin.models.lraspp import SegmentationNet, build_model
 from segmin.models.safe_load import load_tensors
 
 FORMAT = "segmin-checkpoint-v1"
@@ -54,8 +55,10 @@ def check_model_info(info: Any, path: str | Path) -> None:
     the file and the field (a hand-edited or foreign file must not fail later with a KeyError)."""
     if not isinstance(info, dict):
         raise ValueError(f"{path}: model_info is a {type(info).__name__}, expected a mapping")
-    if info.get("architecture") != ARCHITECTURE:
-        raise ValueError(f"{path}: architecture {info.get('architecture')!r} is not {ARCHITECTURE!r}")
+    if info.get("architecture") not in ARCHITECTURES:
+        raise ValueError(
+            f"{path}: model_info.architecture {info.get('architecture')!r} is not one of {', '.join(ARCHITECTURES)}"
+        )
     size = info.get("input_size")
     if not (
         isinstance(size, (list, tuple))
@@ -71,7 +74,7 @@ def check_model_info(info: Any, path: str | Path) -> None:
 def load_model(path: str | Path) -> tuple[SegmentationNet, dict[str, Any]]:
     """Rebuild the network from a checkpoint (eval mode, CPU) and return it with its model_info."""
     payload = read_checkpoint(path)
-    model = build_model("none")
+    model = build_model("none", architecture=payload["model_info"]["architecture"])
     try:
         model.load_state_dict(payload["model"])
     except RuntimeError as exc:
@@ -87,10 +90,11 @@ def model_info(
     family: str,
     train_data: str,
     threshold: float = 0.5,
+    architecture: str = ARCHITECTURE,
 ) -> dict[str, Any]:
     """The `model_info` entry a checkpoint carries into export metadata."""
     return {
-        "architecture": ARCHITECTURE,
+        "architecture": architecture,
         "backbone_weights": backbone_weights,
         "input_size": [int(input_size[0]), int(input_size[1])],
         "threshold": float(threshold),

@@ -1,9 +1,14 @@
 """The segmentation network: torchvision's LR-ASPP MobileNetV3-Large with one logit channel.
 
 The paper (and AgriSeg) use this model for real-time crop segmentation. We keep torchvision's
-implementation and weights API, and only add two things: a forward that returns the logit
-tensor (not torchvision's dict, which ONNX export and losses do not want), and an offline-safe
-resolution of the ImageNet backbone weights that never falls back silently to random weights.
+implementation and weights API, and only add three things: a forward that returns the logit
+tensor (not torchvision's dict, which ONNX export and losses do not want), an offline-safe
+resolution of the ImageNet backbone weights that never falls back silently to random weights,
+and a choice of where the backbone is cut (`models.architectures`, with the reason). A cut
+architecture is the same torchvision modules (the dilated MobileNetV3-Large `features`,
+`IntermediateLayerGetter`, `LRASPP`) with the high-level branch fed from an earlier block; the
+blocks after it are never built into the model, and the ImageNet weights of the kept blocks load
+as they are.
 """
 
 from __future__ import annotations
@@ -14,13 +19,14 @@ from typing import NoReturn
 
 import torch
 from torch import nn
-from torchvision.models import MobileNet_V3_Large_Weights
-from torchvision.models.segmentation import lraspp_mobilenet_v3_large
+from torchvision.models import MobileNet_V3_Large_Weights, mobilenet_v3_large
+from torchvision.models._utils import IntermediateLayerGetter
+from torchvision.models.segmentation.lraspp import LRASPP
 
 from segmin.common.outputs import make_dirs
+from segmin.models.architectures import ARCHITECTURE, check_architecture
 from segmin.models.safe_load import load_failure_reason, load_tensors
 
-ARCHITECTURE = "lraspp_mobilenet_v3_large"
 IMAGENET_WEIGHTS = MobileNet_V3_Large_Weights.IMAGENET1K_V1
 
 
@@ -54,8 +60,28 @@ def imagenet_weights_cached() -> bool:
     return imagenet_weights_path().is_file()
 
 
-def build_model(backbone_weights: str | os.PathLike = "imagenet", *, allow_download: bool = False) -> SegmentationNet:
-    """Build the network with one output logit channel.
+def _lraspp(architecture: str) -> nn.Module:
+    """torchvision's LR-ASPP on the dilated MobileNetV3-Large, its high branch fed from the cut block.
+
+    For the full network this is exactly what `lraspp_mobilenet_v3_large(num_classes=1)` builds
+    (same modules, names and random draws); `IntermediateLayerGetter` drops the blocks after the
+    last one it returns, so a cut model holds no unused weights.
+    """
+    arch = check_architecture(architecture)
+    features = mobilenet_v3_large(weights=None, dilated=True).features
+    backbone = IntermediateLayerGetter(
+        features, return_layers={str(arch.low_block): "low", str(arch.high_block): "high"}
+    )
+    return LRASPP(backbone, features[arch.low_block].out_channels, features[arch.high_block].out_channels, 1)
+
+
+def build_model(
+    backbone_weights: str | os.PathLike = "imagenet",
+    *,
+    allow_download: bool = False,
+    architecture: str = ARCHITECTURE,
+) -> SegmentationNet:
+    """Build the network (`architecture`, a name in `ARCHITECTURES`) with one output logit channel.
 
     `backbone_weights`:
       - "imagenet": torchvision's ImageNet MobileNetV3-Large backbone (the paper's setting), read
@@ -65,15 +91,15 @@ def build_model(backbone_weights: str | os.PathLike = "imagenet", *, allow_downl
     """
     spec = str(backbone_weights)
     if spec == "none":
-        return SegmentationNet(lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1))
+        return SegmentationNet(_lraspp(architecture))
     if spec == "imagenet":
-        return SegmentationNet(_with_imagenet_backbone(allow_download))
+        return SegmentationNet(_with_imagenet_backbone(architecture, allow_download))
     path = Path(spec)
     if not path.is_file():
         raise FileNotFoundError(
             f"backbone_weights={spec!r}: no such file (expected 'imagenet', 'none' or a state-dict path)"
         )
-    model = SegmentationNet(lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1))
+    model = SegmentationNet(_lraspp(architecture))
     _load_partial_state_dict(model, path)
     return model
 
@@ -107,8 +133,11 @@ def _missing_imagenet() -> NoReturn:
     )
 
 
-def _with_imagenet_backbone(allow_download: bool) -> nn.Module:
+def _with_imagenet_backbone(architecture: str, allow_download: bool) -> nn.Module:
     """torchvision's LR-ASPP with the ImageNet backbone, its file read with `weights_only=True`.
+
+    A cut backbone takes the tensors of the blocks it keeps (all of them, strictly) and leaves
+    those of the dropped blocks and the classifier unused.
 
     torchvision's own `weights_backbone=` loads the cached file through torch.hub, which unpickles
     with `weights_only=False`: any code pickled into a file placed there would run. Building the
@@ -119,16 +148,16 @@ def _with_imagenet_backbone(allow_download: bool) -> nn.Module:
     digest = IMAGENET_WEIGHTS.url.rsplit("-", 1)[-1].split(".")[0]
     if not cached.is_file() and not allow_download:
         _missing_imagenet()
-    net = lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1)
+    net = _lraspp(architecture)
+    kept = set(net.backbone.state_dict())
     try:
         if not cached.is_file():  # what torch.hub does for torchvision: download, check the hash prefix
             make_dirs(cached.parent)
             torch.hub.download_url_to_file(IMAGENET_WEIGHTS.url, str(cached), hash_prefix=digest)
         state = torch.load(cached, map_location="cpu", weights_only=True)
         # The classification file's `features.N...` are the backbone's `N...`; its classifier is not used.
-        net.backbone.load_state_dict(
-            {k.removeprefix("features."): v for k, v in state.items() if k.startswith("features.")}
-        )
+        backbone = {k.removeprefix("features."): v for k, v in state.items() if k.startswith("features.")}
+        net.backbone.load_state_dict({k: v for k, v in backbone.items() if k in kept})
     except Exception as exc:  # URLError (OSError), hash mismatch, corrupt or pickled file, tensors that do not fit
         raise WeightsUnavailableError(
             f"could not load ImageNet backbone weights ({load_failure_reason(exc)}). Place the file at {cached} "

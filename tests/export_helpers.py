@@ -34,8 +34,14 @@ def field_image(rng: np.random.Generator, height: int, width: int) -> tuple[np.n
     return np.clip(image, 0, 255).astype(np.uint8), mask
 
 
-def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: float = 0.5) -> Path:
-    """A few Adam steps of build_model("none") on toy frames, saved with models.checkpoint.
+def make_checkpoint(
+    path: Path,
+    steps: int = 4,
+    size: int = SIZE,
+    threshold: float = 0.5,
+    architecture: str = "lraspp_mobilenet_v3_large",
+) -> Path:
+    """A few Adam steps of build_model("none", architecture=...) on toy frames, saved with models.checkpoint.
 
     BatchNorm stays in eval mode while training: with a handful of steps its running statistics
     would not settle, and the eval-mode output would then be nearly constant.
@@ -47,7 +53,7 @@ def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: flo
 
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
-    model = build_model("none")
+    model = build_model("none", architecture=architecture)
     mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
     std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
     optimizer = torch.optim.Adam(model.parameters(), lr=5e-3)
@@ -62,7 +68,12 @@ def make_checkpoint(path: Path, steps: int = 4, size: int = SIZE, threshold: flo
         optimizer.step()
     model.eval()
     info = model_info(
-        backbone_weights="none", input_size=(size, size), family="vineyards", train_data="toy", threshold=threshold
+        backbone_weights="none",
+        input_size=(size, size),
+        family="vineyards",
+        train_data="toy",
+        threshold=threshold,
+        architecture=architecture,
     )
     save_checkpoint(path, {"model": model.state_dict(), "model_info": info, "epoch": 0, "metrics": {}})
     return path

@@ -146,6 +146,18 @@ def test_int8_with_fewer_calibration_frames_than_asked_is_refused(workdir, check
     assert report["fp32"]["verification_vs_torch"]["frames"] == 1 and "int8" not in report
 
 
+def test_a_cut_architecture_exports_verifies_and_records_its_name(workdir, frames_dir) -> None:
+    from export_helpers import make_checkpoint
+
+    from segmin.export.onnx import read_metadata
+
+    cut = make_checkpoint(workdir / "cut13.pt", architecture="lraspp_mobilenet_v3_large_cut13")
+    out = workdir / "cut13.onnx"
+    report = export_checkpoint(ExportOptions(checkpoint=cut, out=out, calib_data=frames_dir))
+    assert report["fp32"]["verification_vs_torch"]["frames"] == 6
+    assert read_metadata(out)["architecture"] == "lraspp_mobilenet_v3_large_cut13"
+
+
 def test_refuses_overwrite_without_force(exported, checkpoint, frames_dir) -> None:
     out, _ = exported
     before = out.read_bytes()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pickle
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -72,6 +74,66 @@ def test_imagenet_backbone_is_the_one_torchvision_builds_from_the_same_file(torc
     ours = build_model("imagenet").net.state_dict()
     assert torch.equal(torch.rand(3), their_next)
     assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours)
+
+
+CUT13 = "lraspp_mobilenet_v3_large_cut13"
+
+
+def test_a_cut_architecture_keeps_torchvisions_blocks_up_to_the_cut_and_loads_their_imagenet_weights(torch_home):
+    state = _random_classifier_state()
+    path = torch_home / "hub" / "checkpoints" / WEIGHTS_FILE
+    path.parent.mkdir(parents=True)
+    torch.save(state, path)
+    model = build_model("imagenet", architecture=CUT13)
+    own = model.net.state_dict()
+    assert torch.equal(own["backbone.13.block.0.0.weight"], state["features.13.block.0.0.weight"])
+    assert not any(key.startswith(("backbone.14.", "backbone.16.")) for key in own)
+    assert own["classifier.cbr.0.weight"].shape[1] == 160  # the head reads block 13's 160 channels
+    assert sum(p.numel() for p in model.parameters()) < 0.45 * sum(p.numel() for p in build_model("none").parameters())
+    with torch.no_grad():
+        assert model.eval()(torch.zeros(1, 3, 64, 96)).shape == (1, 1, 64, 96)
+
+
+def test_the_full_architecture_is_torchvisions_lraspp():
+    """Old checkpoints hold torchvision's key layout: the generic builder must give the same."""
+    from torchvision.models.segmentation import lraspp_mobilenet_v3_large
+
+    torch.manual_seed(3)
+    theirs = lraspp_mobilenet_v3_large(weights=None, weights_backbone=None, num_classes=1).state_dict()
+    torch.manual_seed(3)
+    ours = build_model("none").net.state_dict()
+    assert ours.keys() == theirs.keys() and all(torch.equal(ours[k], theirs[k]) for k in ours)
+
+
+def test_an_unknown_architecture_names_the_known_ones():
+    with pytest.raises(ValueError, match="architecture='mobilenet_v4'.*lraspp_mobilenet_v3_large_cut13"):
+        build_model("none", architecture="mobilenet_v4")
+
+
+def test_a_checkpoint_records_and_rebuilds_its_architecture(tmp_path):
+    torch.manual_seed(0)
+    model = build_model("none", architecture=CUT13).eval()
+    payload = _payload(model)
+    payload["model_info"]["architecture"] = CUT13
+    save_checkpoint(tmp_path / "cut.pt", payload)
+    loaded, info = load_model(tmp_path / "cut.pt")
+    x = torch.randn(1, 3, 64, 64)
+    with torch.no_grad():
+        assert info["architecture"] == CUT13 and torch.equal(loaded(x), model(x))
+    payload["model_info"]["architecture"] = "resnet"
+    save_checkpoint(tmp_path / "foreign_arch.pt", payload)
+    with pytest.raises(ValueError, match="foreign_arch.pt: model_info.architecture 'resnet'"):
+        read_checkpoint(tmp_path / "foreign_arch.pt")
+
+
+def test_a_training_config_validates_the_architecture_without_torch():
+    from segmin.train.config import TrainConfig
+
+    assert TrainConfig(architecture=CUT13).architecture == CUT13
+    with pytest.raises(ValueError, match="architecture='cut99'"):
+        TrainConfig(architecture="cut99")
+    probe = "import sys, segmin.train.config, segmin.models.architectures; print('torch' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout == "False\n"
 
 
 def test_imagenet_weights_missing_names_the_file(torch_home):

@@ -106,6 +106,27 @@ def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureF
     assert {r["method"] for r in model_rows} == {"segmind"}
 
 
+def test_a_run_releases_its_models_with_cards_from_its_records(
+    run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`segmin models release` on a real (micro) run: every card figure comes from the run's records."""
+    import yaml
+
+    from segmin.app.cli import main as segmin_main
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+    monkeypatch.setenv("SEGMIN_MODELS_DIR", str(tmp_path / "registry"))
+    assert yaml.safe_load((run_dir / "pipeline.yaml").read_text())["profile"] == "micro"
+    assert segmin_main(["models", "release", "--run", str(run_dir)]) == 0
+    for family in ("vineyards", "trees"):
+        card = json.loads(OnnxSegmenter(family, threads=1).metadata["model_card_json"])
+        train = StageCache(run_dir).record(f"train/{family}").outputs
+        assert card["recipe"]["profile"] == "micro" and card["training"]["machine"] == train["machine"]
+        assert card["architecture"] == train["architecture"] == "lraspp_mobilenet_v3_large"
+        assert card["synthetic_val_iou"] == train["kept_val_iou"] and card["data"]["train_frames"] > 0
+        assert card["real_photos"]["images"] == 8 and card["closed_loop"] and card["latency"]["threads"] == 2
+
+
 def test_a_second_run_skips_every_stage(run_dir: Path) -> None:
     messages: list[str] = []
     runner = runner_for(run_dir, messages)

@@ -221,6 +221,18 @@ def test_weight_averaging_averages_the_last_epochs_recomputes_batchnorm_and_resu
     assert not (tmp_path / "plain" / "swa.pt").exists()
 
 
+def test_a_cut_architecture_trains_averages_and_refuses_a_resume_under_another_architecture(dataset_root, tmp_path):
+    from segmin.train.run import fit, train_model
+
+    cut = "lraspp_mobilenet_v3_large_cut13"
+    result = train_model(tiny_config(dataset_root, epochs=1, swa_start_epoch=1, architecture=cut), tmp_path / "cut")
+    model, info = load_model(result)
+    assert result.name == "swa.pt" and info["architecture"] == cut
+    assert not any(key.startswith("net.backbone.14.") for key in model.state_dict())
+    with pytest.raises(ValueError, match="architecture=lraspp_mobilenet_v3_large_cut13, the config says"):
+        fit(tiny_config(dataset_root, epochs=2), tmp_path / "cut", resume=True)
+
+
 def test_ctrl_c_saves_a_checkpoint_and_resume_is_exact(dataset_root, tmp_path, monkeypatch):
     import segmin.train.loop as loop_module
     from segmin.train.run import fit

@@ -17,6 +17,7 @@ from segmin.data.augment import AugmentConfig
 from segmin.data.canopy_region import check_closing_radius
 from segmin.data.model_input import check_input_side
 from segmin.data.real_sets import check_not_real_data
+from segmin.models.architectures import check_architecture
 
 _DEVICE = re.compile(r"auto|cpu|cuda(:\d+)?")
 
@@ -67,6 +68,10 @@ class TrainConfig:
     data: DataConfig = field(default_factory=DataConfig)
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     backbone_weights: str = "imagenet"  # "imagenet", "none" or a state-dict path
+    # The network (models.lraspp.ARCHITECTURES): torchvision's full LR-ASPP MobileNetV3-Large, or
+    # the backbone cut after an earlier block (`..._cut13` is the paper's cut: 1.3 M parameters,
+    # about 0.6x the full network's time a frame on 2 CPU cores; `segmin bench model-speed`).
+    architecture: str = "lraspp_mobilenet_v3_large"
     image_size: int = 224
     epochs: int = 50
     batch_size: int = 64  # paper: 64 (per process under torchrun); lower it on small GPUs / CPU
@@ -112,6 +117,7 @@ class TrainConfig:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)}: must be >= 1")
         check_input_side(self.image_size, "image_size")
+        check_architecture(self.architecture)
         if self.lr <= 0:
             raise ValueError(f"lr={self.lr}: must be > 0")
         if self.dice_weight < 0:

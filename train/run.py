@@ -175,7 +175,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     loaders = build_loaders(config, dist, train_frames, val_frames)
     state, ctx = build_state(config, dist)
     if resume:
-        resume_state(state, out_dir / "last.pt", dist)
+        resume_state(state, out_dir / "last.pt", dist, config.architecture)
         if dist.is_main:
             print(f"resuming {out_dir / 'last.pt'}: epoch {state.epoch + 1}, step {state.step}")
     logger = _open_run_folder(config, out_dir, train_frames, val_frames) if dist.is_main else None
@@ -432,4 +432,5 @@ def _model_info(config: TrainConfig) -> dict[str, Any]:
         family=config.family,
         train_data=train_data,
         threshold=config.threshold,
+        architecture=config.architecture,
     )

@@ -92,7 +92,7 @@ def build_state(config: TrainConfig, dist: DistInfo) -> tuple[TrainState, StepCo
 
 def _build_model(config: TrainConfig, dist: DistInfo) -> tuple[torch.nn.Module, torch.nn.Module]:
     """The model on its device in its memory layout, and what the steps run: it, or its DDP wrapper."""
-    model = build_model(config.backbone_weights)
+    model = build_model(config.backbone_weights, architecture=config.architecture)
     if config.bn_momentum is not None:
         for module in model.modules():
             if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
@@ -118,9 +118,10 @@ def _build_scheduler(
     return None
 
 
-def resume_state(state: TrainState, last_path: Path, dist: DistInfo) -> None:
+def resume_state(state: TrainState, last_path: Path, dist: DistInfo, architecture: str) -> None:
     """Put back what `last_path` holds: weights, optimizer, LR schedule, AMP scale, weight average,
-    RNG streams, the place in the epoch and the epoch's running loss sums.
+    RNG streams, the place in the epoch and the epoch's running loss sums. `architecture` is the
+    config's: a last.pt of another architecture is refused in one line (its weights cannot fit).
 
     Only rank 0 writes last.pt, so the loss sums in it are rank 0's: only rank 0 takes them back.
     With one process the resumed epoch's train_loss is exact; under DDP it leaves out the other
@@ -128,6 +129,12 @@ def resume_state(state: TrainState, last_path: Path, dist: DistInfo) -> None:
     saved resumes with them at zero (that epoch's train_loss then covers only the resumed steps).
     """
     payload = read_training_state(last_path)
+    saved_architecture = payload["model_info"]["architecture"]
+    if saved_architecture != architecture:
+        raise ValueError(
+            f"{last_path}: the run was started with architecture={saved_architecture}, the config says "
+            f"{architecture}; resume with architecture={saved_architecture} or start over with --force"
+        )
     saved = payload["training_state"]
     state.model.load_state_dict(payload["model"])
     state.optimizer.load_state_dict(saved["optimizer"])

@@ -14,7 +14,9 @@ from segmin.nav_eval.evaluation.cli import add_scenario_options
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
     b = bench.add_parser("nav-eval", help="simulated seconds per wall-clock second (one worker, ONNX segmenter)")
     b.add_argument(
-        "--model", default=None, help="ONNX file or 'oracle' (default: an untrained model exported to a temporary file)"
+        "--model",
+        default=None,
+        help="ONNX file, shipped model name or 'oracle' (default: an untrained model exported to a temporary file)",
     )
     b.add_argument("--field", default="straight_vineyard", help="field to drive (default straight_vineyard)")
     b.add_argument("--method", default="segmind", help="navigator method (default segmind)")
@@ -43,7 +45,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     nav.add_argument(
         "--model",
         default=None,
-        help="ONNX file for the full runtime step (default: an untrained model exported to a temp file, "
+        help="ONNX file or shipped model name for the full runtime step (default: an untrained model exported to a temp file, "
         "needs the [train] extra; skipped without it)",
     )
     nav.add_argument("--threads", type=int, default=2, help="onnxruntime threads for the full step (default 2)")
@@ -52,7 +54,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     bag = bench.add_parser(
         "replay-bag", help="segmin replay --bag against segmin replay on the same frames as folders (frames/s)"
     )
-    bag.add_argument("--model", type=Path, required=True, help="exported .onnx file")
+    bag.add_argument("--model", type=Path, required=True, help="exported .onnx file or a shipped model name")
     bag.add_argument("--bag", type=Path, required=True, help="a bag with segmin's camera topics (nav-eval --bag)")
     bag.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     bag.add_argument("--method", default="segmind", choices=("segmin", "segmind", "segzeros"))

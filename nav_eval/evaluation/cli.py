@@ -26,7 +26,11 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "and/or SegZeros, guided by an exported ONNX model or the simulator's exact mask ('oracle'). Writes "
         "results.csv, results.json, report.md, trajectory and histogram figures (and MP4 videos with --video).",
     )
-    parser.add_argument("--model", required=True, help="exported .onnx file, or 'oracle' (exact masks)")
+    parser.add_argument(
+        "--model",
+        required=True,
+        help="exported .onnx file, a shipped model name (vineyards, trees), or 'oracle' (exact masks)",
+    )
     parser.add_argument(
         "--fields", default="all", help="'all' (the five test fields), comma-separated names, or world spec YAML paths"
     )

@@ -32,6 +32,7 @@ from segmin.common.executor import LOCAL, Executor
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics
 from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
+from segmin.nav_eval.runtime.shipped_models import resolve_model
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.sim.factories import (
     FieldContext,
@@ -351,7 +352,7 @@ def run_evaluation(
     plots: bool = True,
     executor: Executor = LOCAL,
 ) -> list[RunResult]:
-    """Evaluate `model` ('oracle' or an .onnx path) on fields x methods x runs.
+    """Evaluate `model` ('oracle', an .onnx path or a shipped model name) on fields x methods x runs.
 
     With `out_dir`, writes results.csv/json (rewritten atomically after every finished run, so
     an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
@@ -362,8 +363,8 @@ def run_evaluation(
     function so the resume rules and the rewrite after every run stay side by side.
     """
     config = config or load_nav_config()
-    if str(model) != "oracle" and not Path(model).is_file():
-        raise FileNotFoundError(f"--model: {model} not found (give an exported .onnx file or 'oracle')")
+    if str(model) != "oracle":
+        model = str(resolve_model(model))
     field_list = resolve_fields(fields)
     method_list = parse_methods(methods)
     if runs < 1:

@@ -19,7 +19,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "named alike), a video, or the colour (and depth) topics of a ROS bag (times from the header stamps), and writes commands.csv, overlay.mp4 and commands.png (the plot needs the "
         "[sim] extra). Without depth SegMin runs on the mask alone; SegMinD needs depth.",
     )
-    replay.add_argument("--model", required=True, help="exported .onnx file")
+    replay.add_argument("--model", required=True, help="exported .onnx file or a shipped model name (vineyards, trees)")
     source = replay.add_mutually_exclusive_group(required=True)
     source.add_argument(
         "--rgb", type=Path, help="folder of RGB frames (natural name order: f_2 before f_10) or a video file"

@@ -123,10 +123,9 @@ def replay(
     sequence = _sequence(rgb, depth, fps, timestamps, source)
     if segmenter is None:
         from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+        from segmin.nav_eval.runtime.shipped_models import resolve_model
 
-        if not Path(model).is_file():
-            raise FileNotFoundError(f"--model {model}: not found (give an exported .onnx file)")
-        segmenter = OnnxSegmenter(model, threads=threads)
+        segmenter = OnnxSegmenter(resolve_model(model), threads=threads)
     follower = RowFollower(segmenter, Navigator(navigator_config), runtime)
     result = ReplayResult(commands=[], files=[], frames=sequence.count)
     if sequence.order is not None:

@@ -55,7 +55,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "ros2",
         help="the node fed a bag at 30 Hz: latency, command jitter, memory (needs rclpy; a loopback-only namespace)",
     )
-    b.add_argument("--model", type=Path, required=True, help="exported .onnx file")
+    b.add_argument("--model", type=Path, required=True, help="exported .onnx file or a shipped model name")
     b.add_argument("--bag", type=Path, required=True, help="a bag with segmin's camera topics (nav-eval --bag)")
     b.add_argument("--seconds", type=float, default=60.0, help="how long to feed the node (default 60)")
     b.add_argument("--threads", type=int, default=2, help="onnxruntime threads of the node (default 2)")
@@ -82,7 +82,9 @@ def _register_view_bag(sub: argparse._SubParsersAction) -> None:
     view.add_argument("--bag", type=Path, required=True, help="a ROS 1 bag or rosbag2 folder")
     view.add_argument("--out", type=Path, required=True, help="PNG to write")
     view.add_argument("--at", type=float, default=0.0, help="seconds into the bag of the frame shown (default 0)")
-    view.add_argument("--model", type=Path, default=None, help="exported .onnx: tint its mask over the frame")
+    view.add_argument(
+        "--model", type=Path, default=None, help="exported .onnx or a shipped model name: tint its mask over the frame"
+    )
     view.add_argument("--colour-topic", default=topics.COLOUR, help=f"default {topics.COLOUR}")
     view.add_argument("--depth-topic", default=topics.DEPTH, help=f"default {topics.DEPTH}")
     view.add_argument("--force", action="store_true", help="overwrite --out")

@@ -32,6 +32,7 @@ from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.follower import RuntimeConfig
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
+from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
 
 NODE_NAME = "segmin_row_follower"
 # ROS's own parameters a node always has: passed through to rclpy, not checked here.
@@ -141,7 +142,8 @@ DESCRIPTIONS: dict[str, str] = {
     "command_hz": "command rate, divides segment_hz (paper: 5); the stop watchdog runs at this rate too",
     "max_mask_age_s": "a mask older than this at a command is not fused, s",
     "frame_timeout_s": "no paired frame for this long: the robot is stopped, s",
-    "model": "exported .onnx file (a relative path is read from the parameter file's folder)",
+    "model": "exported .onnx file (a relative path is read from the parameter file's folder) or a shipped "
+    "model name (vineyards, trees)",
     "threads": "onnxruntime threads",
     "enabled": "drive: publish commands. Off at start-up (a robot must not move because a node came up); "
     "switch with the ~/enable service (std_srvs/SetBool) or this parameter",
@@ -244,7 +246,8 @@ def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
     merged = {name: _typed(name, values[name]) if name in values else default for name, default in DEFAULTS.items()}
     if merged["method"] not in METHODS:
         raise ValueError(f"parameter method: {merged['method']!r} is not one of {', '.join(METHODS)}")
-    if merged["model"] and base is not None and not Path(merged["model"]).is_absolute():
+    shipped_name = merged["model"] in SHIPPED_NAMES  # "vineyards": the installed model, not a file here
+    if merged["model"] and base is not None and not shipped_name and not Path(merged["model"]).is_absolute():
         merged["model"] = str(base / merged["model"])
 
     def build(cls: type) -> Any:

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from segmin.data.model_input import resize_to_input
 from segmin.export import metadata as md
+
+from .shipped_models import resolve_model
 
 # Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter).
 SPIN_DEFAULT = True
@@ -51,6 +52,8 @@ class PreparedFrame:
 class OnnxSegmenter:
     """A `segmin export` ONNX file run by onnxruntime on the CPU (or a given provider list).
 
+    `path`: the file, or a shipped model's name ("vineyards", "trees"; see `shipped_models`).
+
     `threads`: onnxruntime intra-op threads (the paper's robot computer budget: 2).
     `threshold`: probability above which a pixel is vegetation; None = the file's metadata value.
     `spin`: let onnxruntime's worker threads busy-wait between runs (lowest latency on an
@@ -67,9 +70,7 @@ class OnnxSegmenter:
         providers: list[str] | None = None,
         spin: bool = SPIN_DEFAULT,
     ) -> None:
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise FileNotFoundError(f"{self.path}: ONNX model not found")
+        self.path = resolve_model(path, what="model")
         if int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads!r}")
         from segmin.export.verify import make_session  # torch-free: the export checks use the same session

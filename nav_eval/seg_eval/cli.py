@@ -25,7 +25,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "--model",
         required=True,
         type=Path,
-        help="exported .onnx (size and threshold from its metadata) or a training checkpoint .pt",
+        help="exported .onnx (size and threshold from its metadata), a shipped model name (vineyards, trees) "
+        "or a training checkpoint .pt",
     )
     parser.add_argument(
         "--data",
@@ -49,20 +50,22 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 def run_eval_seg(args: argparse.Namespace) -> int:
     from segmin.data.real_sets import shipped_real_data
+    from segmin.nav_eval.runtime.shipped_models import looks_like_name, resolve_model
     from segmin.nav_eval.seg_eval.results import check_out_dir, write_results
     from segmin.nav_eval.seg_eval.score import evaluate_model
 
     if args.threads < 1:
         raise ValueError(f"--threads {args.threads}: must be >= 1")
+    model = resolve_model(args.model) if looks_like_name(args.model) else args.model  # "vineyards": the shipped file
     data = args.data if args.data is not None else shipped_real_data()
     out = args.out if args.out is not None else Path("runs") / "eval-seg" / args.model.stem
     check_out_dir(out, args.force)  # before the model runs: refusing late would waste the work
-    if args.model.suffix.lower() != ".onnx":
+    if model.suffix.lower() != ".onnx":
         import torch
 
         torch.set_num_threads(args.threads)
     summary, sheet = evaluate_model(
-        args.model,
+        model,
         data,
         threshold=args.threshold,
         size=args.size,

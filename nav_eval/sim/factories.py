@@ -68,19 +68,17 @@ def make_simulator(ctx: FieldContext, config: NavEvalConfig) -> RowEnv:
 
 
 def make_segmenter(model: str, threads: int = 1) -> FrameSegmenter:
-    """The simulator's segmenter: 'oracle' -> OracleSegmenter; otherwise an ONNX file, run by the
-    robot's OnnxSegmenter on each frame's image."""
+    """The simulator's segmenter: 'oracle' -> OracleSegmenter; otherwise an ONNX file or a shipped
+    model name, run by the robot's OnnxSegmenter on each frame's image."""
     if str(model) == "oracle":
         from segmin.nav_eval.sim.oracle import OracleSegmenter
 
         return OracleSegmenter()
-    path = Path(model)
-    if not path.is_file():
-        raise FileNotFoundError(f"--model: {path} not found (give an .onnx file or 'oracle')")
     from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+    from segmin.nav_eval.runtime.shipped_models import resolve_model
     from segmin.nav_eval.sim.segmentation import OnnxFrameSegmenter
 
-    return OnnxFrameSegmenter(OnnxSegmenter(str(path), threads=threads))
+    return OnnxFrameSegmenter(OnnxSegmenter(resolve_model(model), threads=threads))
 
 
 def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> MaskNavigator:

@@ -21,7 +21,9 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     )
     sweep.add_argument("spec", help="a shipped sweep (vineyards, trees) or a sweep spec YAML")
     sweep.add_argument("--out", type=Path, required=True, help="output folder (reused to resume)")
-    sweep.add_argument("--model", default=None, help="replaces the spec's model: an .onnx file or 'oracle'")
+    sweep.add_argument(
+        "--model", default=None, help="replaces the spec's model: an .onnx file, a shipped model name or 'oracle'"
+    )
     sweep.add_argument("--runs", type=int, default=None, help="replaces the spec's runs per value and method")
     sweep.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     add_executor_options(sweep)

@@ -28,6 +28,7 @@ from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs, run_seed
+from segmin.nav_eval.runtime.shipped_models import resolve_model
 from segmin.nav_eval.sim.factories import make_segmenter
 from segmin.nav_eval.sweeps.report import summarise_sweep, write_sweep_outputs
 from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, digest, load_sweep, plan_sweep, variant_file_name
@@ -48,7 +49,7 @@ def model_identity(model: str) -> str:
     """'oracle', or the exported file's content hash (a moved file keeps its runs, a new one does not)."""
     if model == "oracle":
         return model
-    return "onnx:" + hashlib.sha256(Path(model).read_bytes()).hexdigest()[:16]
+    return "onnx:" + hashlib.sha256(resolve_model(model).read_bytes()).hexdigest()[:16]
 
 
 def run_sweep(

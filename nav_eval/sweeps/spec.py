@@ -139,7 +139,7 @@ class SweepSpec:
 
     base: str  # shipped world name or world spec YAML path
     parameters: dict[str, list[Any]]  # name (PARAMETERS) -> values, easiest first
-    model: str = "oracle"  # or an exported .onnx file
+    model: str = "oracle"  # or an exported .onnx file, or a shipped model name (vineyards, trees)
     methods: list[str] = dataclasses.field(default_factory=lambda: list(METHODS))
     runs: int = 2  # seeded runs per value and method (seeds shared across values)
     seed: int = 0

@@ -36,6 +36,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.nav_eval.sweeps.cli",
     "segmin.nav_eval.bench.cli",
     "segmin.app.pipeline.cli",
+    "segmin.app.models_cli",
 )
 # Errors that are the user's (bad input, a path that is not there or not writable): one line, exit 2.
 USER_ERRORS: tuple[type[BaseException], ...] = (ConfigError, ValueError, OSError)

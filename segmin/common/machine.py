@@ -7,6 +7,14 @@ import platform
 import sys
 
 
+def load_average_1min() -> float | None:
+    """The 1-minute load average as a number (None where the platform has none), for benchmark JSON."""
+    try:
+        return float(os.getloadavg()[0])
+    except (OSError, AttributeError):
+        return None
+
+
 def load_average() -> str:
     """The 1-minute load average against the core count, e.g. "load 0.4 on 2 cores"."""
     return f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"

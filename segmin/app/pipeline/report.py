@@ -98,7 +98,7 @@ def _rendered_data(run_dir: Path, cache: StageCache) -> list[str]:
     render = cache.record("render")
     if render and render.outputs:
         for family, domains in render.outputs["domains"].items():
-            counts = {split: _count_frames(run_dir / "render" / split, names) for split, names in domains.items()}
+            counts = {split: count_frames(run_dir / "render" / split, names) for split, names in domains.items()}
             lines.append(
                 f"- **{family}**: {counts['train']} training frames from {', '.join(domains['train'])}; "
                 f"{counts['val']} validation frames from held-out worlds {', '.join(domains['val'])}"
@@ -256,7 +256,8 @@ def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str])
     return lines
 
 
-def _count_frames(root: Path, domains: list[str]) -> int:
+def count_frames(root: Path, domains: list[str]) -> int:
+    """Rendered frames of `domains` under a render split folder (the report's and the model cards' counts)."""
     return sum(len(list((root / d).glob("*/images/*/*.png"))) for d in domains)
 
 

@@ -18,12 +18,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from segmin.app.pipeline import stages
 from segmin.app.pipeline.cache import StageCache, Timer, file_manifest, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig
 from segmin.app.pipeline.side_by_side import train_side_by_side
+from segmin.common.atomic import write_text
 from segmin.common.config import to_dict
 from segmin.common.outputs import check_output_dir, make_dirs
+
+RECIPE_FILE = "pipeline.yaml"
 
 
 class PipelineRunner:
@@ -62,6 +67,8 @@ class PipelineRunner:
             stages.dataset_fingerprint(config.real_eval.resolved_data()) if config.real_eval.enabled else None
         )
         make_dirs(self.run_dir, "--out")  # only now: a refused run leaves no empty folder
+        # The resolved profile, overrides applied: the recipe a model card names and hashes.
+        write_text(self.run_dir / RECIPE_FILE, yaml.safe_dump(to_dict(config), sort_keys=False))
         upstream: dict[str, str] = {}
         render = self._render(upstream)
         nav_config = stages.nav_config(config)

@@ -174,6 +174,7 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
     The stage folder belongs to the pipeline: a stage that is not resumed is rerun because its
     inputs changed (or --from), so earlier outputs there are replaced (force).
     """
+    from segmin.common.machine import machine_summary
     from segmin.models.checkpoint import read_checkpoint
     from segmin.train.run import train_model
 
@@ -195,6 +196,8 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
         "kept_val_iou": kept_metrics.get("val_iou"),
         "backbone_weights": train_config.backbone_weights,
         "image_size": train_config.image_size,
+        "architecture": train_config.architecture,
+        "machine": machine_summary(),  # for the model card: training time means little without it
     }
 
 

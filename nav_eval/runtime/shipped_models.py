@@ -1,0 +1,127 @@
+"""Models shipped with segmin, by name: `OnnxSegmenter("vineyards")`, `--model trees`.
+
+Why names: a team should be able to put a robot in a row on day one, offline, with nothing but
+`pip install segmin`. The trained ONNX files live in the package (`released/<name>.onnx`), each
+with its model card beside it (`<name>.md` for people, `<name>.card.json` for `segmin models
+list`; the same card is in the ONNX metadata). `segmin models release --run RUN_DIR` puts a
+pipeline run's models there.
+
+Everything a model argument accepts goes through `resolve_model`: an existing file is used as it
+is; a shipped name resolves to its file; anything else is one clear error. Torch-free, like the
+rest of the runtime. `SEGMIN_MODELS_DIR` points the registry at another folder (tests, or a
+robot that keeps its models outside the Python environment).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+SHIPPED_NAMES: tuple[str, ...] = ("vineyards", "trees")
+ENV_MODELS_DIR = "SEGMIN_MODELS_DIR"
+PACKAGE_MODELS_DIR = Path(__file__).with_name("released")
+CARD_SUFFIX = ".card.json"
+
+
+def models_dir() -> Path:
+    """The registry folder: $SEGMIN_MODELS_DIR when set, else the package's `released/`."""
+    override = os.environ.get(ENV_MODELS_DIR)
+    return Path(override) if override else PACKAGE_MODELS_DIR
+
+
+@dataclass(frozen=True)
+class ShippedModel:
+    """One shipped name: its files in the registry folder, present or not."""
+
+    name: str
+    onnx: Path
+    card_markdown: Path
+    card_json: Path
+
+    @property
+    def present(self) -> bool:
+        return self.onnx.is_file()
+
+    def card(self) -> dict[str, Any] | None:
+        """The card's figures (`segmin models list`), or None when no card was released."""
+        if not self.card_json.is_file():
+            return None
+        try:
+            card = json.loads(self.card_json.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{self.card_json}: not a readable model card ({exc})") from None
+        if not isinstance(card, dict):
+            raise ValueError(f"{self.card_json}: not a model card (expected a JSON object)")
+        return card
+
+
+def shipped_model(name: str) -> ShippedModel:
+    """The registry entry of a shipped name; ValueError listing the names for any other."""
+    if name not in SHIPPED_NAMES:
+        raise ValueError(f"model {name!r}: not a shipped model name (shipped: {', '.join(SHIPPED_NAMES)})")
+    root = models_dir()
+    return ShippedModel(name, root / f"{name}.onnx", root / f"{name}.md", root / f"{name}{CARD_SUFFIX}")
+
+
+def looks_like_name(spec: str | os.PathLike[str]) -> bool:
+    """A bare word (no folder, no .onnx suffix): meant as a shipped model name, not a path."""
+    text = os.fspath(spec)
+    return bool(text) and os.sep not in text and "/" not in text and not text.lower().endswith(".onnx")
+
+
+def resolve_model(spec: str | os.PathLike[str], what: str = "--model") -> Path:
+    """The ONNX file `spec` means: an existing file, or a shipped name's file.
+
+    Errors (one line each, naming `what`): a shipped name whose file this install does not have
+    yet, a bare word that is neither a file nor a shipped name, a path that does not exist.
+    """
+    path = Path(spec)
+    if path.is_file():
+        return path
+    text = os.fspath(spec)
+    if text in SHIPPED_NAMES:
+        entry = shipped_model(text)
+        if not entry.present:
+            raise ValueError(
+                f"{what} {text}: a shipped model name, but this install has no {entry.onnx.name} yet "
+                f"(looked in {entry.onnx.parent}; release one with `segmin models release --run RUN_DIR`)"
+            )
+        return entry.onnx
+    if looks_like_name(text):
+        raise ValueError(
+            f"{what} {text!r}: no such file, and not a shipped model name (shipped: {', '.join(SHIPPED_NAMES)})"
+        )
+    raise FileNotFoundError(f"{what} {text}: ONNX model not found")
+
+
+def headline(card: dict[str, Any]) -> str:
+    """One line of a card's figures (`segmin models list`); what the run did not measure says so."""
+    real = card.get("real_photos") or {}
+    latency = card.get("latency") or {}
+    loop = card.get("closed_loop") or []
+    runs, successes = sum(r["runs"] for r in loop), sum(r["successes"] for r in loop)
+    return ", ".join(
+        [
+            f"{card.get('architecture')} {format_size(card.get('input_size'))}",
+            f"val IoU {format_figure(card.get('synthetic_val_iou'))}",
+            f"real IoU {format_figure(real.get('mean_iou'))} (precision {format_figure(real.get('precision'))})",
+            f"closed loop {successes}/{runs} runs succeeded" if loop else "closed loop not measured",
+            f"{format_figure(latency.get('median'), 2)} ms a frame ({latency.get('threads', '?')} threads)",
+        ]
+    )
+
+
+def format_figure(value: Any, digits: int = 3) -> str:
+    """A card figure: `digits` decimals, or n/a for one not measured."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    return f"{value:.{digits}f}"
+
+
+def format_size(size: Any) -> str:
+    """[H, W] -> "HxW" ("?" when the card has none)."""
+    return f"{size[0]}x{size[1]}" if isinstance(size, (list, tuple)) and len(size) == 2 else "?"

@@ -1,0 +1,189 @@
+"""Model cards: what a released model is, how it was made and how well it does, from its pipeline run.
+
+Why a card: a shipped model is only as trustworthy as what is known about it. The card gathers,
+from the stage records of one `segmin pipeline` run folder (nothing is re-measured), the recipe
+and its hash, the data (worlds, frame counts), the training time and machine, the synthetic
+validation IoU, the real-photo IoU / precision / recall with the contact sheet, the closed-loop
+results, the onnxruntime latency and the licence. A stage the run did not do is reported as
+"not measured", never guessed. `card_markdown` renders it for people; the same dict goes beside
+the model as JSON (`segmin models list` reads it, `shipped_models.headline`) and, with the Markdown, into the ONNX metadata.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from segmin.app.pipeline.cache import StageCache, file_digest
+from segmin.app.pipeline.report import count_frames
+from segmin.app.pipeline.runner import RECIPE_FILE
+from segmin.nav_eval.runtime.shipped_models import format_figure, format_size
+
+LICENCE = (
+    "MIT (segmin's code and these weights). Trained on frames segmin renders itself; the real photos "
+    "it is scored on (Aghi et al. 2021, doi:10.5281/zenodo.4601472, CC BY 4.0) are a test set only."
+)
+
+
+def build_card(run_dir: Path, family: str) -> dict[str, Any]:
+    """The card of `family`'s exported model in the pipeline run `run_dir`.
+
+    ValueError naming the run and the stage when the model was not exported there (a card needs
+    at least the training and the export; the evaluations are optional).
+    """
+    cache = StageCache(run_dir)
+    train, export = _finished(cache, f"train/{family}"), _finished(cache, f"export/{family}")
+    if train is None or export is None:
+        raise ValueError(f"{run_dir}: no finished train/{family} and export/{family} stages (run `segmin pipeline`)")
+    onnx = _in_run(run_dir, f"export/{family}", export["onnx"])
+    return {
+        "name": family,
+        "family": family,
+        "architecture": train.get("architecture", "lraspp_mobilenet_v3_large"),
+        "input_size": export.get("input_size"),
+        "onnx_sha256": file_digest(onnx),
+        "onnx_mb": round(onnx.stat().st_size / 1e6, 2),
+        "recipe": _recipe(run_dir),
+        "data": _data(run_dir, cache, family),
+        "training": {
+            "epochs": train.get("epochs"),
+            "image_size": train.get("image_size"),
+            "backbone_weights": train.get("backbone_weights"),
+            "kept": train.get("kept"),
+            "seconds": _seconds(cache, f"train/{family}"),
+            "machine": train.get("machine"),
+        },
+        "synthetic_val_iou": train.get("kept_val_iou"),
+        "real_photos": _real_photos(cache, family),
+        "closed_loop": _closed_loop(run_dir, cache, family),
+        "latency": export.get("latency_ms"),
+        "licence": LICENCE,
+        "source_run": str(run_dir),
+    }
+
+
+def card_markdown(card: dict[str, Any]) -> str:
+    """The card for people: one page of Markdown."""
+    recipe, data, training = card["recipe"], card["data"], card["training"]
+    real, latency = card.get("real_photos"), card.get("latency")
+    lines = [
+        f"# segmin model card: `{card['name']}`",
+        "",
+        f"- network: `{card['architecture']}`, input {format_size(card['input_size'])} (uint8 RGB NHWC), "
+        f"{card['onnx_mb']} MB fp32 ONNX, sha256 `{card['onnx_sha256'][:16]}`",
+        f"- recipe: pipeline profile `{recipe['profile']}`, config sha256 `{recipe['config_sha256']}`",
+        f"- data: {data['train_frames']} rendered training frames from {', '.join(data['train_worlds']) or '?'}; "
+        f"{data['val_frames']} validation frames from held-out worlds {', '.join(data['val_worlds']) or '?'}",
+        f"- training: {training['epochs']} epochs at {training['image_size']} px, backbone "
+        f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} on "
+        f"{training['machine'] or 'a machine the run did not record'}",
+        f"- synthetic validation IoU: {format_figure(card['synthetic_val_iou'])}",
+    ]
+    if real:
+        lines.append(
+            f"- real photos ({real['images']} labelled vineyard photos, a test set): mean IoU "
+            f"{format_figure(real['mean_iou'])} (pooled {format_figure(real['pooled_iou'])}), precision "
+            f"{format_figure(real['precision'])} and recall {format_figure(real['recall'])} over all pixels "
+            f"(per-photo means {format_figure(real['mean_precision'])} / {format_figure(real['mean_recall'])}); "
+            f"contact sheet `{real['contact_sheet']}` in the source run"
+        )
+    else:
+        lines.append("- real photos: not measured in this run")
+    if latency:
+        lines.append(
+            f"- latency: median {format_figure(latency.get('median'), 2)} ms, p95 {format_figure(latency.get('p95'), 2)} ms a frame "
+            f"(onnxruntime, {latency.get('threads')} threads, {format_size(latency.get('frame_size'))} frames, "
+            "the run's machine)"
+        )
+    lines += ["", "## Closed loop", ""]
+    if card["closed_loop"]:
+        lines += ["| field | method | successes | MAE m |", "|---|---|---|---|"]
+        lines += [
+            f"| {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {format_figure(r['mae'])} |"
+            for r in card["closed_loop"]
+        ]
+    else:
+        lines.append("Not measured in this run.")
+    return "\n".join([*lines, "", "## Licence", "", card["licence"], "", f"Source run: `{card['source_run']}`", ""])
+
+
+def _finished(cache: StageCache, stage: str) -> dict[str, Any] | None:
+    record = cache.record(stage)
+    return dict(record.outputs) if record is not None and record.finished and record.outputs else None
+
+
+def _seconds(cache: StageCache, stage: str) -> float | None:
+    record = cache.record(stage)
+    return None if record is None else record.seconds
+
+
+def _in_run(run_dir: Path, stage: str, recorded: str) -> Path:
+    """A file a stage recorded (its path as the pipeline was called), found in that stage's folder."""
+    path = run_dir / stage / Path(recorded).name
+    if path.is_file():
+        return path
+    if Path(recorded).is_file():
+        return Path(recorded)
+    raise ValueError(f"{run_dir}: {stage} recorded {recorded}, which is not in {run_dir / stage}")
+
+
+def _recipe(run_dir: Path) -> dict[str, str]:
+    """The profile and its resolved config's hash (pipeline.yaml, written by the runner)."""
+    import yaml
+
+    path = run_dir / RECIPE_FILE
+    if not path.is_file():
+        return {"profile": "unknown (run predates pipeline.yaml)", "config_sha256": "unknown"}
+    text = path.read_text(encoding="utf-8")
+    profile = (yaml.safe_load(text) or {}).get("profile", "unknown")
+    return {"profile": str(profile), "config_sha256": hashlib.sha256(text.encode()).hexdigest()[:16]}
+
+
+def _data(run_dir: Path, cache: StageCache, family: str) -> dict[str, Any]:
+    render = _finished(cache, "render") or {}
+    domains = render.get("domains", {}).get(family, {"train": [], "val": []})
+    return {
+        "train_worlds": list(domains["train"]),
+        "val_worlds": list(domains["val"]),
+        "train_frames": count_frames(run_dir / "render" / "train", domains["train"]),
+        "val_frames": count_frames(run_dir / "render" / "val", domains["val"]),
+    }
+
+
+def _real_photos(cache: StageCache, family: str) -> dict[str, Any] | None:
+    real = _finished(cache, f"real-eval/{family}")
+    if real is None:
+        return None
+    keys = ("images", "mean_iou", "mean_precision", "mean_recall", "pooled_iou", "precision", "recall", "threshold")
+    return {**{k: real.get(k) for k in keys}, "contact_sheet": f"real-eval/{family}/contact_sheet.png"}
+
+
+def _closed_loop(run_dir: Path, cache: StageCache, family: str) -> list[dict[str, Any]]:
+    """Per field and method: runs, successes and mean MAE of the family's nav-eval results."""
+    nav = _finished(cache, f"nav-eval/{family}")
+    if nav is None:
+        return []
+    rows = json.loads(_in_run(run_dir, f"nav-eval/{family}", nav["results"]).read_text(encoding="utf-8"))["rows"]
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["field"], row["method"]), []).append(row)
+    summary = []
+    for (field, method), group in groups.items():
+        maes = [float(r["mae"]) for r in group if r.get("mae") is not None and math.isfinite(float(r["mae"]))]
+        summary.append(
+            {
+                "field": field,
+                "method": method,
+                "runs": len(group),
+                "successes": sum(bool(r.get("success")) for r in group),
+                "mae": sum(maes) / len(maes) if maes else None,
+            }
+        )
+    return summary
+
+
+def _duration(seconds: float | None) -> str:
+    return "unknown time" if seconds is None else f"{seconds / 60:.1f} min"

@@ -1,0 +1,111 @@
+"""`segmin models list` and `segmin models release`: the shipped models and how they get there.
+
+`list` runs on the bare robot install (it reads the cards' JSON, no torch, no onnx). `release`
+takes a finished `segmin pipeline` run and puts each family's exported model into the registry
+folder (`nav_eval/runtime/released/` of the package, or $SEGMIN_MODELS_DIR, or --to) with its
+card beside it and inside its metadata. Every file is checked and every card built before the
+first is written, and each file is written atomically, so a refused or failed release leaves the
+registry as it was; files already there are replaced only with --force.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+
+def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
+    models = commands.add_parser("models", help="the shipped segmentation models: list them, release a run's")
+    sub = models.add_subparsers(dest="models_command", metavar="ACTION", required=True)
+    listing = sub.add_parser("list", help="the shipped model names, their files and headline figures (from the cards)")
+    listing.set_defaults(func=_list)
+    release = sub.add_parser(
+        "release",
+        help="copy a pipeline run's exported models and their model cards into the registry",
+        description="Each family's export/<family>/<family>.onnx of the run becomes the shipped model of that "
+        "name, with <name>.md (the card), <name>.card.json (its figures) and the card in the ONNX metadata.",
+    )
+    release.add_argument("--run", type=Path, required=True, help="a finished `segmin pipeline` run folder")
+    release.add_argument(
+        "--families", nargs="+", default=None, help="families to release (default: every shipped name the run exported)"
+    )
+    release.add_argument(
+        "--to", type=Path, default=None, help="registry folder (default: $SEGMIN_MODELS_DIR or the package's)"
+    )
+    release.add_argument("--force", action="store_true", help="replace models already in the registry")
+    release.set_defaults(func=_release)
+
+
+def _list(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES, headline, models_dir, shipped_model
+
+    print(f"shipped models in {models_dir()}:")
+    for name in SHIPPED_NAMES:
+        entry = shipped_model(name)
+        if not entry.present:
+            print(f"  {name}: not in this install (release one with `segmin models release --run RUN_DIR`)")
+            continue
+        card = entry.card()
+        size = entry.onnx.stat().st_size / 1e6
+        figures = headline(card) if card is not None else "no model card"
+        print(f"  {name}: {entry.onnx.name} ({size:.1f} MB), {figures}")
+    return 0
+
+
+def _release(args: argparse.Namespace) -> int:
+    from segmin.nav_eval.runtime.shipped_models import models_dir
+
+    root = args.to if args.to is not None else models_dir()
+    planned = _plan(args.run, args.families, root, args.force)
+    for name, (source, card) in planned.items():
+        _write_release(source, card, root, name)
+        onnx = root / f"{name}.onnx"
+        print(f"released {name}: {onnx} ({onnx.stat().st_size / 1e6:.1f} MB) with {name}.md and {name}.card.json")
+    return 0
+
+
+def _plan(run: Path, families: list[str] | None, root: Path, force: bool) -> dict[str, tuple[Path, dict[str, Any]]]:
+    """{name: (exported ONNX, card)} for every family to release; errors before anything is written."""
+    from segmin.app.model_card import build_card
+    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
+
+    if not (run / "render" / "stage.json").is_file():
+        raise ValueError(f"--run {run}: not a segmin pipeline run folder (no render/stage.json)")
+    names = families or [n for n in SHIPPED_NAMES if (run / "export" / n / "stage.json").is_file()]
+    if not names:
+        raise ValueError(f"--run {run}: exported none of the shipped names ({', '.join(SHIPPED_NAMES)})")
+    unknown = [n for n in names if n not in SHIPPED_NAMES]
+    if unknown:
+        raise ValueError(f"--families {unknown[0]}: not a shipped model name (shipped: {', '.join(SHIPPED_NAMES)})")
+    existing = [root / f"{n}.onnx" for n in names if (root / f"{n}.onnx").exists()]
+    if existing and not force:
+        raise ValueError(f"{existing[0]}: already released (use --force to replace it)")
+    planned = {}
+    for name in names:
+        card = build_card(run, name)
+        planned[name] = (run / "export" / name / f"{name}.onnx", card)
+    return planned
+
+
+def _write_release(source: Path, card: dict[str, Any], root: Path, name: str) -> None:
+    """The model with its card in the metadata, then the card files (each written atomically)."""
+    import onnx
+
+    from segmin.app.model_card import card_markdown
+    from segmin.common.atomic import atomic_path, write_text
+    from segmin.common.outputs import make_dirs
+    from segmin.export import metadata as md
+    from segmin.export.onnx import set_metadata
+    from segmin.nav_eval.runtime.shipped_models import CARD_SUFFIX
+
+    markdown, card_json = card_markdown(card), json.dumps(card, indent=2, sort_keys=True)
+    model = onnx.load(str(source))
+    md.check_metadata({p.key: p.value for p in model.metadata_props}, str(source))
+    set_metadata(model, {md.KEY_MODEL_CARD: markdown, md.KEY_MODEL_CARD_JSON: card_json})
+    make_dirs(root, "--to")
+    with atomic_path(root / f"{name}.onnx") as tmp:
+        onnx.save(model, str(tmp))
+    write_text(root / f"{name}.md", markdown)
+    write_text(root / f"{name}{CARD_SUFFIX}", card_json + "\n")

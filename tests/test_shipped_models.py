@@ -1,0 +1,172 @@
+"""Shipped models by name: the registry, `segmin models release / list`, model cards, `--model vineyards`."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from segmin.app.cli import main as segmin_main
+from segmin.app.pipeline.cache import StageCache
+from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+from segmin.nav_eval.runtime.shipped_models import ENV_MODELS_DIR, resolve_model, shipped_model
+
+
+@pytest.fixture()
+def registry(tmp_path, monkeypatch) -> Path:
+    """An empty registry folder in place of the package's (tests never write into the package)."""
+    root = tmp_path / "registry"
+    monkeypatch.setenv(ENV_MODELS_DIR, str(root))
+    return root
+
+
+def _record(cache: StageCache, stage: str, outputs: dict, seconds: float = 1.0) -> None:
+    cache.finished(stage, "hash", seconds, outputs, files={}, reads={})
+
+
+@pytest.fixture()
+def pipeline_run(tmp_path, exported) -> Path:
+    """A pipeline run folder as `segmin pipeline` leaves it, with the tiny exported model as vineyards."""
+    run = tmp_path / "run"
+    cache = StageCache(run)
+    (run).mkdir()
+    (run / "pipeline.yaml").write_text("profile: tiny\nfamilies: {}\n")
+    for split, world, count in (("train", "synth_vineyard_a", 3), ("val", "synth_val_vineyard_a", 2)):
+        for i in range(count):
+            frame = run / "render" / split / world / f"{world}_1" / "images" / f"Image{i}" / f"Image{i}.png"
+            frame.parent.mkdir(parents=True)
+            frame.write_bytes(b"png")
+    _record(
+        cache, "render", {"domains": {"vineyards": {"train": ["synth_vineyard_a"], "val": ["synth_val_vineyard_a"]}}}
+    )
+    _record(
+        cache,
+        "train/vineyards",
+        {
+            "epochs": 2,
+            "image_size": 64,
+            "backbone_weights": "none",
+            "kept": "swa",
+            "kept_val_iou": 0.71,
+            "architecture": "lraspp_mobilenet_v3_large",
+            "machine": "test box, 2 CPU cores",
+        },
+        seconds=600.0,
+    )
+    onnx = run / "export" / "vineyards" / "vineyards.onnx"
+    onnx.parent.mkdir(parents=True)
+    shutil.copy(exported[0], onnx)
+    latency = {"median": 2.5, "p95": 3.0, "threads": 2, "frame_size": [224, 224], "frames": 50}
+    _record(
+        cache,
+        "export/vineyards",
+        {"onnx": "somewhere/else/vineyards.onnx", "input_size": [64, 64], "latency_ms": latency},
+    )
+    real = {
+        "images": 8,
+        "mean_iou": 0.61,
+        "pooled_iou": 0.6,
+        "precision": 0.64,
+        "recall": 0.8,
+        "mean_precision": 0.66,
+        "mean_recall": 0.82,
+        "threshold": 0.5,
+    }
+    _record(cache, "real-eval/vineyards", real)
+    rows = [
+        {"field": "straight_vineyard", "method": "segmind", "success": ok, "mae": mae}
+        for ok, mae in ((True, 0.1), (False, 0.3))
+    ]
+    (run / "nav-eval" / "vineyards").mkdir(parents=True)
+    (run / "nav-eval" / "vineyards" / "results.json").write_text(json.dumps({"rows": rows}))
+    _record(cache, "nav-eval/vineyards", {"results": "x/results.json", "runs": 2, "successes": 1})
+    return run
+
+
+def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_run, registry, capsys) -> None:
+    assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 0
+    assert sorted(p.name for p in registry.iterdir()) == ["vineyards.card.json", "vineyards.md", "vineyards.onnx"]
+    segmenter = OnnxSegmenter("vineyards", threads=1)
+    assert segmenter.path == registry / "vineyards.onnx"
+    assert segmenter.segment(np.zeros((48, 64, 3), np.uint8)).shape == (48, 64)
+    card_text = (registry / "vineyards.md").read_text()
+    assert segmenter.metadata["model_card"] == card_text
+    card = json.loads(segmenter.metadata["model_card_json"])
+    assert card == shipped_model("vineyards").card()
+    assert card["data"] == {
+        "train_worlds": ["synth_vineyard_a"],
+        "val_worlds": ["synth_val_vineyard_a"],
+        "train_frames": 3,
+        "val_frames": 2,
+    }
+    assert card["recipe"]["profile"] == "tiny" and len(card["recipe"]["config_sha256"]) == 16
+    assert card["closed_loop"] == [
+        {"field": "straight_vineyard", "method": "segmind", "runs": 2, "successes": 1, "mae": pytest.approx(0.2)}
+    ]
+    for text in (
+        "10.0 min on test box, 2 CPU cores",
+        "mean IoU 0.610",
+        "precision 0.640",
+        "| straight_vineyard | segmind | 1/2 |",
+        "MIT",
+        "contact sheet `real-eval/vineyards/contact_sheet.png`",
+    ):
+        assert text in card_text, text
+    capsys.readouterr()
+    assert segmin_main(["models", "list"]) == 0
+    listed = capsys.readouterr().out
+    assert "vineyards: vineyards.onnx" in listed and "val IoU 0.710, real IoU 0.610 (precision 0.640)" in listed
+    assert "closed loop 1/2 runs succeeded" in listed and "trees: not in this install" in listed
+
+
+def test_release_never_replaces_a_model_without_force(pipeline_run, registry, capsys) -> None:
+    assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 0
+    before = (registry / "vineyards.onnx").read_bytes()
+    assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 2
+    assert "already released (use --force" in capsys.readouterr().err
+    assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 0
+    assert (registry / "vineyards.onnx").read_bytes() == before  # the same run gives the same file
+    assert segmin_main(["models", "release", "--run", str(pipeline_run), "--families", "apples"]) == 2
+    assert "--families apples: not a shipped model name (shipped: vineyards, trees)" in capsys.readouterr().err
+    assert segmin_main(["models", "release", "--run", str(registry)]) == 2
+    assert "not a segmin pipeline run folder" in capsys.readouterr().err
+
+
+def test_a_name_without_a_file_and_an_unknown_name_are_one_clear_line(registry, tmp_path, capsys) -> None:
+    with pytest.raises(ValueError, match="model trees: a shipped model name, but this install has no trees.onnx yet"):
+        OnnxSegmenter("trees")
+    with pytest.raises(ValueError, match=r"model 'vinyards': no such file, and not a shipped model name \(shipped"):
+        OnnxSegmenter("vinyards")
+    with pytest.raises(FileNotFoundError, match="missing.onnx: ONNX model not found"):
+        resolve_model(tmp_path / "missing.onnx")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "f_0.png"), np.zeros((8, 8, 3), np.uint8))
+    replay = ["replay", "--rgb", str(frames), "--fps", "30", "--method", "segmin", "--depth-threshold", "5"]
+    code = segmin_main([*replay, "--model", "vineyards", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--model vineyards: a shipped model name" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_shipped_name_in_a_ros2_parameter_file_is_not_read_from_the_files_folder(tmp_path) -> None:
+    from segmin.nav_eval.ros2.params import node_params
+
+    assert node_params({"model": "vineyards"}, base=tmp_path).node.model == "vineyards"
+    assert node_params({"model": "mine.onnx"}, base=tmp_path).node.model == str(tmp_path / "mine.onnx")
+
+
+def test_models_list_runs_without_torch_or_onnx(registry) -> None:
+    """The bare robot install has neither: the list reads the cards' JSON only."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys; from segmin.app.cli import main; main(['models', 'list']); "
+        "print('heavy:', [m for m in ('torch', 'onnx') if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert "vineyards: not in this install" in out and "heavy: []" in out
