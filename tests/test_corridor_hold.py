@@ -4,12 +4,13 @@ restart with the run, and are off by default (the kinematic results are unchange
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from segmin.nav_eval.demo.scenes import DemoScene, render_scene
+from segmin.nav_eval.demo.scenes import CLOSED_CANOPY_SCENE, DemoScene, render_scene
 from segmin.nav_eval.runtime.control import ClampedIntegral, DriftObserver
 from segmin.nav_eval.runtime.corridor import CorridorConfig, CorridorNavigator
 from segmin.nav_eval.sim.config import load_nav_config
@@ -20,11 +21,16 @@ DT = 0.2  # s between commands (5 Hz)
 DRIFT = 0.03  # m/s to the right: a robot creeping downhill across a slope
 
 
-def drive_with_drift(controller: str, seconds: float = 40.0) -> np.ndarray:
+# centre_hold with its (opt-in) integral: 10 s
+LAWS = {"pursuit": {}, "drift_observer": {}, "centre_hold": {"hold_integral_time": 10.0}}
+
+
+def drive_with_drift(controller: str, seconds: float = 40.0, **changes: float) -> np.ndarray:
     """A tiny closed loop: the navigator sees an analytic straight vine row from the robot's pose
     (lateral offset e, left of the centre; heading psi), and a unicycle that also slides DRIFT m/s
     to the right follows its commands. Returns e after each command."""
-    nav = CorridorNavigator(CorridorConfig(depth_threshold=5.0, controller=controller), scene_camera())
+    config = CorridorConfig(depth_threshold=5.0, controller=controller, **{**LAWS[controller], **changes})
+    nav = CorridorNavigator(config, scene_camera())
     e, psi, offsets = 0.0, 0.0, []
     for k in range(round(seconds / DT)):
         scene = DemoScene(
@@ -51,6 +57,13 @@ def test_both_laws_cancel_a_constant_drift_that_pursuit_leaves_standing(controll
     assert np.max(np.abs(held)) < 0.2  # on the way, no overshoot into a row
 
 
+def test_without_its_integral_centre_hold_leaves_a_smaller_standing_offset():
+    """By default (no integral) the short lookahead and the heading damping balance the drift at
+    about (L + k_h L² / 2 v) d / v = 0.1 m instead of pure pursuit's L d / v = 0.15 m."""
+    held = drive_with_drift("centre_hold", hold_integral_time=0.0)
+    assert np.mean(held[-25:]) == pytest.approx(-(1.0 + 0.6 / 1.0) * DRIFT / 0.5, abs=0.02)
+
+
 def centre_hold_command(offset: float, yaw: float, controller: str = "centre_hold", **changes) -> float:
     """The first yaw rate (before the EMA: ema_lambda 1) from a straight vine row seen at `offset` m
     left of its centre with heading `yaw` (left > 0)."""
@@ -75,6 +88,18 @@ def test_the_heading_term_damps_a_heading_error():
     assert held - pursuit == pytest.approx(-0.6 * 0.1, abs=0.02)
 
 
+def test_in_trunk_mode_centre_hold_steers_as_pure_pursuit():
+    """The trunks give no heading: without its damping the short lookahead weaved out of the high
+    trees' rows, so there the law is pure pursuit on the usual lookahead."""
+    mask, depth = render_scene(dataclasses.replace(CLOSED_CANOPY_SCENE, lateral_offset=0.3), size=SIZE)
+    commands = []
+    for controller in ("pursuit", "centre_hold"):
+        nav = CorridorNavigator(CorridorConfig(10.0, controller=controller, trunk_min_points=4), scene_camera())
+        commands.append([nav.step(mask, depth, stamp=0.2 * k) for k in range(3)])
+    assert [c.mode for c in commands[1]] == ["trunks"] * 3
+    assert [(c.v, c.omega) for c in commands[0]] == [(c.v, c.omega) for c in commands[1]]
+
+
 def test_the_integral_is_clamped_and_restarts_with_the_run():
     integral = ClampedIntegral(limit=0.5)
     assert integral.update(1.0, stamp=0.0) == 0.0  # the first measurement has no time step
@@ -94,16 +119,19 @@ def test_the_integral_is_clamped_and_restarts_with_the_run():
 def test_the_clamp_cancels_at_most_drift_limit():
     """Centred, pointed against a drift of drift_limit: the clamped integral's yaw rate balances the
     pursuit and heading terms that would turn the robot back."""
-    config = CorridorConfig(depth_threshold=5.0, controller="centre_hold")
+    config = CorridorConfig(depth_threshold=5.0, controller="centre_hold", hold_integral_time=10.0)
     nav = CorridorNavigator(config, scene_camera())
     v, lookahead, c1 = config.v_max, config.hold_lookahead, config.drift_limit / config.v_max
     integral_rate = 2.0 * v / lookahead**2 * nav._integral_limit() / config.hold_integral_time
+    assert CorridorNavigator(CorridorConfig(5.0, controller="centre_hold"), scene_camera())._integral_limit() == 0
     assert integral_rate == pytest.approx((2.0 * v / lookahead + config.hold_heading_gain) * c1)
 
 
 @pytest.mark.parametrize("controller", ["drift_observer", "centre_hold"])
 def test_stop_and_reset_forget_the_drift(controller):
-    nav = CorridorNavigator(CorridorConfig(depth_threshold=5.0, controller=controller), scene_camera())
+    nav = CorridorNavigator(
+        CorridorConfig(depth_threshold=5.0, controller=controller, **LAWS[controller]), scene_camera()
+    )
     scenes = [
         DemoScene("vines", 0.9, 0.4, 2.0, None, 20.0, lateral_offset=0.03 * k, hole_fraction=0.0) for k in range(6)
     ]
@@ -165,6 +193,7 @@ def test_the_time_step_is_the_stamps_difference():
         ({"hold_lookahead": 0.0}, "corridor.hold_lookahead"),
         ({"hold_heading_gain": -0.6}, "corridor.hold_heading_gain"),
         ({"hold_integral_time": float("nan")}, "corridor.hold_integral_time"),
+        ({"hold_integral_time": -1.0}, "corridor.hold_integral_time"),
         ({"heading_gain": -0.1}, "corridor.heading_gain"),
         ({"heading_gain": float("nan")}, "corridor.heading_gain"),
         ({"drift_limit": 0.0}, "corridor.drift_limit"),

@@ -175,7 +175,7 @@ class CorridorConfig:
     drift_limit: float = 0.05
     hold_lookahead: float = 1.0
     hold_heading_gain: float = 0.6
-    hold_integral_time: float = 10.0
+    hold_integral_time: float = 0.0
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -212,7 +212,6 @@ class CorridorConfig:
             "drift_time",
             "drift_limit",
             "hold_lookahead",
-            "hold_integral_time",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
         self._check_controller()
@@ -248,10 +247,11 @@ class CorridorConfig:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
 
     def _check_controller(self) -> None:
-        """The steering law's name and the heading gains (0: no heading damping)."""
+        """The steering law's name, the heading gains (0: no heading damping) and centre_hold's
+        integral time (0: no integral)."""
         if self.controller not in CONTROLLERS:
             raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
-        for name in ("heading_gain", "hold_heading_gain"):
+        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time"):
             gain = getattr(self, name)
             if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
                 raise ValueError(f"corridor.{name} must be a finite number >= 0, got {gain!r}")
@@ -584,12 +584,15 @@ class CorridorNavigator:
                 memory = config.centre_memory
                 centre = tuple((1 - memory) * old + memory * new for old, new in zip(self._centre, centre))
             self._centre = centre
-            lookahead = config.hold_lookahead if config.controller == "centre_hold" else config.lookahead
+            # centre_hold's short lookahead needs the heading damping that only a row fit measures: in
+            # trunk mode (the centreline along the robot) it weaved out of the high trees' rows
+            holding = config.controller == "centre_hold" and mode in OBSERVED_MODES
+            lookahead = config.hold_lookahead if holding else config.lookahead
             y_goal = float(polyval(lookahead, centre))
             v, omega = self._pursuit(y_goal, lookahead)
             if config.controller == "drift_observer":
                 omega = self._hold_centre(centre, mode, omega)
-            elif config.controller == "centre_hold" and mode in OBSERVED_MODES:
+            elif holding:
                 omega = self._centre_hold(centre, omega)
             else:
                 self._offset_integral.forget_track()
@@ -812,12 +815,12 @@ class CorridorNavigator:
         return clip(omega, -config.omega_max, config.omega_max)
 
     def _integral_limit(self) -> float:
-        """The clamp (m s) of `centre_hold`'s integral S = ∫c_0 dt: the largest S whose yaw rate
-        (2 v / L²) S / T_i points the robot, centred, against a drift of `drift_limit` m/s.
+        """The clamp (m s) of `centre_hold`'s integral S = ∫c_0 dt (0 without one): the largest S
+        whose yaw rate (2 v / L²) S / T_i points the robot, centred, against a drift of `drift_limit`.
 
-        Centred (y_goal = 0 at the lookahead L), the heading ψ = -d / v that cancels a drift d
-        leaves c_0 = 0, c_1 = d / v, so pure pursuit's (2 v / L) c_1 and the damping k_h c_1 turn the robot
-        back; the integral's term must balance them: (2 v / L²) S / T_i = (2 v / L + k_h) d / v."""
+        Centred (c_0 = 0) and pointed by ψ = -d / v against a drift d, the fit gives c_1 = d / v, so
+        pure pursuit's (2 v / L) c_1 and the damping k_h c_1 turn the robot back; the integral's
+        term must balance them: (2 v / L²) S / T_i = (2 v / L + k_h) d / v."""
         config = self.config
         v, lookahead = config.v_max, config.hold_lookahead
         balance = (2.0 * v / lookahead + config.hold_heading_gain) * config.drift_limit / v
@@ -831,12 +834,15 @@ class CorridorNavigator:
         c_0 alone, the offset at the robot, is an extrapolation whose error is the heading's times
         3-4 m, so the law steers on c(L) and adds a small heading term. Only the integral reads
         c_0: against a drift the robot points uphill, so the goal can sit on the centreline while
-        the robot stands L d / v beside it; the integral averages c_0's noise out."""
+        the robot stands L d / v beside it. The integral averages c_0's noise out, but not its bias
+        (4-5 cm in the flat pear field, where it raised the error from 0.028 to 0.040-0.058 m): it
+        is off unless `hold_integral_time` is set (docs/reference/equations.md)."""
         config = self.config
         v, lookahead = config.v_max, config.hold_lookahead
         integral = self._offset_integral.update(centre[0], self._stamp)
         omega += config.hold_heading_gain * math.atan(centre[1])
-        omega += 2.0 * v / (lookahead * lookahead) * integral / config.hold_integral_time
+        if config.hold_integral_time > 0:
+            omega += 2.0 * v / (lookahead * lookahead) * integral / config.hold_integral_time
         return clip(omega, -config.omega_max, config.omega_max)
 
     def _pursuit(self, y_goal: float, lookahead: float) -> tuple[float, float]:
