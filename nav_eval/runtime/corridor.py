@@ -83,6 +83,13 @@ the robot frame. From there:
    the offset's change against what the heading explains (time constant `drift_time`, clamped to
    `drift_limit`; time steps from the masks' stamps; `stop` and `reset` forget it). Trunk mode
    (c_1 = 0) and the fallback steer as before. Gains and reasons: docs/reference/equations.md.
+7. **Centre hold** (`controller` "centre_hold", the law for a skid-steer robot). On row fits:
+   pure pursuit to the goal on the short lookahead `hold_lookahead`, plus `hold_heading_gain`
+   atan(c_1), and with `hold_integral_time` T_i > 0 (default 0: off) (2 v / L^2) S / T_i, S the
+   integral of c_0 over the commands' stamps, clamped so that it cancels at most a drift of
+   `drift_limit`; `stop` and `reset` clear it. The goal's offset c(L) is the best-measured number
+   of the fit (c_0 alone is an extrapolation whose error is c_1's times 3-4 m), so the law steers on
+   it and takes from c_1 only the extra damping. Trunk mode and the fallback steer as with pursuit.
 
 The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` is a
 `MaskNavigator` (nav_eval.runtime.protocols) like the paper's `Navigator`, so the runtime drives
