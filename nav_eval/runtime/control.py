@@ -120,8 +120,8 @@ class ClampedIntegral:
     """The time integral of a measurement, with dt the difference of the measurements' stamps,
     clamped to ±`limit` (anti-windup).
 
-    SegCorridor's `stanley` law integrates the centreline's offset so that a steady sideways drift
-    (a skid-steer robot creeping downhill) leaves no standing offset. The clamp bounds what a start
+    SegCorridor's `centre_hold` law can integrate the centreline's offset so that a steady sideways
+    drift (a skid-steer robot creeping downhill) leaves no standing offset. The clamp bounds what a start
     transient or a long bend can wind up; a step more than `max_step` seconds after the previous
     one (the robot stood, or the path was lost) is not integrated; `forget_track` (a frame without a
     measured path) keeps the sum but starts the next step afresh; `reset` forgets it (a new run, a

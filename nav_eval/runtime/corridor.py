@@ -483,8 +483,8 @@ class CorridorNavigator:
 
     # ---- the navigator interface ---------------------------------------------------------------
     def reset(self) -> None:
-        """Forget masks, the centreline, the corridor width, the EMA, the drift estimate and the
-        mode counts."""
+        """Forget masks, the centreline, the corridor width, the EMA, the drift estimate, the offset
+        integral and the mode counts."""
         self._fusion.reset()
         self._observer.reset()
         self._offset_integral.reset()
@@ -548,8 +548,9 @@ class CorridorNavigator:
         return self._command(mask_b, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
-        """An invalid stop; the EMA restarts from rest, the centreline and the drift estimate are
-        forgotten (the robot stands: a drift that comes with rolling is gone until it moves again)."""
+        """An invalid stop; the EMA restarts from rest, the centreline, the drift estimate and the
+        offset integral are forgotten (the robot stands: a drift that comes with rolling is gone
+        until it moves again)."""
         self._smoother.rest()
         self._centre = None
         self._observer.reset()
@@ -598,9 +599,9 @@ class CorridorNavigator:
             y_goal = float(polyval(lookahead, centre))
             v, omega = self._pursuit(y_goal, lookahead)
             if config.controller == "drift_observer":
-                omega = self._hold_centre(centre, mode, omega)
+                omega = self._drift_observer_law(centre, mode, omega)
             elif holding:
-                omega = self._centre_hold(centre, omega)
+                omega = self._centre_hold_law(centre, omega)
             else:
                 self._offset_integral.forget_track()
             column = self.camera.column_of(lookahead, y_goal)
@@ -804,7 +805,7 @@ class CorridorNavigator:
             self._ray_grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
         return self._ray_grids[(*shape, s)]
 
-    def _hold_centre(self, centre: tuple[float, ...], mode: str, omega: float) -> float:
+    def _drift_observer_law(self, centre: tuple[float, ...], mode: str, omega: float) -> float:
         """Pure pursuit's yaw rate plus heading damping and the drift compensation (step 6).
 
         Only a fit of the rows measures the heading; the trunks' centreline runs along the robot,
@@ -833,7 +834,7 @@ class CorridorNavigator:
         balance = (2.0 * v / lookahead + config.hold_heading_gain) * config.drift_limit / v
         return balance * config.hold_integral_time * lookahead * lookahead / (2.0 * v)
 
-    def _centre_hold(self, centre: tuple[float, ...], omega: float) -> float:
+    def _centre_hold_law(self, centre: tuple[float, ...], omega: float) -> float:
         """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping and the
         integral of the robot's offset (step 7), on a fitted centreline (modes "both", "one_side").
 
