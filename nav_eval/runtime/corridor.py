@@ -843,7 +843,7 @@ class CorridorNavigator:
         3-4 m, so the law steers on c(L) and adds a small heading term. Only the integral reads
         c_0: against a drift the robot points uphill, so the goal can sit on the centreline while
         the robot stands L d / v beside it. The integral averages c_0's noise out, but not its bias
-        (4-5 cm in the flat pear field, where it raised the error from 0.028 to 0.040-0.058 m): it
+        (4-5 cm in the flat pear field, where it raised the error from 0.028 to 0.040-0.053 m): it
         is off unless `hold_integral_time` is set (docs/reference/equations.md)."""
         config = self.config
         v, lookahead = config.v_max, config.hold_lookahead
