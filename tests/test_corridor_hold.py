@@ -1,16 +1,17 @@
-"""SegCorridor's drift observer (controller drift_observer): it cancels a steady sideways drift
-that pure pursuit can only balance with a standing offset, stays bounded, restarts with the run,
-and is off by default (the kinematic results are unchanged)."""
+"""SegCorridor's laws against slip (controllers drift_observer and centre_hold): they cancel a
+steady sideways drift that pure pursuit can only balance with a standing offset, stay bounded,
+restart with the run, and are off by default (the kinematic results are unchanged)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from segmin.nav_eval.demo.scenes import DemoScene, render_scene
-from segmin.nav_eval.runtime.control import DriftObserver
+from segmin.nav_eval.demo.scenes import CLOSED_CANOPY_SCENE, DemoScene, render_scene
+from segmin.nav_eval.runtime.control import ClampedIntegral, DriftObserver
 from segmin.nav_eval.runtime.corridor import CorridorConfig, CorridorNavigator
 from segmin.nav_eval.sim.config import load_nav_config
 from segmin.nav_eval.sim.factories import make_navigator
@@ -20,11 +21,16 @@ DT = 0.2  # s between commands (5 Hz)
 DRIFT = 0.03  # m/s to the right: a robot creeping downhill across a slope
 
 
-def drive_with_drift(controller: str, seconds: float = 40.0) -> np.ndarray:
+# centre_hold with its (opt-in) integral: 10 s
+LAWS = {"pursuit": {}, "drift_observer": {}, "centre_hold": {"hold_integral_time": 10.0}}
+
+
+def drive_with_drift(controller: str, seconds: float = 40.0, **changes: float) -> np.ndarray:
     """A tiny closed loop: the navigator sees an analytic straight vine row from the robot's pose
     (lateral offset e, left of the centre; heading psi), and a unicycle that also slides DRIFT m/s
     to the right follows its commands. Returns e after each command."""
-    nav = CorridorNavigator(CorridorConfig(depth_threshold=5.0, controller=controller), scene_camera())
+    config = CorridorConfig(depth_threshold=5.0, controller=controller, **{**LAWS[controller], **changes})
+    nav = CorridorNavigator(config, scene_camera())
     e, psi, offsets = 0.0, 0.0, []
     for k in range(round(seconds / DT)):
         scene = DemoScene(
@@ -38,15 +44,113 @@ def drive_with_drift(controller: str, seconds: float = 40.0) -> np.ndarray:
     return np.asarray(offsets)
 
 
-def test_the_observer_cancels_a_constant_drift_that_pursuit_leaves_standing():
+@pytest.mark.parametrize("controller", ["drift_observer", "centre_hold"])
+def test_both_laws_cancel_a_constant_drift_that_pursuit_leaves_standing(controller):
     pursuit = drive_with_drift("pursuit")
-    held = drive_with_drift("drift_observer")
+    held = drive_with_drift(controller)
     last = slice(-25, None)  # the last 5 s
     # Pure pursuit turns against the drift only as far as a standing offset makes it (about
-    # lookahead x drift / v = 0.15 m), the observer points it against the drift.
+    # lookahead x drift / v = 0.15 m); the observer points it against the drift, the integral
+    # of the robot's offset turns it further until the offset is gone.
     assert np.mean(pursuit[last]) < -0.08
     assert abs(np.mean(held[last])) < 0.02
     assert np.max(np.abs(held)) < 0.2  # on the way, no overshoot into a row
+
+
+def test_without_its_integral_centre_hold_leaves_a_smaller_standing_offset():
+    """By default (no integral) the short lookahead and the heading damping balance the drift at
+    about (L + k_h L² / 2 v) d / v = 0.1 m instead of pure pursuit's L d / v = 0.15 m."""
+    held = drive_with_drift("centre_hold", hold_integral_time=0.0)
+    assert np.mean(held[-25:]) == pytest.approx(-(1.0 + 0.6 / 1.0) * DRIFT / 0.5, abs=0.02)
+
+
+def centre_hold_command(offset: float, yaw: float, controller: str = "centre_hold", **changes) -> float:
+    """The first yaw rate (before the EMA: ema_lambda 1) from a straight vine row seen at `offset` m
+    left of its centre with heading `yaw` (left > 0)."""
+    config = CorridorConfig(depth_threshold=5.0, controller=controller, ema_lambda=1.0, **changes)
+    nav = CorridorNavigator(config, scene_camera())
+    scene = DemoScene("vines", 0.9, 0.4, 2.0, None, 20.0, lateral_offset=offset, yaw=yaw, hole_fraction=0.0)
+    mask, depth = render_scene(scene, size=SIZE)
+    return nav.step(mask, depth).omega
+
+
+def test_an_offset_turns_the_robot_towards_the_centre():
+    assert centre_hold_command(0.2, 0.0) < -0.05  # left of the centre: turn right
+    assert centre_hold_command(-0.2, 0.0) > 0.05
+
+
+def test_the_heading_term_damps_a_heading_error():
+    """Centred but turned left: the law turns right by pure pursuit's share on the same lookahead
+    plus hold_heading_gain x the heading error."""
+    pursuit = centre_hold_command(0.0, 0.1, controller="pursuit", lookahead=1.0)
+    held = centre_hold_command(0.0, 0.1)
+    assert pursuit < 0
+    assert held - pursuit == pytest.approx(-0.6 * 0.1, abs=0.02)
+
+
+def test_in_trunk_mode_centre_hold_steers_as_pure_pursuit():
+    """The trunks give no heading: without its damping the short lookahead weaved out of the high
+    trees' rows, so there the law is pure pursuit on the usual lookahead."""
+    mask, depth = render_scene(dataclasses.replace(CLOSED_CANOPY_SCENE, lateral_offset=0.3), size=SIZE)
+    commands = []
+    for controller in ("pursuit", "centre_hold"):
+        nav = CorridorNavigator(CorridorConfig(10.0, controller=controller, trunk_min_points=4), scene_camera())
+        commands.append([nav.step(mask, depth, stamp=0.2 * k) for k in range(3)])
+    assert [c.mode for c in commands[1]] == ["trunks"] * 3
+    assert [(c.v, c.omega) for c in commands[0]] == [(c.v, c.omega) for c in commands[1]]
+
+
+def test_the_integral_is_clamped_and_restarts_with_the_run():
+    integral = ClampedIntegral(limit=0.5)
+    assert integral.update(1.0, stamp=0.0) == 0.0  # the first measurement has no time step
+    assert integral.update(1.0, stamp=0.2) == pytest.approx(0.2)  # dt from the stamps
+    assert integral.update(1.0, stamp=0.2) == pytest.approx(0.2)  # no time passed: nothing added
+    for k in range(2, 40):  # a long start transient or bend: wound up only to the clamp
+        value = integral.update(1.0, stamp=0.2 * k)
+    assert value == 0.5
+    assert integral.update(-1.0, stamp=0.2 * 40) == pytest.approx(0.3)  # and unwinds from there at once
+    integral.forget_track()  # a frame without a path: the sum stays, the next starts afresh
+    assert integral.update(-1.0, stamp=20.0) == pytest.approx(0.3)
+    assert integral.update(-1.0, stamp=22.0) == pytest.approx(0.3)  # 2 s later: not integrated
+    integral.reset()
+    assert integral.value == 0.0
+
+
+def test_the_clamp_cancels_at_most_drift_limit():
+    """Centred, pointed against a drift of drift_limit: the clamped integral's yaw rate balances the
+    pursuit and heading terms that would turn the robot back."""
+    config = CorridorConfig(depth_threshold=5.0, controller="centre_hold", hold_integral_time=10.0)
+    nav = CorridorNavigator(config, scene_camera())
+    v, lookahead, c1 = config.v_max, config.hold_lookahead, config.drift_limit / config.v_max
+    integral_rate = 2.0 * v / lookahead**2 * nav._integral_limit() / config.hold_integral_time
+    assert CorridorNavigator(CorridorConfig(5.0, controller="centre_hold"), scene_camera())._integral_limit() == 0
+    assert integral_rate == pytest.approx((2.0 * v / lookahead + config.hold_heading_gain) * c1)
+
+
+@pytest.mark.parametrize("controller", ["drift_observer", "centre_hold"])
+def test_stop_and_reset_forget_the_drift(controller):
+    nav = CorridorNavigator(
+        CorridorConfig(depth_threshold=5.0, controller=controller, **LAWS[controller]), scene_camera()
+    )
+    scenes = [
+        DemoScene("vines", 0.9, 0.4, 2.0, None, 20.0, lateral_offset=0.03 * k, hole_fraction=0.0) for k in range(6)
+    ]
+    frames = [render_scene(scene, size=SIZE) for scene in scenes]
+
+    def slide() -> None:  # sliding left along the row, heading straight: a drift to the left
+        for k, (mask, depth) in enumerate(frames):
+            nav.step(mask, depth, stamp=k * DT)
+
+    def estimate() -> float:  # the observer's drift (> 0: left), or the integral of the offset
+        return nav._observer.drift if controller == "drift_observer" else -nav._offset_integral.value
+
+    slide()
+    assert estimate() > 0
+    nav.stop()
+    assert estimate() == 0.0
+    slide()
+    nav.reset()
+    assert estimate() == 0.0
 
 
 def test_the_estimate_is_clamped_and_fit_jumps_are_not_used():
@@ -82,30 +186,14 @@ def test_the_time_step_is_the_stamps_difference():
     assert observer.update(5.0, 0.0, 0.0, stamp=8.5) == pytest.approx(0.04)  # 1.5 s later: not used
 
 
-def test_stop_and_reset_forget_the_drift():
-    nav = CorridorNavigator(CorridorConfig(depth_threshold=5.0, controller="drift_observer"), scene_camera())
-    scenes = [
-        DemoScene("vines", 0.9, 0.4, 2.0, None, 20.0, lateral_offset=0.03 * k, hole_fraction=0.0) for k in range(6)
-    ]
-    frames = [render_scene(scene, size=SIZE) for scene in scenes]
-
-    def slide() -> None:  # sliding left along the row, heading straight: a drift to the left
-        for k, (mask, depth) in enumerate(frames):
-            nav.step(mask, depth, stamp=k * DT)
-
-    slide()
-    assert nav._observer.drift > 0
-    nav.stop()
-    assert nav._observer.drift == 0.0
-    slide()
-    nav.reset()
-    assert nav._observer.drift == 0.0
-
-
 @pytest.mark.parametrize(
     "changes,field",
     [
         ({"controller": "stanley"}, "corridor.controller"),
+        ({"hold_lookahead": 0.0}, "corridor.hold_lookahead"),
+        ({"hold_heading_gain": -0.6}, "corridor.hold_heading_gain"),
+        ({"hold_integral_time": float("nan")}, "corridor.hold_integral_time"),
+        ({"hold_integral_time": -1.0}, "corridor.hold_integral_time"),
         ({"heading_gain": -0.1}, "corridor.heading_gain"),
         ({"heading_gain": float("nan")}, "corridor.heading_gain"),
         ({"drift_limit": 0.0}, "corridor.drift_limit"),
@@ -119,7 +207,7 @@ def test_bad_controller_settings_name_the_field(changes, field):
 
 
 def test_a_bad_controller_in_the_nav_config_is_one_line_naming_it():
-    with pytest.raises(ValueError, match=r"corridor\.controller must be one of pursuit, drift_observer"):
+    with pytest.raises(ValueError, match=r"corridor\.controller must be one of pursuit, drift_observer, centre_hold"):
         load_nav_config(overrides=["corridor.controller=lqr"])
 
 
@@ -129,9 +217,10 @@ def test_a_bad_controller_in_the_nav_config_is_one_line_naming_it():
         ([], "pursuit"),  # the kinematic robot: pure pursuit, today's trajectories
         (["robot.model=skid_steer"], "pursuit"),  # opt-in only: it measured worse than pure pursuit in bends
         (["robot.model=skid_steer", "corridor.controller=drift_observer"], "drift_observer"),
+        (["robot.model=skid_steer", "corridor.controller=centre_hold"], "centre_hold"),
     ],
 )
-def test_the_evaluation_uses_the_drift_observer_only_when_told(overrides, controller):
+def test_the_evaluation_uses_a_slip_law_only_when_told(overrides, controller):
     nav = make_navigator("segcorridor", 5.0, load_nav_config(overrides=overrides))
     assert isinstance(nav, CorridorNavigator)
     assert nav.config.controller == controller

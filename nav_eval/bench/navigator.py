@@ -25,7 +25,8 @@ CORRIDOR_STEP_TARGET = SpeedTarget("median_ms", "segcorridor median", 0.5, "ms")
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
     """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
     SegCorridor's on a closed canopy over trunks (its trunk mode: another code path) and with the
-    drift observer of a slipping robot (stamped frames, so that it observes)."""
+    drift observer and the centre-hold law of a slipping robot (stamped frames, so that they observe
+    and integrate)."""
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
     # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
@@ -35,6 +36,8 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     runs = [(method, method, frames, "pursuit") for method in METHODS] + [
         ("segcorridor", "segcorridor, trunk mode", canopy, "pursuit"),
         ("segcorridor", "segcorridor, drift observer", frames, "drift_observer"),
+        # rolled 3 degrees: a cross slope, on which centre_hold's integral runs
+        ("segcorridor", "segcorridor, centre hold", [(*frame, (0.05, 0.0)) for frame in frames], "centre_hold"),
     ]
     rows = []
     for method, label, inputs, controller in runs:
@@ -54,8 +57,8 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
 
 
 def _stepper(navigator: Navigator | CorridorNavigator, controller: str) -> Callable[[tuple], object]:
-    """One step on a frame; with the drift observer the frames are stamped at the commands' 5 Hz
-    (unstamped, it would observe nothing and cost less than on a robot)."""
+    """One step on a frame; with a slip law the frames are stamped at the commands' 5 Hz
+    (unstamped, it would observe or integrate nothing and cost less than on a robot)."""
     if controller == "pursuit":
         return lambda frame: navigator.step(*frame)
     assert isinstance(navigator, CorridorNavigator)

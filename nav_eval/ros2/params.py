@@ -182,6 +182,8 @@ DESCRIPTIONS: dict[str, str] = {
     "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
     "camera_tilt_deg": "SegCorridor: camera tilt down from horizontal, degrees",
     "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
+    "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
+    "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
 }
 GROUPS = (
     ("driving", ("enabled", "method", "model", "depth_threshold", "threads")),
@@ -191,9 +193,10 @@ GROUPS = (
     ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
     ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
     (
-        "SegCorridor: camera and IMU",
+        "SegCorridor: camera, IMU and steering law",
         ("camera_info_topic", "imu_topic", "imu_max_age_s", "camera_width", "camera_height", "camera_fx")
-        + ("camera_fy", "camera_cx", "camera_cy", "camera_mount_height", "camera_tilt_deg", "camera_mount_forward"),
+        + ("camera_fy", "camera_cx", "camera_cy", "camera_mount_height", "camera_tilt_deg", "camera_mount_forward")
+        + ("controller",),
     ),
 )
 # The file's defaults; depth_threshold has none in NavigatorConfig on purpose: the paper's vineyards'.
@@ -203,6 +206,7 @@ DEFAULTS: dict[str, Any] = {
     **{f.name: f.default for f in dataclasses.fields(RuntimeConfig)},
     "method": "segmind",
     "depth_threshold": 5.0,
+    "controller": "pursuit",
 }
 # Parameters fixed at start-up (subscriptions and publishers are made from them).
 STARTUP_ONLY = (

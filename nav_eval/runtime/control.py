@@ -114,3 +114,39 @@ class DriftObserver:
         gain = min(1.0, (stamp - last[0]) / self.time_constant)
         self.drift = clip(self.drift + gain * innovation, -self.limit, self.limit)
         return self.drift
+
+
+class ClampedIntegral:
+    """The time integral of a measurement, with dt the difference of the measurements' stamps,
+    clamped to ±`limit` (anti-windup).
+
+    SegCorridor's `centre_hold` law can integrate the centreline's offset so that a steady sideways
+    drift (a skid-steer robot creeping downhill) leaves no standing offset. The clamp bounds what a start
+    transient or a long bend can wind up; a step more than `max_step` seconds after the previous
+    one (the robot stood, or the path was lost) is not integrated; `forget_track` (a frame without a
+    measured path) keeps the sum but starts the next step afresh; `reset` forgets it (a new run, a
+    stop).
+    """
+
+    def __init__(self, limit: float, max_step: float = 1.0) -> None:
+        self.limit = limit
+        self.max_step = max_step
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the sum and the last stamp."""
+        self.value = 0.0
+        self.forget_track()
+
+    def forget_track(self) -> None:
+        """Keep the sum, but take the next measurement as the first of a new track."""
+        self._last_stamp: float | None = None
+
+    def update(self, measurement: float, stamp: float) -> float:
+        """Add `measurement` over the time since the previous stamp; returns the clamped sum."""
+        last, self._last_stamp = self._last_stamp, stamp
+        if last is not None and 0.0 < stamp - last <= self.max_step:
+            self.value = clip(self.value + measurement * (stamp - last), -self.limit, self.limit)
+        elif last is not None and stamp <= last:
+            self._last_stamp = last  # no time has passed: nothing to add
+        return self.value

@@ -83,6 +83,13 @@ the robot frame. From there:
    the offset's change against what the heading explains (time constant `drift_time`, clamped to
    `drift_limit`; time steps from the masks' stamps; `stop` and `reset` forget it). Trunk mode
    (c_1 = 0) and the fallback steer as before. Gains and reasons: docs/reference/equations.md.
+7. **Centre hold** (`controller` "centre_hold", the law for a skid-steer robot). On row fits:
+   pure pursuit to the goal on the short lookahead `hold_lookahead`, plus `hold_heading_gain`
+   atan(c_1), and with `hold_integral_time` T_i > 0 (default 0: off) (2 v / L^2) S / T_i, S the
+   integral of c_0 over the commands' stamps, clamped so that it cancels at most a drift of
+   `drift_limit`; `stop` and `reset` clear it. The goal's offset c(L) is the best-measured number
+   of the fit (c_0 alone is an extrapolation whose error is c_1's times 3-4 m), so the law steers on
+   it and takes from c_1 only the extra damping. Trunk mode and the fallback steer as with pursuit.
 
 The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` is a
 `MaskNavigator` (nav_eval.runtime.protocols) like the paper's `Navigator`, so the runtime drives
@@ -104,7 +111,7 @@ import numpy as np
 
 from .camera import CameraGeometry
 from .checks import check_depth_threshold, check_positive
-from .control import Command, CommandSmoother, DriftObserver, clip
+from .control import ClampedIntegral, Command, CommandSmoother, DriftObserver, clip
 from .navigator import (
     Navigator,
     NavigatorConfig,
@@ -121,7 +128,9 @@ from .protocols import MaskNavigator, NavigatorInputs
 MODES = ("both", "one_side", "trunks", "fallback")
 # pursuit: pure pursuit alone (step 5); drift_observer: plus heading damping and the drift
 # observer that hold the centre under slip (step 6)
-CONTROLLERS = ("pursuit", "drift_observer")
+# centre_hold: pure pursuit on a short lookahead plus heading damping and an integral of the
+# offset, tuned for the skid-steer robot (step 7)
+CONTROLLERS = ("pursuit", "drift_observer", "centre_hold")
 OBSERVED_MODES = ("both", "one_side")  # the modes whose centreline has a measured heading
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
@@ -171,6 +180,9 @@ class CorridorConfig:
     heading_gain: float = 0.3
     drift_time: float = 4.0
     drift_limit: float = 0.05
+    hold_lookahead: float = 1.0
+    hold_heading_gain: float = 0.6
+    hold_integral_time: float = 0.0
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -206,6 +218,7 @@ class CorridorConfig:
             "roof_opening_reach",
             "drift_time",
             "drift_limit",
+            "hold_lookahead",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
         self._check_controller()
@@ -241,12 +254,14 @@ class CorridorConfig:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
 
     def _check_controller(self) -> None:
-        """The steering law's name and the heading gain (0: no heading damping)."""
+        """The steering law's name, the heading gains (0: no heading damping) and centre_hold's
+        integral time (0: no integral)."""
         if self.controller not in CONTROLLERS:
             raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
-        gain = self.heading_gain
-        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
-            raise ValueError(f"corridor.heading_gain must be a finite number >= 0, got {gain!r}")
+        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time"):
+            gain = getattr(self, name)
+            if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
+                raise ValueError(f"corridor.{name} must be a finite number >= 0, got {gain!r}")
 
     def _check_rows_can_be_seen(self) -> None:
         """Limits that each pass alone but together leave no row ever seen: every frame would
@@ -452,6 +467,7 @@ class CorridorNavigator:
         self._smoother = CommandSmoother(config.ema_lambda)
         # A lateral speed above half the top speed is a jump of the fit, not motion.
         self._observer = DriftObserver(config.drift_time, config.drift_limit, 0.5 * config.v_max)
+        self._offset_integral = ClampedIntegral(self._integral_limit())
         self._fusion = Navigator(
             NavigatorConfig(
                 method="segmind",
@@ -467,10 +483,11 @@ class CorridorNavigator:
 
     # ---- the navigator interface ---------------------------------------------------------------
     def reset(self) -> None:
-        """Forget masks, the centreline, the corridor width, the EMA, the drift estimate and the
-        mode counts."""
+        """Forget masks, the centreline, the corridor width, the EMA, the drift estimate, the offset
+        integral and the mode counts."""
         self._fusion.reset()
         self._observer.reset()
+        self._offset_integral.reset()
         self._stamp = 0.0  # the newest mask's stamp: the time of the next command
         self._centre: tuple[float, ...] | None = None
         self._width: float | None = None
@@ -531,11 +548,13 @@ class CorridorNavigator:
         return self._command(mask_b, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
-        """An invalid stop; the EMA restarts from rest, the centreline and the drift estimate are
-        forgotten (the robot stands: a drift that comes with rolling is gone until it moves again)."""
+        """An invalid stop; the EMA restarts from rest, the centreline, the drift estimate and the
+        offset integral are forgotten (the robot stands: a drift that comes with rolling is gone
+        until it moves again)."""
         self._smoother.rest()
         self._centre = None
         self._observer.reset()
+        self._offset_integral.reset()
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
     # ---- one command -----------------------------------------------------------------------------
@@ -565,18 +584,27 @@ class CorridorNavigator:
             )
             column = histogram_minimum(histogram)
             v, omega = control_law(column, fused.shape[1], self._fusion.config)
-            if config.controller == "drift_observer":  # no path seen: the estimate holds still
-                self._observer.forget_track()
+            # no path seen: the drift estimate and the integral hold still
+            self._observer.forget_track()
+            self._offset_integral.forget_track()
         else:
             if self._centre is not None:  # the row moves little between commands: average out noise
                 memory = config.centre_memory
                 centre = tuple((1 - memory) * old + memory * new for old, new in zip(self._centre, centre))
             self._centre = centre
-            y_goal = float(polyval(config.lookahead, centre))
-            v, omega = self._pursuit(y_goal)
+            # centre_hold's short lookahead needs the heading damping that only a row fit measures: in
+            # trunk mode (the centreline along the robot) it weaved out of the high trees' rows
+            holding = config.controller == "centre_hold" and mode in OBSERVED_MODES
+            lookahead = config.hold_lookahead if holding else config.lookahead
+            y_goal = float(polyval(lookahead, centre))
+            v, omega = self._pursuit(y_goal, lookahead)
             if config.controller == "drift_observer":
-                omega = self._hold_centre(centre, mode, omega)
-            column = self.camera.column_of(config.lookahead, y_goal)
+                omega = self._drift_observer_law(centre, mode, omega)
+            elif holding:
+                omega = self._centre_hold_law(centre, omega)
+            else:
+                self._offset_integral.forget_track()
+            column = self.camera.column_of(lookahead, y_goal)
         self.mode_counts[mode] += 1
         v, omega = self._smoother.update(v, omega)
         return CorridorCommand(
@@ -777,7 +805,7 @@ class CorridorNavigator:
             self._ray_grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
         return self._ray_grids[(*shape, s)]
 
-    def _hold_centre(self, centre: tuple[float, ...], mode: str, omega: float) -> float:
+    def _drift_observer_law(self, centre: tuple[float, ...], mode: str, omega: float) -> float:
         """Pure pursuit's yaw rate plus heading damping and the drift compensation (step 6).
 
         Only a fit of the rows measures the heading; the trunks' centreline runs along the robot,
@@ -794,10 +822,40 @@ class CorridorNavigator:
         omega += config.heading_gain * heading - heading_damping * drift / config.v_max
         return clip(omega, -config.omega_max, config.omega_max)
 
-    def _pursuit(self, y_goal: float) -> tuple[float, float]:
+    def _integral_limit(self) -> float:
+        """The clamp (m s) of `centre_hold`'s integral S = ∫c_0 dt (0 without one): the largest S
+        whose yaw rate (2 v / L²) S / T_i points the robot, centred, against a drift of `drift_limit`.
+
+        Centred (c_0 = 0) and pointed by ψ = -d / v against a drift d, the fit gives c_1 = d / v, so
+        pure pursuit's (2 v / L) c_1 and the damping k_h c_1 turn the robot back; the integral's
+        term must balance them: (2 v / L²) S / T_i = (2 v / L + k_h) d / v."""
+        config = self.config
+        v, lookahead = config.v_max, config.hold_lookahead
+        balance = (2.0 * v / lookahead + config.hold_heading_gain) * config.drift_limit / v
+        return balance * config.hold_integral_time * lookahead * lookahead / (2.0 * v)
+
+    def _centre_hold_law(self, centre: tuple[float, ...], omega: float) -> float:
+        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping and the
+        integral of the robot's offset (step 7), on a fitted centreline (modes "both", "one_side").
+
+        The goal's offset c(L) is the best-measured number of the fit (the points lie around it);
+        c_0 alone, the offset at the robot, is an extrapolation whose error is the heading's times
+        3-4 m, so the law steers on c(L) and adds a small heading term. Only the integral reads
+        c_0: against a drift the robot points uphill, so the goal can sit on the centreline while
+        the robot stands L d / v beside it. The integral averages c_0's noise out, but not its bias
+        (4-5 cm in the flat pear field, where it raised the error from 0.028 to 0.040-0.053 m): it
+        is off unless `hold_integral_time` is set (docs/reference/equations.md)."""
+        config = self.config
+        v, lookahead = config.v_max, config.hold_lookahead
+        integral = self._offset_integral.update(centre[0], self._stamp)
+        omega += config.hold_heading_gain * math.atan(centre[1])
+        if config.hold_integral_time > 0:
+            omega += 2.0 * v / (lookahead * lookahead) * integral / config.hold_integral_time
+        return clip(omega, -config.omega_max, config.omega_max)
+
+    def _pursuit(self, y_goal: float, lookahead: float) -> tuple[float, float]:
         """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""
         config = self.config
-        lookahead = config.lookahead
         kappa = 2.0 * y_goal / (lookahead * lookahead + y_goal * y_goal)
         alpha = math.atan2(y_goal, lookahead)
         alpha_max = math.atan2(self.camera.width / 2.0, self.camera.fx)
