@@ -63,6 +63,9 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     b.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
     b.add_argument("--timer", action="store_true", help="the node publishes from its timer only (publish_on_timer)")
     b.add_argument(
+        "--inference-spin", action="store_true", help="the node's inference_spin: onnxruntime threads busy-wait"
+    )
+    b.add_argument(
         "--command-priority",
         type=int,
         default=0,
@@ -124,6 +127,7 @@ def _bench(args: argparse.Namespace) -> int:
                 args.depth_threshold,
                 args.timer,
                 args.command_priority,
+                args.inference_spin,
             )
         )
     except RuntimeError as exc:  # the node gave nothing to measure: one line, not a traceback

@@ -67,19 +67,19 @@ SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Re
 def load_segmenter(params: NodeParams) -> Any:
     """The ONNX segmenter of `params` (ValueError naming the parameter when it cannot be loaded).
 
-    onnxruntime's worker threads do not busy-wait between frames here: spinning kept a core busy
-    (about 60 % of one) between 20 Hz inferences and slowed the node's DDS and Python threads on
-    a 2-core computer: image-to-command latency p95 56-64 ms with spinning against 13 ms without."""
+    onnxruntime's threads busy-wait only with `inference_spin`: on 2 idle cores spinning gives the
+    lowest latency, but on a busy computer it takes the cores the camera driver and DDS need.
+    Warmed up here: onnxruntime's first runs allocate and are several times slower."""
     from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
     if not params.node.model:
         raise ValueError("parameter model: not set (give the exported .onnx file)")
     try:
-        segmenter = OnnxSegmenter(params.node.model, threads=params.node.threads, spin=False)
+        segmenter = OnnxSegmenter(params.node.model, threads=params.node.threads, spin=params.node.inference_spin)
     except (OSError, ValueError) as exc:
         raise ValueError(f"parameter model: {exc}") from None
     blank = np.zeros((*segmenter.input_size, 3), dtype=np.uint8)
-    for _ in range(WARM_UP_RUNS):  # onnxruntime's first runs allocate and are several times slower
+    for _ in range(WARM_UP_RUNS):
         segmenter.segment(blank)
     return segmenter
 
@@ -281,7 +281,8 @@ class RowFollowerNode(Node):
         try:
             params = node_params(values)
             segmenter = self.segmenter
-            if (params.node.model, params.node.threads) != (self.params.node.model, self.params.node.threads):
+            loaded = (self.params.node.model, self.params.node.threads, self.params.node.inference_spin)
+            if (params.node.model, params.node.threads, params.node.inference_spin) != loaded:
                 segmenter = load_segmenter(params)
         except ValueError as exc:
             self.get_logger().error(f"refused, robot stopped: {exc}")
