@@ -245,8 +245,9 @@ def test_the_timer_locks_onto_the_command_deadlines_and_then_only_slews() -> Non
     phase = CommandPhase(0.2)
     assert phase.next_tick(10.05) == pytest.approx(10.25)  # free-running before any command
     leads = [0.006, 0.007, 0.008, 0.007, 0.009, 0.006, 0.007, 0.030, 0.007, 0.008]  # one slow step
-    for k, lead in enumerate(leads):
-        phase.observe(0.2 * k, 0.2 * k + lead)
+    late = [0.0] * 8 + [1 / 30] * 2  # two commands waited for the next frame: the tick does not
+    for k, (lead, delay) in enumerate(zip(leads, late, strict=True)):
+        phase.observe(0.2 * k, 0.2 * k + delay, 0.2 * k + delay + lead)
     offset = phase.offset()
     assert offset == pytest.approx(np.quantile(leads, 0.9) + 0.001)
     grid = 0.2 * (len(leads) - 1) + offset
@@ -255,7 +256,7 @@ def test_the_timer_locks_onto_the_command_deadlines_and_then_only_slews() -> Non
     assert phase.next_tick(tick + 0.003) == pytest.approx(tick + 0.2 + 0.002)  # 3 ms off: 1 ms a tick back
     assert phase.next_tick(tick - 0.0005) == pytest.approx(tick + 0.2)  # within the slew: on the grid
     assert phase.next_tick(tick + 0.05) == pytest.approx(tick + 0.2 + 0.049)  # locked: slews, never jumps
-    phase.observe(0.2 * len(leads) + 0.07, 0.2 * len(leads) + 0.077)  # the runtime restarted: a new grid
+    phase.observe(0.2 * len(leads) + 0.07, 0.2 * len(leads) + 0.07, 0.2 * len(leads) + 0.077)  # a new grid
     moved = phase.next_tick(tick)
     assert moved - tick == pytest.approx(0.2 + 0.07 - 0.2 * round(0.07 / 0.2), abs=0.02) and moved > tick + 0.1
 

@@ -245,7 +245,7 @@ class FollowerCore:
         if output.fresh:
             on_timer = self.params.node.publish_on_timer
             if output.command_t is not None:
-                self.phase.observe(output.command_t, now + took)
+                self.phase.observe(output.command_t, output.t, now + took)
             late = on_timer and self._misses_tick(now + took)
             with self._lock:
                 self.fault = None
