@@ -93,7 +93,7 @@ class Recorder:
 
 def _core(enabled: bool = True, **values: object) -> tuple[FollowerCore, Recorder]:
     out = Recorder()
-    params = node_params({"enabled": enabled, **values})
+    params = node_params({"enabled": enabled, "publish_on_timer": False, **values})  # at once unless a test asks
     return FollowerCore(params, GreenSegmenter(), out.sent.append, out.logged.append), out
 
 

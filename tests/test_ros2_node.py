@@ -86,7 +86,14 @@ def drive(exported, tmp_path_factory) -> dict:
     folder = tmp_path_factory.mktemp("ros2")
     model = exported[0]
     _episode(OnnxSegmenter(model, threads=1), bag=folder / "run")
-    params = _params(folder / "params.yaml", model, use_sim_time=True, publish_frame_acks=True, command_priority=10)
+    params = _params(
+        folder / "params.yaml",
+        model,
+        use_sim_time=True,
+        publish_frame_acks=True,
+        publish_on_timer=False,
+        command_priority=10,
+    )
     env = ros_env()
     result = confined(
         [str(env / "bin" / "python"), str(ROOT / "tests" / "ros2_driver.py"), str(folder / "run"), str(params),

@@ -61,7 +61,9 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     b.add_argument("--threads", type=int, default=2, help="onnxruntime threads of the node (default 2)")
     b.add_argument("--method", default="segmind", choices=("segmin", "segmind", "segzeros"))
     b.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
-    b.add_argument("--timer", action="store_true", help="the node publishes from its timer only (publish_on_timer)")
+    b.add_argument(
+        "--at-once", action="store_true", help="publish_on_timer false: the node publishes each command when computed"
+    )
     b.add_argument(
         "--inference-spin", action="store_true", help="the node's inference_spin: onnxruntime threads busy-wait"
     )
@@ -125,7 +127,7 @@ def _bench(args: argparse.Namespace) -> int:
                 args.threads,
                 args.method,
                 args.depth_threshold,
-                args.timer,
+                not args.at_once,
                 args.command_priority,
                 args.inference_spin,
             )

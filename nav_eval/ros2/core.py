@@ -6,10 +6,11 @@ are tested in the normal suite and the bench can drive it.
 
 - Colour and depth messages are decoded (`replay.ros_images`) and paired by header stamp within
   `slop_s` (`replay.stamp_pairing`); a pair is one `RowFollower.step` at the colour stamp.
-- A fresh command is published at once (the latency from image to `cmd_vel` is the step's own,
-  the period jitters with it); the `tick(now)` watchdog, called at `command_hz`, publishes
-  `command_at(now)` whenever no command went out for 1.5 periods: the command in force while
-  frames come late, a stop once none came for `frame_timeout_s`. With `publish_on_timer`, `tick`
+- With `publish_on_timer` false, a fresh command is published at once (the latency from image
+  to `cmd_vel` is the step's own, the period jitters with it); the `tick(now)` watchdog, called
+  at `command_hz`, publishes `command_at(now)` whenever no command went out for 1.5 periods: the
+  command in force while frames come late, a stop once none came for `frame_timeout_s`. With
+  `publish_on_timer` (the default), `tick`
   publishes every period (a regular period), and the node puts its ticks just after the
   runtime's command deadlines (`phase.CommandPhase`, fed here with when each command was ready),
   so a command waits only a small margin; one whose tick is further than `HOLD_SHARE` of a period

@@ -52,7 +52,7 @@ class NodeSettings:
     depth_topic: str = topics.DEPTH
     cmd_vel_topic: str = topics.CMD_VEL
     twist_stamped: bool = False
-    publish_on_timer: bool = False
+    publish_on_timer: bool = True
     command_priority: int = 0
     base_frame: str = topics.BASE_FRAME
     slop_s: float = 0.01
@@ -158,10 +158,10 @@ DESCRIPTIONS: dict[str, str] = {
     "cmd_vel_topic": "where commands go",
     "twist_stamped": "publish geometry_msgs/TwistStamped (stamped with the image that gave the command) "
     "instead of Twist",
-    "publish_on_timer": "false: a fresh command goes out as soon as it is computed (lowest latency; its period "
-    "jitters with the frames and the inference time); true: commands go out from the command_hz timer (a regular "
-    "period), whose ticks lock onto the runtime's command deadlines just after a command is usually ready; one "
-    "that misses its tick goes out at once",
+    "publish_on_timer": "true: commands go out from the command_hz timer (a regular period), whose ticks lock "
+    "onto the runtime's command deadlines just after a command is usually ready (one that misses its tick goes "
+    "out at once); false: a fresh command goes out as soon as it is computed (a little lower latency; its period "
+    "jitters with the frames and the inference time; what a player feeding frame by frame needs)",
     "command_priority": "0: the command thread is scheduled as any other; 1-98: it runs SCHED_FIFO at this "
     "priority, so a busy computer does not delay its ticks (needs the rtprio limit or CAP_SYS_NICE; without them "
     "the node logs one line and runs at normal priority)",
