@@ -178,7 +178,9 @@ def bench_ros2(
     check_confined()
     colour, depth = topics.COLOUR, topics.DEPTH
     frames = read_frames(bag, colour, depth)
-    values = {"model": str(model), "threads": threads, "method": method, "depth_threshold": depth_threshold}
+    # The node reads a relative model path from its parameter file's (temporary) folder: give it whole.
+    model_value = str(Path(model).resolve()) if Path(model).is_file() else str(model)  # or a shipped name
+    values = {"model": model_value, "threads": threads, "method": method, "depth_threshold": depth_threshold}
     values |= {"enabled": True, "twist_stamped": True, "colour_topic": colour, "depth_topic": depth}
     values |= {"publish_on_timer": on_timer, "command_priority": priority, "inference_spin": spin}
     own = runtime_step_s(frames, values)
