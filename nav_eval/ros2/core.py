@@ -245,10 +245,10 @@ class FollowerCore:
         self.last_output, self.last_rgb = output, rgb
         if output.fresh:
             on_timer = self.params.node.publish_on_timer
-            if output.command_t is not None:
-                self.phase.observe(output.command_t, output.t, now + took)
-            late = on_timer and self._misses_tick(now + took)
-            with self._lock:
+            with self._lock:  # the command thread reads the phase and the next tick
+                if output.command_t is not None:
+                    self.phase.observe(output.command_t, output.t, now + took)
+                late = on_timer and self._misses_tick(now + took)
                 self.fault = None
                 self._stamp = stamp
                 send = self.enabled and (late or not on_timer)
@@ -263,17 +263,16 @@ class FollowerCore:
         """With publish_on_timer: the command thread's next tick after the one at `previous`
         (node clock, s), phase-locked to the runtime's command deadlines; remembered for the
         hold-or-send decision of fresh commands."""
-        tick = self.phase.next_tick(previous)
-        with self._lock:
-            self.next_tick = tick
-        return tick
+        with self._lock:  # the image thread updates the phase
+            self.next_tick = self.phase.next_tick(previous)
+            return self.next_tick
 
     def _misses_tick(self, ready: float) -> bool:
         """Whether a command ready at `ready` (node clock) has no tick within HOLD_SHARE of a period
-        ahead (a slow step missed its tick, or the timer is not locked yet): it then goes out at once."""
+        ahead (a slow step missed its tick, or the timer is not locked yet): it then goes out at once.
+        Called under `_lock`."""
         period = 1.0 / self.params.runtime.command_hz
-        with self._lock:
-            tick = self.next_tick
+        tick = self.next_tick
         return tick is None or not 0.0 <= tick - ready <= HOLD_SHARE * period
 
     def _reject(self, why: str, now: float) -> None:
@@ -322,7 +321,8 @@ class FollowerCore:
         self.params, self.segmenter = params, segmenter
         self.follower = self._new_follower()
         self.pairer = StampPairer(params.node.slop_s, max_pending=2)
-        self.phase = CommandPhase(1.0 / params.runtime.command_hz)  # the runtime's grid starts again
+        with self._lock:
+            self.phase = CommandPhase(1.0 / params.runtime.command_hz)  # the runtime's grid starts again
         self._unpaired = 0
         if params.node.enabled != self.enabled:
             self.log(self.set_enabled(params.node.enabled))
