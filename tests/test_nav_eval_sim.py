@@ -222,3 +222,23 @@ def test_driving_into_the_row_is_a_collision_and_standing_still_stalls() -> None
     config = _config(stall_time_s=3.0, time_limit_s=10.0)
     ep = _drive(config, _Straight(0.0, 0.0))
     assert ep.reason == "stalled" and 3.0 <= ep.trajectory.t[-1] < 3.5
+
+
+@pytest.mark.parametrize(
+    ("sampling", "backend", "expected"),
+    [("auto", "gl", "field"), ("auto", "tiny", "pixels"), ("pixels", "gl", "pixels"), ("field", "tiny", "field")],
+)
+def test_the_camera_samples_depth_noise_as_the_config_and_backend_say(sampling, backend, expected) -> None:
+    from segmin.nav_eval.sim.config import load_nav_config
+    from segmin.nav_eval.sim.factories import nav_camera
+
+    config = load_nav_config(overrides=[f"perception.depth_noise_sampling={sampling}", "perception.width=64"])
+    camera = nav_camera(config, backend)
+    assert (camera.depth_noise_sampling, camera.width) == (expected, 64)
+
+
+def test_an_unknown_depth_noise_sampling_is_refused_by_name() -> None:
+    from segmin.nav_eval.sim.config import load_nav_config
+
+    with pytest.raises(ValueError, match="perception.depth_noise_sampling"):
+        load_nav_config(overrides=["perception.depth_noise_sampling=texture"])

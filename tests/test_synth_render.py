@@ -118,8 +118,16 @@ def test_render_is_deterministic_whatever_was_rendered_before(scene):
     assert np.array_equal(first.mask, x1.mask)  # appearance changes colours, never geometry
 
 
-def test_depth_noise_model():
-    cam = CameraModel(width=32, height=32, depth_noise_k=0.01, depth_invalid_fraction=0.1, max_range=8.0)
+@pytest.mark.parametrize("sampling", ["pixels", "field"])
+def test_depth_noise_model(sampling):
+    cam = CameraModel(
+        width=32,
+        height=32,
+        depth_noise_k=0.01,
+        depth_invalid_fraction=0.1,
+        max_range=8.0,
+        depth_noise_sampling=sampling,
+    )
     depth = np.full((32, 32), 4.0, np.float32)
     depth[:, :8] = 10.0  # beyond max range
     depth[:4] = 0.0  # no return
@@ -131,6 +139,25 @@ def test_depth_noise_model():
     kept = valid[valid > 0]
     assert 0.1 < kept.std() < 0.22  # sigma = k z^2 = 0.16 m at 4 m
     assert abs(kept.mean() - 4.0) < 0.05
+
+
+def test_field_sampled_noise_is_reproducible_and_white_from_frame_to_frame():
+    cam = CameraModel(width=48, height=40, depth_noise_k=0.01, depth_invalid_fraction=0.1, depth_noise_sampling="field")
+    depth = np.full((40, 48), 3.0, np.float32)
+    runs = [[cam.apply_depth_noise(depth, rng) for _ in range(30)] for rng in map(np.random.default_rng, (5, 5, 6))]
+    assert all(np.array_equal(a, b) for a, b in zip(runs[0], runs[1]))  # the same seed, the same frames
+    assert not np.array_equal(runs[0][0], runs[2][0])
+    # Consecutive frames' errors at a pixel are uncorrelated, as drawn per pixel (the window moves).
+    errors = np.stack(runs[0]) - 3.0
+    kept = np.all(np.stack(runs[0]) > 0, axis=0)
+    a, b = errors[:-1, kept].ravel(), errors[1:, kept].ravel()
+    assert abs(np.corrcoef(a, b)[0, 1]) < 0.05
+    assert np.all(np.isfinite(errors))
+
+
+def test_depth_noise_sampling_is_checked():
+    with pytest.raises(ValueError, match="depth_noise_sampling"):
+        CameraModel(depth_noise_sampling="texture")
 
 
 def test_preview_contact_sheet(tmp_path):

@@ -52,6 +52,10 @@ class Perception:
     height: int | None = None
     depth_noise: bool = True  # the D435i-like depth-noise model of data.synth.camera
     depth_noise_scale: float = 1.0  # multiplies that model's sigma coefficient and dropout share
+    # Where the noise's random draws come from (data.synth.noise_field): "pixels" per pixel (the
+    # reference), "field" a window of fixed random fields (the same model, a fraction of the time),
+    # "auto" field with the gl backend (the fast path), pixels with TinyRenderer.
+    depth_noise_sampling: Literal["auto", "pixels", "field"] = "auto"
     # A weaker segmenter, simulated: this share of the masks is corrupted (nav_eval.mask_dropout),
     # "erode" shrinks the vegetation (missed leaves), "drop" empties the mask (a lost inference).
     mask_dropout: float = 0.0
@@ -65,6 +69,10 @@ class Perception:
             raise ValueError("perception.fuse_frames must be >= 1")
         if self.depth_noise_scale < 0:
             raise ValueError(f"perception.depth_noise_scale must be >= 0, got {self.depth_noise_scale}")
+        if self.depth_noise_sampling not in ("auto", "pixels", "field"):
+            raise ValueError(
+                f"perception.depth_noise_sampling must be auto, pixels or field, got {self.depth_noise_sampling!r}"
+            )
         if not 0.0 <= self.mask_dropout <= 1.0:
             raise ValueError(f"perception.mask_dropout must be within [0, 1], got {self.mask_dropout}")
         for name in ("width", "height"):

@@ -28,13 +28,18 @@ def field_label(field: str) -> str:
     return p.stem if p.suffix in (".yaml", ".yml") else field
 
 
-def nav_camera(config: NavEvalConfig) -> CameraModel:
-    """The robot camera of the evaluation: the CameraModel default at perception.width/height."""
+def nav_camera(config: NavEvalConfig, backend: str = "tiny") -> CameraModel:
+    """The robot camera of the evaluation: the CameraModel default at perception.width/height, its
+    depth noise sampled as perception.depth_noise_sampling says (auto: from noise fields with the
+    gl `backend`, per pixel with TinyRenderer)."""
     from segmin.data.synth.camera import CameraModel
 
-    camera = CameraModel()
-    changes = {k: v for k, v in (("width", config.perception.width), ("height", config.perception.height)) if v}
-    return dataclasses.replace(camera, **changes) if changes else camera
+    perception = config.perception
+    sampling = perception.depth_noise_sampling
+    if sampling == "auto":
+        sampling = "field" if backend == "gl" else "pixels"
+    changes = {k: v for k, v in (("width", perception.width), ("height", perception.height)) if v}
+    return dataclasses.replace(CameraModel(), depth_noise_sampling=sampling, **changes)
 
 
 class FieldContext:
@@ -50,8 +55,9 @@ class FieldContext:
         self.spec = load_world_spec(field)
         self.client = p.connect(p.DIRECT)
         self.world = build_world(self.spec, self.client)
-        self.camera = nav_camera(config)
-        self.renderer = Renderer(self.world, self.camera, backend=config.render.backend)
+        backend = config.render.backend or self.spec.render.backend
+        self.camera = nav_camera(config, backend)
+        self.renderer = Renderer(self.world, self.camera, backend=backend)
         self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
         self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap
 
