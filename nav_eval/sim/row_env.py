@@ -32,7 +32,7 @@ from segmin.nav_eval.sim.config import NavEvalConfig
 from segmin.nav_eval.sim.protocols import SimFrame, SimRenderer, SimWorld
 from segmin.nav_eval.sim.robot import footprint_distances, imu_attitude
 from segmin.nav_eval.sim.skid_steer import make_robot
-from segmin.nav_eval.sim.track import Trajectory, point_on_polyline, polyline_length, project_onto_polyline
+from segmin.nav_eval.sim.track import PolylineProjection, Trajectory, point_on_polyline, polyline_length
 
 if TYPE_CHECKING:
     from segmin.data.synth.camera import CameraModel
@@ -79,6 +79,7 @@ class RowEnv:
         if not 0 <= self.gap < n_gaps:
             raise ValueError(f"run.gap={self.gap} but the world has {n_gaps} gap(s)")
         self.centreline = np.asarray(world.centrelines[self.gap], dtype=float)
+        self._projection = PolylineProjection(self.centreline)  # the robot is projected at every tick
         self.half_width = float(world.gap_half_widths[self.gap])
         self.row_length = polyline_length(self.centreline)
         plants = np.asarray(world.plant_circles, dtype=float).reshape(-1, 3)
@@ -148,7 +149,7 @@ class RowEnv:
         x, y, yaw = values
         start_s, goal_s = self._run_span()
         earliest = start_s - self.config.run.back_margin_m
-        along, lateral, _ = project_onto_polyline(np.array([[x, y]]), self.centreline)
+        along, lateral, _ = self._projection.project(np.array([[x, y]]))
         s, offset = float(along[0]), float(lateral[0])
         if not (earliest <= s < goal_s and abs(offset) <= self.half_width):
             raise ValueError(
@@ -234,7 +235,7 @@ class RowEnv:
         s = self.robot.state
         run = self.config.run
         cfg = self.config.robot
-        along, lateral, _ = project_onto_polyline(np.array([[s.x, s.y]]), self.centreline)
+        along, lateral, _ = self._projection.project(np.array([[s.x, s.y]]))
         self._s, self._lateral = float(along[0]), float(lateral[0])
         solid = footprint_distances(s.x, s.y, s.yaw, self._solid, cfg.length, cfg.width)
         if solid.size and solid.min() < 0.0:
