@@ -87,7 +87,9 @@ the robot frame. From there:
    pure pursuit to the goal on the short lookahead `hold_lookahead`, plus `hold_heading_gain`
    atan(c_1), and with `hold_integral_time` T_i > 0 (default 0: off) (2 v / L^2) S / T_i, S the
    integral of c_0 over the commands' stamps, clamped so that it cancels at most a drift of
-   `drift_limit`; `stop` and `reset` clear it. The goal's offset c(L) is the best-measured number
+   `drift_limit`; `stop` and `reset` clear it; with `hold_slope_drift` k_s > 0 (default 0: off)
+   (2 v / L + k_h) k_s tan(roll), which points the robot uphill against its creep across a slope,
+   from the IMU's roll. The goal's offset c(L) is the best-measured number
    of the fit (c_0 alone is an extrapolation whose error is c_1's times 3-4 m), so the law steers on
    it and takes from c_1 only the extra damping. Trunk mode and the fallback steer as with pursuit.
 
@@ -183,6 +185,7 @@ class CorridorConfig:
     hold_lookahead: float = 1.0
     hold_heading_gain: float = 0.6
     hold_integral_time: float = 0.0
+    hold_slope_drift: float = 0.0
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -254,11 +257,11 @@ class CorridorConfig:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
 
     def _check_controller(self) -> None:
-        """The steering law's name, the heading gains (0: no heading damping) and centre_hold's
-        integral time (0: no integral)."""
+        """The steering law's name, the heading gains (0: no heading damping), centre_hold's
+        integral time (0: no integral) and its slope-drift coefficient (0: no slope feedforward)."""
         if self.controller not in CONTROLLERS:
             raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
-        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time"):
+        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time", "hold_slope_drift"):
             gain = getattr(self, name)
             if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
                 raise ValueError(f"corridor.{name} must be a finite number >= 0, got {gain!r}")
@@ -601,7 +604,7 @@ class CorridorNavigator:
             if config.controller == "drift_observer":
                 omega = self._drift_observer_law(centre, mode, omega)
             elif holding:
-                omega = self._centre_hold_law(centre, omega)
+                omega = self._centre_hold_law(centre, omega, attitude)
             else:
                 self._offset_integral.forget_track()
             column = self.camera.column_of(lookahead, y_goal)
@@ -834,24 +837,43 @@ class CorridorNavigator:
         balance = (2.0 * v / lookahead + config.hold_heading_gain) * config.drift_limit / v
         return balance * config.hold_integral_time * lookahead * lookahead / (2.0 * v)
 
-    def _centre_hold_law(self, centre: tuple[float, ...], omega: float) -> float:
-        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping and the
-        integral of the robot's offset (step 7), on a fitted centreline (modes "both", "one_side").
+    def _centre_hold_law(self, centre: tuple[float, ...], omega: float, attitude: tuple[float, float] | None) -> float:
+        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping, the
+        slope feedforward and the integral of the robot's offset (step 7), on a fitted centreline
+        (modes "both", "one_side").
 
         The goal's offset c(L) is the best-measured number of the fit (the points lie around it);
         c_0 alone, the offset at the robot, is an extrapolation whose error is the heading's times
-        3-4 m, so the law steers on c(L) and adds a small heading term. Only the integral reads
-        c_0: against a drift the robot points uphill, so the goal can sit on the centreline while
-        the robot stands L d / v beside it. The integral averages c_0's noise out, but not its bias
-        (4-5 cm in the flat pear field, where it raised the error from 0.028 to 0.040-0.053 m): it
-        is off unless `hold_integral_time` is set (docs/reference/equations.md)."""
+        3-4 m, so the law steers on c(L) and adds a small heading term. Across a slope the robot
+        creeps downhill at a drift angle k_s tan(roll); the law alone balances that only with a
+        standing offset 1.6 k_s tan(roll) m downhill, so `hold_slope_drift` k_s points the robot
+        uphill by that angle from the IMU's roll (`_slope_feedforward`). Only the integral reads
+        c_0: it averages c_0's noise out, but not its bias (4-5 cm in the flat pear field, where it
+        raised the error from 0.028 to 0.040-0.053 m): it is off unless `hold_integral_time` is set
+        (docs/reference/equations.md)."""
         config = self.config
         v, lookahead = config.v_max, config.hold_lookahead
         integral = self._offset_integral.update(centre[0], self._stamp)
-        omega += config.hold_heading_gain * math.atan(centre[1])
+        omega += config.hold_heading_gain * math.atan(centre[1]) + self._slope_feedforward(attitude)
         if config.hold_integral_time > 0:
             omega += 2.0 * v / (lookahead * lookahead) * integral / config.hold_integral_time
         return clip(omega, -config.omega_max, config.omega_max)
+
+    def _slope_feedforward(self, attitude: tuple[float, float] | None) -> float:
+        """centre_hold's yaw rate that points the robot uphill against its creep down a cross slope
+        (0 without `hold_slope_drift` or without the IMU).
+
+        A skid-steer robot whose wheels roll across a slope slides downhill at about
+        d = -k_s tan(roll) v (roll > 0: left side up, creep to the right). To hold the centre it must
+        point by -d / v = k_s tan(roll) against it; the law's heading gain, (2 v / L_h + k_h), would
+        turn that heading out again, so the feedforward is that gain times the angle. Unlike an
+        integral it reads no fit, so it adds none of the fit's bias, and it follows the roll at
+        once where the ground's roughness changes it from metre to metre."""
+        config = self.config
+        if config.hold_slope_drift == 0.0 or attitude is None:
+            return 0.0
+        heading_gain = 2.0 * config.v_max / config.hold_lookahead + config.hold_heading_gain
+        return heading_gain * config.hold_slope_drift * math.tan(attitude[0])
 
     def _pursuit(self, y_goal: float, lookahead: float) -> tuple[float, float]:
         """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""
