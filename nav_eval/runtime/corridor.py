@@ -38,7 +38,10 @@ the robot frame. From there:
    unless both exceed `significance` standard errors with the same sign the rows are refitted
    as lines (per-row quadratics left a straight vineyard with 15 % missing plants through a
    gap and collided at 1.6 m row spacing). A row is *seen* when at least `min_points` points
-   span `min_span` metres in x and `min_points` survive the trimming.
+   span `min_span` metres in x and `min_points` survive the trimming. With `row_start_max` set
+   (default inf: off), a row whose points start (10th percentile of x) beyond it while the other
+   row's start nearer is left out (one_side below): through a run of missing trees its line,
+   extrapolated back over metres of a bend, moves the centre by tens of centimetres.
 4. **Centreline.** Both rows seen: ((c_0L + c_0R) / 2, c_1, c_2), and the corridor width
    c_0L - c_0R updates a running estimate. One row seen: that line moved by half the running width towards
    the corridor. No row seen, or no width yet: SegMinD's column and control law (the fallback).
@@ -186,6 +189,7 @@ class CorridorConfig:
     hold_heading_gain: float = 0.6
     hold_integral_time: float = 0.0
     hold_slope_drift: float = 0.0
+    row_start_max: float = math.inf
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -224,6 +228,12 @@ class CorridorConfig:
             "hold_lookahead",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
+        start_max = self.row_start_max
+        if isinstance(start_max, bool) or not isinstance(start_max, (int, float)) or not start_max > self.x_min:
+            raise ValueError(
+                f"corridor.row_start_max must be a number above corridor.x_min ({self.x_min}) "
+                f"(inf: every row is fitted), got {self.row_start_max!r}"
+            )
         self._check_controller()
         if not (math.isfinite(self.significance) and self.significance >= 0.0):
             raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
@@ -644,6 +654,8 @@ class CorridorNavigator:
         rows = {"left": near & (offset > 0), "right": near & (offset <= 0)}
         points = {name: (x[chosen], y[chosen]) for name, chosen in rows.items()}
         seen = [name for name in rows if self._enough(points[name][0])]
+        if len(seen) == 2 and self._width is not None and config.row_start_max < math.inf:
+            seen = self._rows_starting_near(seen, points)
         fit = None
         while seen:
             fit = fit_parallel_rows(
@@ -684,6 +696,18 @@ class CorridorNavigator:
         if min(left.shape[0], right.shape[0]) < self.config.min_points:
             return limit
         return min(limit, 1.5 * float(np.quantile(left, 0.1) + np.quantile(right, 0.1)))
+
+    def _rows_starting_near(self, seen: list[str], points: dict[str, tuple[np.ndarray, np.ndarray]]) -> list[str]:
+        """The two seen rows, less the one that starts beyond `row_start_max` (the 10th percentile of
+        its points' x) when the other starts nearer: then the corridor is the near row's, moved by
+        half the running width (one_side).
+
+        Through a run of missing trees one row is seen only 4-7 m ahead while the other is seen from
+        1 m. The parallel fit's shared slope is then the near row's, and the far row's line,
+        extrapolated back over 4 m of a bend, put the centre 0.3-0.5 m to the side for seconds
+        (slope_pear_2); the near row alone places the goal at 1 m well."""
+        far = [name for name in seen if float(np.quantile(points[name][0], 0.1)) > self.config.row_start_max]
+        return [name for name in seen if name not in far] if len(far) == 1 else seen
 
     def _roof_opening(self, lateral: np.ndarray) -> float:
         """Width (m) of the widest band along the robot, within `roof_opening_reach` of it (`lateral`:
