@@ -167,6 +167,40 @@ def test_one_row_seen_keeps_the_width_learnt_from_both():
     assert command.centre[0] == pytest.approx(0.0, abs=0.05)
 
 
+def right_row_seen_only_beyond(start: float, offset: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """A straight vine row seen from `offset` m left of its centre with the right row's vegetation
+    nearer than `start` m (planar depth) missing, as through a run of missing plants; and the
+    10th percentile of that row's remaining depths."""
+    mask, depth = render_scene(vine_scene(offset, holes=0.0), size=SIZE)
+    right = np.zeros_like(mask)
+    right[:, SIZE // 2 :] = True
+    mask = mask & ~(right & (depth < start))
+    return mask, depth, float(np.quantile(depth[mask & right], 0.1))
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.2])
+def test_a_row_seen_only_far_ahead_is_left_out_beside_one_seen_near(offset):
+    """row_start_max: a row whose points start beyond it is not fitted while the other row's start
+    nearer; the centre is then the near row's, moved by half the running width."""
+    mask, depth, far_start = right_row_seen_only_beyond(3.0, offset)
+    assert far_start > 2.5
+    for limit, mode in ((math.inf, "both"), (2.0, "one_side")):
+        nav = navigator(row_start_max=limit)
+        settle(nav, vine_scene(offset, holes=0.0))  # the width, from both rows
+        for _ in range(3):
+            command = nav.step(mask, depth)
+        assert command.mode == mode
+        assert command.centre[0] == pytest.approx(-offset, abs=0.05)
+
+
+def test_two_rows_that_both_start_far_are_both_fitted():
+    """Only a row that starts far beside a near one is left out: both far is no evidence of a gap."""
+    mask, depth = render_scene(vine_scene(0.0, holes=0.0), size=SIZE)
+    nav = navigator(row_start_max=1.0)
+    settle(nav, vine_scene(0.0, holes=0.0))
+    assert nav.step(mask & (depth >= 3.0), depth).mode == "both"
+
+
 def test_rows_seen_through_gaps_do_not_set_the_first_width():
     """30 % missing vines (sweep, 2026-12-04): beyond 2.2 m both bordering rows have a gap and the
     next rows, 3.1 m out, show through it. The first fit must find the bordering rows (1.8 m apart),
@@ -336,6 +370,9 @@ def test_unknown_corridor_key_is_refused_at_load():
         ({"roof_opening_reach": 0.1}, "roof_opening_reach"),
         ({"roof_opening": 6.0}, "roof_opening"),
         ({"trunk_x_max": 0.4}, "trunk_x_max"),
+        ({"row_start_max": 0.3}, "row_start_max"),
+        ({"row_start_max": float("nan")}, "row_start_max"),
+        ({"row_start_max": True}, "row_start_max"),
     ],
 )
 def test_bad_settings_name_the_field(changes, field):

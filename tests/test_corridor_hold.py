@@ -64,14 +64,20 @@ def test_without_its_integral_centre_hold_leaves_a_smaller_standing_offset():
     assert np.mean(held[-25:]) == pytest.approx(-(1.0 + 0.6 / 1.0) * DRIFT / 0.5, abs=0.02)
 
 
-def centre_hold_command(offset: float, yaw: float, controller: str = "centre_hold", **changes) -> float:
+def centre_hold_command(
+    offset: float,
+    yaw: float,
+    controller: str = "centre_hold",
+    attitude: tuple[float, float] | None = None,
+    **changes: float,
+) -> float:
     """The first yaw rate (before the EMA: ema_lambda 1) from a straight vine row seen at `offset` m
-    left of its centre with heading `yaw` (left > 0)."""
+    left of its centre with heading `yaw` (left > 0), the IMU reading `attitude` (roll, pitch)."""
     config = CorridorConfig(depth_threshold=5.0, controller=controller, ema_lambda=1.0, **changes)
     nav = CorridorNavigator(config, scene_camera())
     scene = DemoScene("vines", 0.9, 0.4, 2.0, None, 20.0, lateral_offset=offset, yaw=yaw, hole_fraction=0.0)
     mask, depth = render_scene(scene, size=SIZE)
-    return nav.step(mask, depth).omega
+    return nav.step(mask, depth, attitude=attitude).omega
 
 
 def test_an_offset_turns_the_robot_towards_the_centre():
@@ -86,6 +92,27 @@ def test_the_heading_term_damps_a_heading_error():
     held = centre_hold_command(0.0, 0.1)
     assert pursuit < 0
     assert held - pursuit == pytest.approx(-0.6 * 0.1, abs=0.02)
+
+
+@pytest.mark.parametrize("roll", [0.08, -0.05])
+def test_the_slope_feedforward_points_the_robot_uphill_by_the_drift_angle(roll):
+    """Across a slope (roll > 0: left side up) the robot creeps downhill (right) at the drift angle
+    k_s tan(roll); hold_slope_drift k_s adds the yaw rate that holds that heading against the
+    law's heading gain, (2 v / L_h + k_h) k_s tan(roll), and changes nothing else (same levelled
+    points, same fit)."""
+    attitude = (roll, 0.02)
+    plain = centre_hold_command(0.1, 0.02, attitude=attitude)
+    fed = centre_hold_command(0.1, 0.02, attitude=attitude, hold_slope_drift=0.5)
+    assert fed - plain == pytest.approx((2.0 * 0.5 / 1.0 + 0.6) * 0.5 * math.tan(roll), rel=1e-6)
+    assert math.copysign(1.0, fed - plain) == math.copysign(1.0, roll)  # uphill: left when the left is up
+
+
+def test_without_an_imu_or_outside_centre_hold_the_slope_feedforward_does_nothing():
+    assert centre_hold_command(0.1, 0.02, hold_slope_drift=0.5) == centre_hold_command(0.1, 0.02)
+    for controller in ("pursuit", "drift_observer"):
+        plain = centre_hold_command(0.1, 0.02, controller=controller, attitude=(0.08, 0.0))
+        fed = centre_hold_command(0.1, 0.02, controller=controller, attitude=(0.08, 0.0), hold_slope_drift=0.5)
+        assert fed == plain
 
 
 def test_in_trunk_mode_centre_hold_steers_as_pure_pursuit():
@@ -194,6 +221,8 @@ def test_the_time_step_is_the_stamps_difference():
         ({"hold_heading_gain": -0.6}, "corridor.hold_heading_gain"),
         ({"hold_integral_time": float("nan")}, "corridor.hold_integral_time"),
         ({"hold_integral_time": -1.0}, "corridor.hold_integral_time"),
+        ({"hold_slope_drift": -0.5}, "corridor.hold_slope_drift"),
+        ({"hold_slope_drift": float("inf")}, "corridor.hold_slope_drift"),
         ({"heading_gain": -0.1}, "corridor.heading_gain"),
         ({"heading_gain": float("nan")}, "corridor.heading_gain"),
         ({"drift_limit": 0.0}, "corridor.drift_limit"),

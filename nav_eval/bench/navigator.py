@@ -20,28 +20,34 @@ from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 # Per step at 224 x 224 on one thread: the paper's navigators, and SegCorridor (more work per step).
 STEP_TARGET = SpeedTarget("median_ms", "median", 0.2, "ms")
 CORRIDOR_STEP_TARGET = SpeedTarget("median_ms", "segcorridor median", 0.5, "ms")
+# centre_hold's settings for sloped, gappy rows (docs/reference/equations.md): the slope feedforward
+# and the rule that leaves out a row seen only far ahead (each frame takes two quantiles more).
+SLOPED_ROWS = {"hold_slope_drift": 0.5, "row_start_max": 2.5, "trim": 2.0}
 
 
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
     """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
     SegCorridor's on a closed canopy over trunks (its trunk mode: another code path) and with the
     drift observer and the centre-hold law of a slipping robot (stamped frames, so that they observe
-    and integrate)."""
+    and integrate), the latter also with its settings for sloped rows."""
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
     # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
     # the check removes nothing here).
     rgb = np.where(mask[..., None], np.uint8([60, 140, 50]), np.uint8([90, 60, 40])).astype(np.uint8)
     canopy = [(mask, depth, None, rgb)]
-    runs = [(method, method, frames, "pursuit") for method in METHODS] + [
-        ("segcorridor", "segcorridor, trunk mode", canopy, "pursuit"),
-        ("segcorridor", "segcorridor, drift observer", frames, "drift_observer"),
-        # rolled 3 degrees: a cross slope, on which centre_hold's integral runs
-        ("segcorridor", "segcorridor, centre hold", [(*frame, (0.05, 0.0)) for frame in frames], "centre_hold"),
+    rolled = [(*frame, (0.05, 0.0)) for frame in frames]  # 3 degrees: a cross slope
+    runs: list[tuple[str, str, list, str, dict[str, float]]] = [
+        (method, method, frames, "pursuit", {}) for method in METHODS
+    ] + [
+        ("segcorridor", "segcorridor, trunk mode", canopy, "pursuit", {}),
+        ("segcorridor", "segcorridor, drift observer", frames, "drift_observer", {}),
+        ("segcorridor", "segcorridor, centre hold", rolled, "centre_hold", {}),
+        ("segcorridor", "segcorridor, centre hold, sloped rows", rolled, "centre_hold", SLOPED_ROWS),
     ]
     rows = []
-    for method, label, inputs, controller in runs:
-        navigator = _navigator(method, size, controller)
+    for method, label, inputs, controller, changes in runs:
+        navigator = _navigator(method, size, controller, changes)
         ms = time_calls(_stepper(navigator, controller), runs=steps, warmup=warmup, inputs=inputs) * 1e3
         rows.append(
             {
@@ -66,9 +72,11 @@ def _stepper(navigator: Navigator | CorridorNavigator, controller: str) -> Calla
     return lambda frame: navigator.step(*frame, stamp=next(stamps))
 
 
-def _navigator(method: str, size: int, controller: str) -> Navigator | CorridorNavigator:
+def _navigator(
+    method: str, size: int, controller: str, changes: dict[str, float] | None = None
+) -> Navigator | CorridorNavigator:
     """A paper navigator, or SegCorridor with the simulator's camera at `size` x `size` steering
-    with `controller`."""
+    with `controller` (and the CorridorConfig `changes`)."""
     if method != "segcorridor":
         return Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=3))
     from segmin.data.synth.camera import CameraModel
@@ -79,7 +87,13 @@ def _navigator(method: str, size: int, controller: str) -> Navigator | CorridorN
         CorridorConfig.trunk_min_points, max(1, round(CorridorConfig.trunk_min_points * (size / 224) ** 2))
     )
     return CorridorNavigator(
-        CorridorConfig(depth_threshold=5.0, fuse_frames=3, trunk_min_points=trunk_min_points, controller=controller),
+        CorridorConfig(
+            depth_threshold=5.0,
+            fuse_frames=3,
+            trunk_min_points=trunk_min_points,
+            controller=controller,
+            **(changes or {}),
+        ),
         camera,
     )
 

@@ -38,7 +38,10 @@ the robot frame. From there:
    unless both exceed `significance` standard errors with the same sign the rows are refitted
    as lines (per-row quadratics left a straight vineyard with 15 % missing plants through a
    gap and collided at 1.6 m row spacing). A row is *seen* when at least `min_points` points
-   span `min_span` metres in x and `min_points` survive the trimming.
+   span `min_span` metres in x and `min_points` survive the trimming. With `row_start_max` set
+   (default inf: off), a row whose points start (10th percentile of x) beyond it while the other
+   row's start nearer is left out (one_side below): through a run of missing trees its line,
+   extrapolated back over metres of a bend, moves the centre by tens of centimetres.
 4. **Centreline.** Both rows seen: ((c_0L + c_0R) / 2, c_1, c_2), and the corridor width
    c_0L - c_0R updates a running estimate. One row seen: that line moved by half the running width towards
    the corridor. No row seen, or no width yet: SegMinD's column and control law (the fallback).
@@ -87,7 +90,9 @@ the robot frame. From there:
    pure pursuit to the goal on the short lookahead `hold_lookahead`, plus `hold_heading_gain`
    atan(c_1), and with `hold_integral_time` T_i > 0 (default 0: off) (2 v / L^2) S / T_i, S the
    integral of c_0 over the commands' stamps, clamped so that it cancels at most a drift of
-   `drift_limit`; `stop` and `reset` clear it. The goal's offset c(L) is the best-measured number
+   `drift_limit`; `stop` and `reset` clear it; with `hold_slope_drift` k_s > 0 (default 0: off)
+   (2 v / L + k_h) k_s tan(roll), which points the robot uphill against its creep across a slope,
+   from the IMU's roll. The goal's offset c(L) is the best-measured number
    of the fit (c_0 alone is an extrapolation whose error is c_1's times 3-4 m), so the law steers on
    it and takes from c_1 only the extra damping. Trunk mode and the fallback steer as with pursuit.
 
@@ -183,6 +188,8 @@ class CorridorConfig:
     hold_lookahead: float = 1.0
     hold_heading_gain: float = 0.6
     hold_integral_time: float = 0.0
+    hold_slope_drift: float = 0.0
+    row_start_max: float = math.inf
     method: str = field(default="segcorridor", init=False)
 
     def __post_init__(self) -> None:
@@ -221,6 +228,12 @@ class CorridorConfig:
             "hold_lookahead",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
+        start_max = self.row_start_max
+        if isinstance(start_max, bool) or not isinstance(start_max, (int, float)) or not start_max > self.x_min:
+            raise ValueError(
+                f"corridor.row_start_max must be a number above corridor.x_min ({self.x_min}) "
+                f"(inf: every row is fitted), got {self.row_start_max!r}"
+            )
         self._check_controller()
         if not (math.isfinite(self.significance) and self.significance >= 0.0):
             raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
@@ -254,11 +267,11 @@ class CorridorConfig:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
 
     def _check_controller(self) -> None:
-        """The steering law's name, the heading gains (0: no heading damping) and centre_hold's
-        integral time (0: no integral)."""
+        """The steering law's name, the heading gains (0: no heading damping), centre_hold's
+        integral time (0: no integral) and its slope-drift coefficient (0: no slope feedforward)."""
         if self.controller not in CONTROLLERS:
             raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
-        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time"):
+        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time", "hold_slope_drift"):
             gain = getattr(self, name)
             if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
                 raise ValueError(f"corridor.{name} must be a finite number >= 0, got {gain!r}")
@@ -601,7 +614,7 @@ class CorridorNavigator:
             if config.controller == "drift_observer":
                 omega = self._drift_observer_law(centre, mode, omega)
             elif holding:
-                omega = self._centre_hold_law(centre, omega)
+                omega = self._centre_hold_law(centre, omega, attitude)
             else:
                 self._offset_integral.forget_track()
             column = self.camera.column_of(lookahead, y_goal)
@@ -641,6 +654,8 @@ class CorridorNavigator:
         rows = {"left": near & (offset > 0), "right": near & (offset <= 0)}
         points = {name: (x[chosen], y[chosen]) for name, chosen in rows.items()}
         seen = [name for name in rows if self._enough(points[name][0])]
+        if len(seen) == 2 and self._width is not None and config.row_start_max < math.inf:
+            seen = self._rows_starting_near(seen, points)
         fit = None
         while seen:
             fit = fit_parallel_rows(
@@ -681,6 +696,18 @@ class CorridorNavigator:
         if min(left.shape[0], right.shape[0]) < self.config.min_points:
             return limit
         return min(limit, 1.5 * float(np.quantile(left, 0.1) + np.quantile(right, 0.1)))
+
+    def _rows_starting_near(self, seen: list[str], points: dict[str, tuple[np.ndarray, np.ndarray]]) -> list[str]:
+        """The two seen rows, less the one that starts beyond `row_start_max` (the 10th percentile of
+        its points' x) when the other starts nearer: then the corridor is the near row's, moved by
+        half the running width (one_side).
+
+        Through a run of missing trees one row is seen only 4-7 m ahead while the other is seen from
+        1 m. The parallel fit's shared slope is then the near row's, and the far row's line,
+        extrapolated back over 4 m of a bend, put the centre 0.3-0.5 m to the side for seconds
+        (slope_pear_2); the near row alone places the goal at 1 m well."""
+        far = [name for name in seen if float(np.quantile(points[name][0], 0.1)) > self.config.row_start_max]
+        return [name for name in seen if name not in far] if len(far) == 1 else seen
 
     def _roof_opening(self, lateral: np.ndarray) -> float:
         """Width (m) of the widest band along the robot, within `roof_opening_reach` of it (`lateral`:
@@ -834,24 +861,43 @@ class CorridorNavigator:
         balance = (2.0 * v / lookahead + config.hold_heading_gain) * config.drift_limit / v
         return balance * config.hold_integral_time * lookahead * lookahead / (2.0 * v)
 
-    def _centre_hold_law(self, centre: tuple[float, ...], omega: float) -> float:
-        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping and the
-        integral of the robot's offset (step 7), on a fitted centreline (modes "both", "one_side").
+    def _centre_hold_law(self, centre: tuple[float, ...], omega: float, attitude: tuple[float, float] | None) -> float:
+        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping, the
+        slope feedforward and the integral of the robot's offset (step 7), on a fitted centreline
+        (modes "both", "one_side").
 
         The goal's offset c(L) is the best-measured number of the fit (the points lie around it);
         c_0 alone, the offset at the robot, is an extrapolation whose error is the heading's times
-        3-4 m, so the law steers on c(L) and adds a small heading term. Only the integral reads
-        c_0: against a drift the robot points uphill, so the goal can sit on the centreline while
-        the robot stands L d / v beside it. The integral averages c_0's noise out, but not its bias
-        (4-5 cm in the flat pear field, where it raised the error from 0.028 to 0.040-0.053 m): it
-        is off unless `hold_integral_time` is set (docs/reference/equations.md)."""
+        3-4 m, so the law steers on c(L) and adds a small heading term. Across a slope the robot
+        creeps downhill at a drift angle k_s tan(roll); the law alone balances that only with a
+        standing offset 1.6 k_s tan(roll) m downhill, so `hold_slope_drift` k_s points the robot
+        uphill by that angle from the IMU's roll (`_slope_feedforward`). Only the integral reads
+        c_0: it averages c_0's noise out, but not its bias (4-5 cm in the flat pear field, where it
+        raised the error from 0.028 to 0.040-0.053 m): it is off unless `hold_integral_time` is set
+        (docs/reference/equations.md)."""
         config = self.config
         v, lookahead = config.v_max, config.hold_lookahead
         integral = self._offset_integral.update(centre[0], self._stamp)
-        omega += config.hold_heading_gain * math.atan(centre[1])
+        omega += config.hold_heading_gain * math.atan(centre[1]) + self._slope_feedforward(attitude)
         if config.hold_integral_time > 0:
             omega += 2.0 * v / (lookahead * lookahead) * integral / config.hold_integral_time
         return clip(omega, -config.omega_max, config.omega_max)
+
+    def _slope_feedforward(self, attitude: tuple[float, float] | None) -> float:
+        """centre_hold's yaw rate that points the robot uphill against its creep down a cross slope
+        (0 without `hold_slope_drift` or without the IMU).
+
+        A skid-steer robot whose wheels roll across a slope slides downhill at about
+        d = -k_s tan(roll) v (roll > 0: left side up, creep to the right). To hold the centre it must
+        point by -d / v = k_s tan(roll) against it; the law's heading gain, (2 v / L_h + k_h), would
+        turn that heading out again, so the feedforward is that gain times the angle. Unlike an
+        integral it reads no fit, so it adds none of the fit's bias, and it follows the roll at
+        once where the ground's roughness changes it from metre to metre."""
+        config = self.config
+        if config.hold_slope_drift == 0.0 or attitude is None:
+            return 0.0
+        heading_gain = 2.0 * config.v_max / config.hold_lookahead + config.hold_heading_gain
+        return heading_gain * config.hold_slope_drift * math.tan(attitude[0])
 
     def _pursuit(self, y_goal: float, lookahead: float) -> tuple[float, float]:
         """Unsmoothed (v, omega) of pure pursuit to the goal (lookahead, y_goal)."""
