@@ -362,6 +362,20 @@ def test_segcorridor_refuses_to_start_without_the_camera_intrinsics(values, mess
         node_params({"method": "segcorridor", **values})
 
 
+def test_the_sloped_rows_settings_reach_segcorridor_and_bad_ones_are_named() -> None:
+    sloped = {"controller": "centre_hold", "hold_slope_drift": 0.5, "row_start_max": 2.5, "trim": 2.0}
+    base = {"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO}
+    corridor = node_params({**base, **sloped}).navigator
+    assert (corridor.controller, corridor.hold_slope_drift, corridor.row_start_max, corridor.trim) == (
+        "centre_hold",
+        0.5,
+        2.5,
+        2.0,
+    )
+    with pytest.raises(ValueError, match="^parameter hold_slope_drift:"):
+        node_params({**base, **sloped, "hold_slope_drift": -1.0})
+
+
 def test_segcorridor_takes_its_camera_from_the_parameters_or_the_camera_info_topic() -> None:
     intrinsics = {"camera_width": 224, "camera_height": 224, "camera_fx": 160.0, "camera_fy": 160.0}
     params = node_params({"method": "segcorridor", **intrinsics, "camera_cx": 111.5, "camera_cy": 111.5})

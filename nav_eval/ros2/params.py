@@ -188,6 +188,12 @@ DESCRIPTIONS: dict[str, str] = {
     "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
     "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
     "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
+    "hold_slope_drift": "centre_hold on sloped rows: points the robot uphill by this times tan(roll) from the IMU "
+    "against its creep across the slope (0: off; 0.5 for the simulated Jackal; measure your robot's)",
+    "row_start_max": "SegCorridor on gappy rows: a row whose points start beyond this many metres ahead, beside a row "
+    "seen nearer, is left out (inf: off; 2.5 for sloped, gappy rows)",
+    "trim": "SegCorridor's row fit drops points further than this many robust spreads from their row's curve "
+    "(2.5; 2.0 for sloped, gappy rows)",
 }
 GROUPS = (
     ("driving", ("enabled", "method", "model", "depth_threshold", "threads", "inference_spin")),
@@ -200,7 +206,7 @@ GROUPS = (
         "SegCorridor: camera, IMU and steering law",
         ("camera_info_topic", "imu_topic", "imu_max_age_s", "camera_width", "camera_height", "camera_fx")
         + ("camera_fy", "camera_cx", "camera_cy", "camera_mount_height", "camera_tilt_deg", "camera_mount_forward")
-        + ("controller",),
+        + ("controller", "hold_slope_drift", "row_start_max", "trim"),
     ),
 )
 # The file's defaults; depth_threshold has none in NavigatorConfig on purpose: the paper's vineyards'.
@@ -211,6 +217,9 @@ DEFAULTS: dict[str, Any] = {
     "method": "segmind",
     "depth_threshold": 5.0,
     "controller": "pursuit",
+    "hold_slope_drift": 0.0,
+    "row_start_max": math.inf,
+    "trim": 2.5,
 }
 # Parameters fixed at start-up (subscriptions and publishers are made from them).
 STARTUP_ONLY = (
