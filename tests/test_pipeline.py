@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -12,7 +13,7 @@ from segmin.app.cli import main
 from segmin.app.pipeline.cache import StageCache
 from segmin.app.pipeline.config import load_pipeline_config
 from segmin.app.pipeline.runner import PipelineRunner
-from segmin.common.config import ConfigError
+from segmin.common.config import ConfigError, to_dict
 
 FIELDS = ("straight_vineyard", "curved_vineyard", "pergola_vineyard", "pear_field", "high_trees")
 STAGE_KEYS = (
@@ -286,6 +287,23 @@ def test_every_shipped_profile_builds_its_training_configs(profile: str, tmp_pat
         assert train.family == family
         if profile != "micro":  # the full-size profiles train on the canopy-region label
             assert train.data.label_closing == 4, (profile, family)
+
+
+def test_train_seed_reaches_every_family_and_null_keeps_the_configs_own(tmp_path: Path) -> None:
+    """The seed spread reruns a profile with train_seed=N; unset, the training configs (and so the
+    training stages' input hashes of runs made before the key existed) stay as they were."""
+    from segmin.app.pipeline.stages import train_config_for
+
+    domains = {"train": ["synth_a"], "val": ["synth_val_a"]}
+    plain = load_pipeline_config("release")
+    seeded = load_pipeline_config("release", ["train_seed=2"])
+    for family, plan in plain.families.items():
+        own = train_config_for(plain, family, plan, tmp_path, domains, "none")
+        spread = train_config_for(seeded, family, seeded.families[family], tmp_path, domains, "none")
+        assert (own.seed, spread.seed) == (0, 2), family
+        assert to_dict(replace(spread, seed=own.seed)) == to_dict(own)  # nothing else moves
+    with pytest.raises(ConfigError, match="train_seed"):
+        load_pipeline_config("micro", ["train_seed=-1"])
 
 
 def test_real_eval_can_be_turned_off_and_a_missing_set_fails_first(tmp_path: Path) -> None:

@@ -150,6 +150,9 @@ class PipelineConfig:
     # Train the families side by side, one process and one thread each (on 2 cores: 0.62 against
     # 0.75 s a step of one 2-thread training after the other); false: one after the other.
     parallel_training: bool = False
+    # The training seed of every family (null: each training config's own). The seed spread of a
+    # recipe is the same profile run again with train_seed=1, 2 into other run folders.
+    train_seed: int | None = None
     # Where the render and nav-eval stages' workers run: "local" processes or "ray" actors, on the
     # cluster at `ray_address` (null: RAY_ADDRESS, else a Ray instance started for the stage).
     # Not a stage input: the outputs are the same on either.
@@ -160,6 +163,8 @@ class PipelineConfig:
         if not self.families:
             raise ValueError("families: name at least one crop family")
         self.fan_out()  # a bad executor or address is refused at load
+        if self.train_seed is not None and (isinstance(self.train_seed, bool) or self.train_seed < 0):
+            raise ValueError(f"train_seed must be >= 0 or null, got {self.train_seed!r}")
         check_training_sources(self)
 
     def fan_out(self) -> Executor:

@@ -155,6 +155,8 @@ def train_config_for(
         # Side by side, each training gets one core's thread (a family's own override still wins).
         *(["threads=1"] if config.parallel_training else []),
         *plan.train_overrides,
+        # The profile's seed last: a spread run's train_seed=N must not lose to a family's own.
+        *([f"seed={config.train_seed}"] if config.train_seed is not None else []),
     ]
     train_config = load_train_config(plan.train_config, overrides)
     if config.real_eval.data is not None:  # data/real itself is refused by the training config
