@@ -20,6 +20,7 @@ from typing import Any
 from segmin.app.pipeline.cache import StageCache, file_digest
 from segmin.app.pipeline.report import count_frames
 from segmin.app.pipeline.runner import RECIPE_FILE
+from segmin.app.pipeline.stages import read_metrics_csv
 from segmin.nav_eval.runtime.shipped_models import format_figure, format_size
 
 LICENCE = (
@@ -53,7 +54,7 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
             "image_size": train.get("image_size"),
             "backbone_weights": train.get("backbone_weights"),
             "kept": train.get("kept"),
-            "seconds": _seconds(cache, f"train/{family}"),
+            "seconds": _training_seconds(run_dir, cache, family),
             "machine": train.get("machine"),
         },
         "synthetic_val_iou": train.get("kept_val_iou"),
@@ -78,7 +79,7 @@ def card_markdown(card: dict[str, Any]) -> str:
         f"- data: {data['train_frames']} rendered training frames from {', '.join(data['train_worlds']) or '?'}; "
         f"{data['val_frames']} validation frames from held-out worlds {', '.join(data['val_worlds']) or '?'}",
         f"- training: {training['epochs']} epochs at {training['image_size']} px, backbone "
-        f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} on "
+        f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} of epochs on "
         f"{training['machine'] or 'a machine the run did not record'}",
         f"- synthetic validation IoU: {format_figure(card['synthetic_val_iou'])}",
     ]
@@ -118,6 +119,18 @@ def _finished(cache: StageCache, stage: str) -> dict[str, Any] | None:
 def _seconds(cache: StageCache, stage: str) -> float | None:
     record = cache.record(stage)
     return None if record is None else record.seconds
+
+
+def _training_seconds(run_dir: Path, cache: StageCache, family: str) -> float | None:
+    """The training's time: the sum of its epochs' wall time from metrics.csv.
+
+    Why not the stage record's time: a stage resumed after an interruption records only the
+    last process's share (a release training of hours resumed near its end would read minutes).
+    An epoch repeated after a resume counts once, its last row. Without a metrics.csv (a run
+    folder copied without it) the record's time is all there is.
+    """
+    by_epoch = {row["epoch"]: row["seconds"] for row in read_metrics_csv(run_dir / "train" / family / "metrics.csv")}
+    return sum(by_epoch.values()) if by_epoch else _seconds(cache, f"train/{family}")
 
 
 def _in_run(run_dir: Path, stage: str, recorded: str) -> Path:
@@ -186,4 +199,6 @@ def _closed_loop(run_dir: Path, cache: StageCache, family: str) -> list[dict[str
 
 
 def _duration(seconds: float | None) -> str:
-    return "unknown time" if seconds is None else f"{seconds / 60:.1f} min"
+    if seconds is None:
+        return "unknown time"
+    return f"{seconds / 3600:.1f} h" if seconds >= 5400 else f"{seconds / 60:.1f} min"
