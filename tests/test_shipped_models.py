@@ -80,6 +80,9 @@ def pipeline_run(tmp_path, exported) -> Path:
         "threshold": 0.5,
     }
     _record(cache, "real-eval/vineyards", real)
+    sheet = np.zeros((40, 90, 3), np.uint8)
+    sheet[:, 30:60] = (0, 200, 0)  # the errors panel's green
+    cv2.imwrite(str(run / "real-eval" / "vineyards" / "contact_sheet.png"), sheet)
     rows = [
         {"field": "straight_vineyard", "method": "segmind", "success": ok, "mae": mae}
         for ok, mae in ((True, 0.1), (False, 0.3))
@@ -92,7 +95,10 @@ def pipeline_run(tmp_path, exported) -> Path:
 
 def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_run, registry, capsys) -> None:
     assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 0
-    assert sorted(p.name for p in registry.iterdir()) == ["vineyards.card.json", "vineyards.md", "vineyards.onnx"]
+    shipped = ["vineyards.card.json", "vineyards.md", "vineyards.onnx", "vineyards.real.jpg"]
+    assert sorted(p.name for p in registry.iterdir()) == shipped
+    sheet = cv2.imread(str(registry / "vineyards.real.jpg"))
+    assert sheet.shape == (40, 90, 3) and abs(int(sheet[20, 45, 1]) - 200) < 8 and sheet[20, 10].max() < 8
     segmenter = OnnxSegmenter("vineyards", threads=1)
     assert segmenter.path == registry / "vineyards.onnx"
     assert segmenter.segment(np.zeros((48, 64, 3), np.uint8)).shape == (48, 64)
@@ -116,7 +122,7 @@ def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_ru
         "precision 0.640",
         "| straight_vineyard | segmind | 1/2 |",
         "MIT",
-        "contact sheet `real-eval/vineyards/contact_sheet.png`",
+        "contact sheet `vineyards.real.jpg` beside this card",
     ):
         assert text in card_text, text
     capsys.readouterr()
@@ -133,6 +139,13 @@ def test_release_never_replaces_a_model_without_force(pipeline_run, registry, ca
     assert "already released (use --force" in capsys.readouterr().err
     assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 0
     assert (registry / "vineyards.onnx").read_bytes() == before  # the same run gives the same file
+    (pipeline_run / "real-eval" / "vineyards" / "contact_sheet.png").unlink()
+    assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 2
+    assert "contact_sheet.png: the real-photo contact sheet of a scored model is missing" in capsys.readouterr().err
+    (pipeline_run / "real-eval" / "vineyards" / "stage.json").unlink()  # a run that scored no photos
+    assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 0
+    assert not (registry / "vineyards.real.jpg").exists()  # not the replaced model's sheet
+    assert "real photos: not measured" in (registry / "vineyards.md").read_text()
     assert segmin_main(["models", "release", "--run", str(pipeline_run), "--families", "apples"]) == 2
     assert "--families apples: not a shipped model name (shipped: vineyards, trees)" in capsys.readouterr().err
     assert segmin_main(["models", "release", "--run", str(registry)]) == 2

@@ -25,6 +25,8 @@ SHIPPED_NAMES: tuple[str, ...] = ("vineyards", "trees")
 ENV_MODELS_DIR = "SEGMIN_MODELS_DIR"
 PACKAGE_MODELS_DIR = Path(__file__).with_name("released")
 CARD_SUFFIX = ".card.json"
+# The real-photo contact sheet shipped beside a card (photo | errors | truth), so the card's figures can be seen.
+SHEET_SUFFIX = ".real.jpg"
 
 
 def models_dir() -> Path:

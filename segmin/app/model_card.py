@@ -89,7 +89,12 @@ def card_markdown(card: dict[str, Any]) -> str:
             f"{format_figure(real['mean_iou'])} (pooled {format_figure(real['pooled_iou'])}), precision "
             f"{format_figure(real['precision'])} and recall {format_figure(real['recall'])} over all pixels "
             f"(per-photo means {format_figure(real['mean_precision'])} / {format_figure(real['mean_recall'])}); "
-            f"contact sheet `{real['contact_sheet']}` in the source run"
+            + (
+                f"contact sheet `{real['contact_sheet_file']}` beside this card (photo | errors: green found, "
+                "red false crop, blue missed | truth)"
+                if real.get("contact_sheet_file")
+                else f"contact sheet `{real['contact_sheet']}` in the source run"
+            )
         )
     else:
         lines.append("- real photos: not measured in this run")

@@ -59,17 +59,21 @@ def _release(args: argparse.Namespace) -> int:
 
     root = args.to if args.to is not None else models_dir()
     planned = _plan(args.run, args.families, root, args.force)
-    for name, (source, card) in planned.items():
-        _write_release(source, card, root, name)
+    for name, (source, card, sheet) in planned.items():
+        _write_release(source, card, sheet, root, name)
         onnx = root / f"{name}.onnx"
-        print(f"released {name}: {onnx} ({onnx.stat().st_size / 1e6:.1f} MB) with {name}.md and {name}.card.json")
+        extra = f", {card['real_photos']['contact_sheet_file']}" if sheet is not None else ""
+        print(f"released {name}: {onnx} ({onnx.stat().st_size / 1e6:.1f} MB) with {name}.md, {name}.card.json{extra}")
     return 0
 
 
-def _plan(run: Path, families: list[str] | None, root: Path, force: bool) -> dict[str, tuple[Path, dict[str, Any]]]:
-    """{name: (exported ONNX, card)} for every family to release; errors before anything is written."""
+def _plan(
+    run: Path, families: list[str] | None, root: Path, force: bool
+) -> dict[str, tuple[Path, dict[str, Any], Any]]:
+    """{name: (exported ONNX, card, real-photo contact sheet image or None)} for every family to release;
+    errors before anything is written."""
     from segmin.app.model_card import build_card
-    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
+    from segmin.nav_eval.runtime.shipped_models import SHEET_SUFFIX, SHIPPED_NAMES
 
     if not (run / "render" / "stage.json").is_file():
         raise ValueError(f"--run {run}: not a segmin pipeline run folder (no render/stage.json)")
@@ -85,12 +89,32 @@ def _plan(run: Path, families: list[str] | None, root: Path, force: bool) -> dic
     planned = {}
     for name in names:
         card = build_card(run, name)
-        planned[name] = (run / "export" / name / f"{name}.onnx", card)
+        sheet = _contact_sheet(run, card)
+        if sheet is not None:
+            card["real_photos"]["contact_sheet_file"] = f"{name}{SHEET_SUFFIX}"
+        planned[name] = (run / "export" / name / f"{name}.onnx", card, sheet)
     return planned
 
 
-def _write_release(source: Path, card: dict[str, Any], root: Path, name: str) -> None:
-    """The model with its card in the metadata, then the card files (each written atomically)."""
+def _contact_sheet(run: Path, card: dict[str, Any]) -> Any:
+    """The run's real-photo contact sheet as an image, None when the run scored no photos."""
+    import cv2
+
+    if not card["real_photos"]:
+        return None
+    path = run / card["real_photos"]["contact_sheet"]
+    if not path.is_file():
+        raise ValueError(f"{path}: the real-photo contact sheet of a scored model is missing")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{path}: unreadable contact sheet")
+    return image
+
+
+def _write_release(source: Path, card: dict[str, Any], sheet: Any, root: Path, name: str) -> None:
+    """The model with its card in the metadata, then the card files and the contact sheet (each
+    written atomically; the sheet as JPEG, a third of the PNG's size in the wheel)."""
+    import cv2
     import onnx
 
     from segmin.app.model_card import card_markdown
@@ -98,7 +122,7 @@ def _write_release(source: Path, card: dict[str, Any], root: Path, name: str) ->
     from segmin.common.outputs import make_dirs
     from segmin.export import metadata as md
     from segmin.export.onnx import set_metadata
-    from segmin.nav_eval.runtime.shipped_models import CARD_SUFFIX
+    from segmin.nav_eval.runtime.shipped_models import CARD_SUFFIX, SHEET_SUFFIX
 
     markdown, card_json = card_markdown(card), json.dumps(card, indent=2, sort_keys=True)
     model = onnx.load(str(source))
@@ -109,3 +133,10 @@ def _write_release(source: Path, card: dict[str, Any], root: Path, name: str) ->
         onnx.save(model, str(tmp))
     write_text(root / f"{name}.md", markdown)
     write_text(root / f"{name}{CARD_SUFFIX}", card_json + "\n")
+    sheet_path = root / f"{name}{SHEET_SUFFIX}"
+    if sheet is None:  # a replaced model's sheet would show another model's errors
+        sheet_path.unlink(missing_ok=True)
+        return
+    with atomic_path(sheet_path, suffix=".jpg") as tmp:
+        if not cv2.imwrite(str(tmp), sheet, [cv2.IMWRITE_JPEG_QUALITY, 85]):
+            raise OSError(f"{tmp}: could not write the contact sheet")
