@@ -288,6 +288,52 @@ def test_observations_without_rgb_are_rendered_without_colour() -> None:
     assert renderers[0].colour_calls == renderers[0].calls == 5 and renderers[1].colour_calls == 0
 
 
+def test_a_shipped_model_name_gives_its_mask_of_each_colour_frame(exported, tmp_path, monkeypatch) -> None:
+    """model="vineyards" (here the tiny exported model released under that name) adds `model_mask`,
+    the runtime's segmentation of the frame the env renders, beside the oracle's `mask`."""
+    import shutil
+
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+    from segmin.nav_eval.runtime.shipped_models import ENV_MODELS_DIR
+
+    monkeypatch.setenv(ENV_MODELS_DIR, str(tmp_path))
+    shutil.copy(exported[0], tmp_path / "vineyards.onnx")
+    world = FakeWorld()
+    env = RowFollowEnv(None, config=_config(), world=world, renderer=FakeRenderer(world, size=32), model="vineyards")
+    assert env.obs_keys == ("rgb", "depth", "t", "attitude", "model_mask")
+    check_env(env, skip_render_check=True)
+    reference = OnnxSegmenter(exported[0])
+    obs, _ = env.reset(seed=4)
+    for _ in range(3):
+        assert obs["model_mask"].dtype == np.uint8 and env.observation_space.contains(obs)
+        assert np.array_equal(obs["model_mask"], reference.segment(obs["rgb"]).astype(np.uint8))
+        assert 0 < obs["model_mask"].mean() < 1  # a mask with content: the comparison can tell frames apart
+        obs, *_ = env.step(np.array([0.4, 0.0]))
+    masks_only = RowFollowEnv(
+        None,
+        config=_config(),
+        world=world,
+        renderer=FakeRenderer(world, size=32),
+        model=exported[0],
+        obs_keys=("model_mask", "mask"),
+    )
+    obs, _ = masks_only.reset(seed=4)
+    assert sorted(obs) == ["mask", "model_mask"] and masks_only.simulator.renderer.colour_calls == 1
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        ({"obs_keys": ("model_mask", "depth")}, "obs_keys: 'model_mask' needs model="),
+        ({"model": "vineyards", "obs_keys": ("rgb", "depth")}, "model: given, but obs_keys has no 'model_mask'"),
+        ({"model": "apples"}, "apples"),
+    ],
+)
+def test_a_model_option_that_cannot_work_is_refused_by_name(option: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        RowFollowEnv("straight_vineyard", overrides=TINY, **option)
+
+
 @pytest.mark.parametrize(
     ("option", "message"),
     [

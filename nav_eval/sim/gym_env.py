@@ -8,10 +8,14 @@ physics tick), and the observation is the next camera frame. The simulator itsel
 - observation: Dict(rgb uint8 H x W x 3, depth float32 H x W metres (0 = no reading), t float64
   seconds, attitude float64 (roll, pitch) radians: the IMU, REP 103), what
   `nav_eval.runtime.RowFollower.step` takes. `obs_keys` picks the entries (also `mask`, the
-  oracle vegetation mask as uint8 0/1, for learning from masks) and `size` the camera's
+  oracle vegetation mask as uint8 0/1, for learning from masks; `model_mask`, the mask a
+  segmentation model makes of the colour frame, with `model`) and `size` the camera's
   (height, width): a learner that wants mask + depth at the model's size renders fewer pixels and
   no colour (without `rgb` the frame is asked without colour: the gl backend then draws depth and
   body ids only, and no backend composes sky or exposure; TinyRenderer has no depth-only pass);
+- model: a shipped model name (`"vineyards"`, `"trees"`) or an exported ONNX file: the env then
+  observes `model_mask`, the mask the robot would act on, so a controller can be trained or
+  tested on a model's errors instead of the oracle's exact mask;
 - action: Box([-max_v, -max_omega], [max_v, max_omega]) float64, the robot's hardware limits
   (float64 so a command reaches the robot unrounded);
 - reward: progress along the row's centreline during the step, in metres (negative when the
@@ -39,6 +43,7 @@ built when the env is made):
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
@@ -53,18 +58,27 @@ from segmin.nav_eval.sim.row_env import RowEnv
 
 TERMINAL = ("success", "collision", "left_row")
 TRUNCATING = ("timeout", "stalled")
-OBS_KEYS = ("rgb", "depth", "mask", "t", "attitude")
+OBS_KEYS = ("rgb", "depth", "mask", "model_mask", "t", "attitude")
 """Every observation entry `obs_keys` can pick."""
 DEFAULT_OBS_KEYS = ("rgb", "depth", "t", "attitude")
-"""What `RowFollower.step` takes: the default observation."""
+"""What `RowFollower.step` takes: the default observation (with a `model`, also `model_mask`)."""
 
 
-def check_obs_keys(obs_keys: Sequence[str]) -> tuple[str, ...]:
-    """`obs_keys` as a tuple, or a ValueError naming the option: some of OBS_KEYS, each once."""
+def check_obs_keys(obs_keys: Sequence[str] | None, model: object | None) -> tuple[str, ...]:
+    """`obs_keys` as a tuple (None: the default for whether there is a `model`), or a ValueError
+    naming the option: some of OBS_KEYS, each once, `model_mask` exactly when a model is given."""
+    if obs_keys is None:
+        return (*DEFAULT_OBS_KEYS, "model_mask") if model is not None else DEFAULT_OBS_KEYS
     keys = (obs_keys,) if isinstance(obs_keys, str) else tuple(obs_keys)
     unknown = [k for k in keys if k not in OBS_KEYS]
     if not keys or unknown or len(set(keys)) != len(keys):
         raise ValueError(f"obs_keys: {list(keys)!r} is not a non-empty list of distinct keys of {list(OBS_KEYS)}")
+    if ("model_mask" in keys) != (model is not None):
+        raise ValueError(
+            "obs_keys: 'model_mask' needs model= (a shipped name or an ONNX file)"
+            if model is None
+            else "model: given, but obs_keys has no 'model_mask' to observe its mask in"
+        )
     return keys
 
 
@@ -92,14 +106,22 @@ class RowFollowEnv(gymnasium.Env):
         gap: int | None = None,
         world: SimWorld | None = None,
         renderer: SimRenderer | None = None,
-        obs_keys: Sequence[str] = DEFAULT_OBS_KEYS,
+        obs_keys: Sequence[str] | None = None,
         size: int | Sequence[int] | None = None,
+        model: str | os.PathLike[str] | None = None,
     ) -> None:
         """`config`: a NavEvalConfig, a config name/path, or None (the shipped default) plus
         `overrides` (key=value). `world` + `renderer` replace the field (tests, custom worlds).
-        `obs_keys`: the observation's entries (of OBS_KEYS); `size`: the camera's side or
-        (height, width) in pixels, replacing perception.width / height (a field's camera only)."""
-        self.obs_keys = check_obs_keys(obs_keys)
+        `obs_keys`: the observation's entries (of OBS_KEYS; default DEFAULT_OBS_KEYS, plus
+        `model_mask` with a model); `size`: the camera's side or (height, width) in pixels,
+        replacing perception.width / height (a field's camera only); `model`: a shipped model name
+        or an ONNX file whose mask of each colour frame is `model_mask` (2 onnxruntime threads)."""
+        self.obs_keys = check_obs_keys(obs_keys, model)
+        self.segmenter = None
+        if model is not None:  # loaded first: a bad name fails before the field is built
+            from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
+            self.segmenter = OnnxSegmenter(model)
         if not isinstance(config, NavEvalConfig):
             config = load_nav_config(config, list(overrides))
         elif overrides:
@@ -133,6 +155,7 @@ class RowFollowEnv(gymnasium.Env):
             "rgb": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
             "depth": spaces.Box(0.0, np.inf, (height, width), dtype=np.float32),
             "mask": spaces.Box(0, 1, (height, width), dtype=np.uint8),
+            "model_mask": spaces.Box(0, 1, (height, width), dtype=np.uint8),
             "t": spaces.Box(0.0, np.inf, (), dtype=np.float64),
             "attitude": spaces.Box(-np.pi / 2, np.pi / 2, (2,), dtype=np.float64),
         }
@@ -172,17 +195,23 @@ class RowFollowEnv(gymnasium.Env):
         return obs, reward, reason in TERMINAL, reason in TRUNCATING, info
 
     def _observe(self, info: dict[str, Any]) -> tuple[dict, dict]:
-        frame = self.simulator.frame(colour="rgb" in self.obs_keys)
+        frame = self.simulator.frame(colour="rgb" in self.obs_keys or self.segmenter is not None)
         mask = np.asarray(frame.mask, dtype=bool)
         info = dict(info, pose=self.simulator.pose, mask=mask)
         entries: dict[str, Callable[[], np.ndarray]] = {  # only the asked entries are converted
             "rgb": lambda: np.asarray(frame.rgb, dtype=np.uint8),
             "depth": lambda: np.asarray(frame.depth, dtype=np.float32),
             "mask": lambda: mask.view(np.uint8),
+            "model_mask": lambda: self._model_mask(frame.rgb),
             "t": lambda: np.array(self.simulator.t, dtype=np.float64),
             "attitude": lambda: np.array(self.simulator.attitude, dtype=np.float64),
         }
         return {key: entries[key]() for key in self.obs_keys}, info
+
+    def _model_mask(self, rgb: np.ndarray) -> np.ndarray:
+        """The model's vegetation mask of the frame, uint8 0/1 at the camera's size."""
+        assert self.segmenter is not None  # check_obs_keys: model_mask is asked only with a model
+        return self.segmenter.segment(np.asarray(rgb, dtype=np.uint8)).view(np.uint8)
 
     def _refuse_if_closed(self, call: str) -> None:
         if self._closed:
