@@ -28,14 +28,15 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
     curves = run_dir / "report" / "training_curves.png"
     _training_curves(run_dir, families, curves)
     model_results, oracle_results = _nav_eval_results(config, run_dir, families)
+    cards = shipped_cards(families)
     lines = [
         *_title_and_stages(config, cache, families),
         *_rendered_data(run_dir, cache),
         *_training(cache, families, curves),
         *_export(cache, families),
         "",
-        *_real_photos(config, cache, families),
-        *_closed_loop(model_results, oracle_results),
+        *_real_photos(config, cache, families, cards),
+        *_closed_loop(model_results, oracle_results, cards),
         *_figures(run_dir, families),
     ]
     markdown_text = "\n".join(lines) + "\n"
@@ -161,8 +162,9 @@ def _export(cache: StageCache, families: list[str]) -> list[str]:
     return lines
 
 
-def _closed_loop(model_results: list[Any], oracle_results: list[Any]) -> list[str]:
-    """Section 5: Table 3 with the exported models, with the oracle, and the comparison with the paper."""
+def _closed_loop(model_results: list[Any], oracle_results: list[Any], cards: dict[str, dict[str, Any]]) -> list[str]:
+    """Section 5: Table 3 with the exported models, with the oracle, the shipped models' closed loop
+    from their cards, and the comparison with the paper."""
     from segmin.nav_eval.evaluation.report import table3_markdown
 
     lines = [
@@ -181,6 +183,20 @@ def _closed_loop(model_results: list[Any], oracle_results: list[Any]) -> list[st
             table3_markdown(oracle_results),
             "",
         ]
+    loops = {family: card["closed_loop"] for family, card in cards.items() if card.get("closed_loop")}
+    if loops:
+        lines += [
+            "The shipped models of the same families, from their model cards (their release run's fields and runs):",
+            "",
+            "| model | field | method | successes | MAE m |",
+            "|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {family} | {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {_num(r['mae'])} |"
+            for family, rows in loops.items()
+            for r in rows
+        ]
+        lines.append("")
     return [*lines, "### Comparison with the paper", "", *_comparison(model_results), ""]
 
 
@@ -202,8 +218,28 @@ REAL_REFERENCES = (
 )
 
 
-def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str]) -> list[str]:
-    """Section 4: synthetic validation IoU beside the real-photo figures, per family, with contact sheets."""
+def shipped_cards(families: list[str]) -> dict[str, dict[str, Any]]:
+    """The model cards of the shipped models named like the run's families, where this install has them.
+
+    Why in a report: what a run just trained is best judged beside what segmin ships for the same
+    crop family (`segmin models list`); the figures are the cards' own, nothing is re-measured.
+    """
+    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES, shipped_model
+
+    cards = {}
+    for family in families:
+        entry = shipped_model(family) if family in SHIPPED_NAMES else None
+        card = entry.card() if entry is not None and entry.present else None
+        if card is not None:
+            cards[family] = card
+    return cards
+
+
+def _real_photos(
+    config: PipelineConfig, cache: StageCache, families: list[str], cards: dict[str, dict[str, Any]]
+) -> list[str]:
+    """Section 4: synthetic validation IoU beside the real-photo figures, per family, with contact
+    sheets; on the shipped photos, the shipped models' figures from their cards beside them."""
     lines = ["## 4. Real photos (segmentation, held-out test set)", ""]
     if not config.real_eval.enabled:
         return [*lines, "Disabled in this profile (`real_eval.enabled: false`).", ""]
@@ -237,7 +273,19 @@ def _real_photos(config: PipelineConfig, cache: StageCache, families: list[str])
             f"| {family} | {_num(val_iou)} | {fmt(o['mean_iou'])} | {fmt(o['pooled_iou'])} | "
             f"{fmt(o['precision'])} | {fmt(o['recall'])} | {fmt(o['pixel_accuracy'])} |"
         )
+    shipped_rows = {f: c["real_photos"] for f, c in cards.items() if c.get("real_photos")} if shipped else {}
+    for family, real in shipped_rows.items():
+        lines.append(
+            f"| {family}: shipped model | {_num(cards[family].get('synthetic_val_iou'))} | {fmt(real['mean_iou'])} | "
+            f"{fmt(real['pooled_iou'])} | {fmt(real['precision'])} | {fmt(real['recall'])} | n/a |"
+        )
     lines.append("")
+    if shipped_rows:
+        lines += [
+            "Rows marked *shipped model*: the models segmin ships under the family's name (`segmin models list`), "
+            "from their model cards, on the same photos.",
+            "",
+        ]
     if shipped:
         lines += [
             "The photos are vineyards: the vineyards model's figure is in-crop, the trees model's is cross-crop "

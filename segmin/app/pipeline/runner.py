@@ -164,9 +164,10 @@ class PipelineRunner:
             )
 
     def _report(self, upstream: dict[str, str]) -> Path:
-        from segmin.app.pipeline.report import write_pipeline_report
+        from segmin.app.pipeline.report import shipped_cards, write_pipeline_report
 
-        report_hash = hash_inputs("report", upstream, to_dict(self.config))
+        # The shipped models' cards are shown beside the run's: a release changes the report.
+        report_hash = hash_inputs("report", upstream, to_dict(self.config), shipped_cards(list(self.config.families)))
         report = self._stage(
             "report",
             "report",
