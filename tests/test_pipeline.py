@@ -131,32 +131,40 @@ def test_a_run_releases_its_models_with_cards_from_its_records(
 def test_the_report_shows_the_shipped_models_beside_the_run_s_and_a_release_reruns_it(
     run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """With models shipped under the run's family names, sections 4 and 5 add their card figures;
-    releasing them changes the report stage's inputs, so the next run rewrites the report."""
+    """With models shipped under the run's family names, sections 4 and 5 add their card figures
+    (not for the run's own released models); a release changes the report stage's inputs, so the
+    next run rewrites the report."""
     from segmin.app.cli import main as segmin_main
     from segmin.app.pipeline.report import shipped_cards
 
-    monkeypatch.setenv("SEGMIN_MODELS_DIR", str(tmp_path / "registry"))
-    assert shipped_cards(["vineyards", "trees"]) == {}
+    registry = tmp_path / "registry"
+    monkeypatch.setenv("SEGMIN_MODELS_DIR", str(registry))
+    assert shipped_cards(run_dir, ["vineyards", "trees"]) == {}
     assert segmin_main(["models", "release", "--run", str(run_dir), "--families", "trees"]) == 0
-    assert set(shipped_cards(["vineyards", "trees", "apples"])) == {"trees"}
+    assert shipped_cards(run_dir, ["trees"]) == {}  # the run's own model is not set beside itself
+    card_file = registry / "trees.card.json"  # as if another run's model had been released
+    card_file.write_text(json.dumps({**json.loads(card_file.read_text()), "onnx_sha256": "0" * 64}))
+    assert set(shipped_cards(run_dir, ["vineyards", "trees", "apples"])) == {"trees"}
     record = run_dir / "report" / "stage.json"
     before = json.loads(record.read_text())["input_hash"]
-    runner = runner_for(run_dir, [])
-    runner.run()
-    assert runner.ran == ["report"] and json.loads(record.read_text())["input_hash"] != before
-    report = (run_dir / "report.md").read_text()
+    try:
+        runner = runner_for(run_dir, [])
+        runner.run()
+        assert runner.ran == ["report"] and json.loads(record.read_text())["input_hash"] != before
+        report = (run_dir / "report.md").read_text()
+    finally:  # the install's own registry again: the report goes back to what the other tests expect
+        monkeypatch.undo()
+        runner = runner_for(run_dir, [])
+        runner.run()
+    assert runner.ran == ["report"] and json.loads(record.read_text())["input_hash"] == before
+    card = json.loads(card_file.read_text())
     real = report[report.index("## 4. Real photos") : report.index("## 5. Closed loop")]
-    card = shipped_cards(["trees"])["trees"]
+    assert card["real_photos"]["shipped_photos"] is True
     assert f"| trees: shipped model | {card['synthetic_val_iou']:.3f} | {card['real_photos']['mean_iou']:.3f} |" in real
     assert "vineyards: shipped model" not in real
     loop = report[report.index("## 5. Closed loop") : report.index("### Comparison with the paper")]
     first = card["closed_loop"][0]
     assert f"| trees | {first['field']} | {first['method']} | {first['successes']}/{first['runs']} |" in loop
-    monkeypatch.undo()  # the install's own registry again: the report goes back to what the other tests expect
-    runner = runner_for(run_dir, [])
-    runner.run()
-    assert runner.ran == ["report"] and json.loads(record.read_text())["input_hash"] == before
 
 
 def test_a_second_run_skips_every_stage(run_dir: Path) -> None:

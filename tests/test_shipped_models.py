@@ -57,8 +57,8 @@ def pipeline_run(tmp_path, exported) -> Path:
         },
         seconds=600.0,  # the last process's share only: the training was resumed
     )
-    # Epoch 2 ran twice (interrupted, then redone after the resume): its last row counts.
-    rows = "epoch,train_loss,val_iou,seconds\n1,0.5,0.6,200\n2,0.4,0.7,250\n2,0.4,0.71,262\n"
+    # Every epoch's time, across resumes: 200 + 262 s, where the record has the last process's 600 s.
+    rows = "epoch,train_loss,val_iou,seconds\n1,0.5,0.6,200\n2,0.4,0.7,262\n"
     (run / "train" / "vineyards" / "metrics.csv").write_text(rows)
     onnx = run / "export" / "vineyards" / "vineyards.onnx"
     onnx.parent.mkdir(parents=True)
@@ -113,6 +113,7 @@ def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_ru
         "val_frames": 2,
     }
     assert card["recipe"]["profile"] == "tiny" and len(card["recipe"]["config_sha256"]) == 16
+    assert card["real_photos"]["shipped_photos"] is False  # its real-eval record names no photo folder
     assert card["closed_loop"] == [
         {"field": "straight_vineyard", "method": "segmind", "runs": 2, "successes": 1, "mae": pytest.approx(0.2)}
     ]
@@ -141,7 +142,7 @@ def test_release_never_replaces_a_model_without_force(pipeline_run, registry, ca
     assert (registry / "vineyards.onnx").read_bytes() == before  # the same run gives the same file
     (pipeline_run / "real-eval" / "vineyards" / "contact_sheet.png").unlink()
     assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 2
-    assert "contact_sheet.png: the real-photo contact sheet of a scored model is missing" in capsys.readouterr().err
+    assert "contact_sheet.png: the scored model's real-photo contact sheet is missing" in capsys.readouterr().err
     (pipeline_run / "real-eval" / "vineyards" / "stage.json").unlink()  # a run that scored no photos
     assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 0
     assert not (registry / "vineyards.real.jpg").exists()  # not the replaced model's sheet

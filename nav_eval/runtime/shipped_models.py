@@ -3,7 +3,7 @@
 Why names: a team should be able to put a robot in a row on day one, offline, with nothing but
 `pip install segmin`. The trained ONNX files live in the package (`released/<name>.onnx`), each
 with its model card beside it (`<name>.md` for people, `<name>.card.json` for `segmin models
-list`; the same card is in the ONNX metadata). `segmin models release --run RUN_DIR` puts a
+list`; the same card is in the ONNX metadata) and its real-photo contact sheet (`<name>.real.jpg`). `segmin models release --run RUN_DIR` puts a
 pipeline run's models there.
 
 Everything a model argument accepts goes through `resolve_model`: an existing file is used as it

@@ -45,7 +45,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import gymnasium
 import numpy as np
@@ -56,6 +56,9 @@ from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.sim.protocols import SimRenderer, SimWorld
 from segmin.nav_eval.sim.row_env import RowEnv
 
+if TYPE_CHECKING:
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+
 TERMINAL = ("success", "collision", "left_row")
 TRUNCATING = ("timeout", "stalled")
 OBS_KEYS = ("rgb", "depth", "mask", "model_mask", "t", "attitude")
@@ -64,7 +67,7 @@ DEFAULT_OBS_KEYS = ("rgb", "depth", "t", "attitude")
 """What `RowFollower.step` takes: the default observation (with a `model`, also `model_mask`)."""
 
 
-def check_obs_keys(obs_keys: Sequence[str] | None, model: object | None) -> tuple[str, ...]:
+def check_obs_keys(obs_keys: Sequence[str] | None, model: str | os.PathLike[str] | None) -> tuple[str, ...]:
     """`obs_keys` as a tuple (None: the default for whether there is a `model`), or a ValueError
     naming the option: some of OBS_KEYS, each once, `model_mask` exactly when a model is given."""
     if obs_keys is None:
@@ -117,7 +120,7 @@ class RowFollowEnv(gymnasium.Env):
         replacing perception.width / height (a field's camera only); `model`: a shipped model name
         or an ONNX file whose mask of each colour frame is `model_mask` (2 onnxruntime threads)."""
         self.obs_keys = check_obs_keys(obs_keys, model)
-        self.segmenter = None
+        self.segmenter: OnnxSegmenter | None = None
         if model is not None:  # loaded first: a bad name fails before the field is built
             from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 

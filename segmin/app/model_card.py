@@ -54,7 +54,7 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
             "image_size": train.get("image_size"),
             "backbone_weights": train.get("backbone_weights"),
             "kept": train.get("kept"),
-            "seconds": _training_seconds(run_dir, cache, family),
+            "seconds": _training_seconds(run_dir, family),
             "machine": train.get("machine"),
         },
         "synthetic_val_iou": train.get("kept_val_iou"),
@@ -79,7 +79,7 @@ def card_markdown(card: dict[str, Any]) -> str:
         f"- data: {data['train_frames']} rendered training frames from {', '.join(data['train_worlds']) or '?'}; "
         f"{data['val_frames']} validation frames from held-out worlds {', '.join(data['val_worlds']) or '?'}",
         f"- training: {training['epochs']} epochs at {training['image_size']} px, backbone "
-        f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} of epochs on "
+        f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} on "
         f"{training['machine'] or 'a machine the run did not record'}",
         f"- synthetic validation IoU: {format_figure(card['synthetic_val_iou'])}",
     ]
@@ -121,21 +121,17 @@ def _finished(cache: StageCache, stage: str) -> dict[str, Any] | None:
     return dict(record.outputs) if record is not None and record.finished and record.outputs else None
 
 
-def _seconds(cache: StageCache, stage: str) -> float | None:
-    record = cache.record(stage)
-    return None if record is None else record.seconds
-
-
-def _training_seconds(run_dir: Path, cache: StageCache, family: str) -> float | None:
-    """The training's time: the sum of its epochs' wall time from metrics.csv.
+def _training_seconds(run_dir: Path, family: str) -> float | None:
+    """The training's time: the sum of its epochs' wall time from metrics.csv (None without one).
 
     Why not the stage record's time: a stage resumed after an interruption records only the
     last process's share (a release training of hours resumed near its end would read minutes).
-    An epoch repeated after a resume counts once, its last row. Without a metrics.csv (a run
-    folder copied without it) the record's time is all there is.
+    metrics.csv keeps every finished epoch's time across resumes; an epoch resumed from a
+    mid-epoch checkpoint counts from its resume, so an interruption loses at most part of one.
     """
-    by_epoch = {row["epoch"]: row["seconds"] for row in read_metrics_csv(run_dir / "train" / family / "metrics.csv")}
-    return sum(by_epoch.values()) if by_epoch else _seconds(cache, f"train/{family}")
+    rows = read_metrics_csv(run_dir / "train" / family / "metrics.csv")
+    seconds = [row["seconds"] for row in rows if "seconds" in row]
+    return sum(seconds) if seconds else None
 
 
 def _in_run(run_dir: Path, stage: str, recorded: str) -> Path:
@@ -175,8 +171,18 @@ def _real_photos(cache: StageCache, family: str) -> dict[str, Any] | None:
     real = _finished(cache, f"real-eval/{family}")
     if real is None:
         return None
+    from segmin.data.real_sets import DEFAULT_REAL_SET, real_data_root
+
     keys = ("images", "mean_iou", "mean_precision", "mean_recall", "pooled_iou", "precision", "recall", "threshold")
-    return {**{k: real.get(k) for k in keys}, "contact_sheet": f"real-eval/{family}/contact_sheet.png"}
+    # Whether the figures are on segmin's own photos: only then can a report set them beside its own.
+    on_shipped = (
+        real.get("data") is not None and Path(real["data"]).resolve() == (real_data_root() / DEFAULT_REAL_SET).resolve()
+    )
+    return {
+        **{k: real.get(k) for k in keys},
+        "shipped_photos": on_shipped,
+        "contact_sheet": f"real-eval/{family}/contact_sheet.png",
+    }
 
 
 def _closed_loop(run_dir: Path, cache: StageCache, family: str) -> list[dict[str, Any]]:
@@ -204,6 +210,7 @@ def _closed_loop(run_dir: Path, cache: StageCache, family: str) -> list[dict[str
 
 
 def _duration(seconds: float | None) -> str:
+    """The training's epochs' time for people (hours from 1.5 h)."""
     if seconds is None:
-        return "unknown time"
-    return f"{seconds / 3600:.1f} h" if seconds >= 5400 else f"{seconds / 60:.1f} min"
+        return "training time not recorded (no metrics.csv)"
+    return f"{seconds / 3600:.1f} h of epochs" if seconds >= 5400 else f"{seconds / 60:.1f} min of epochs"

@@ -25,7 +25,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "release",
         help="copy a pipeline run's exported models and their model cards into the registry",
         description="Each family's export/<family>/<family>.onnx of the run becomes the shipped model of that "
-        "name, with <name>.md (the card), <name>.card.json (its figures) and the card in the ONNX metadata.",
+        "name, with <name>.md (the card), <name>.card.json (its figures), the card in the ONNX metadata and "
+        "<name>.real.jpg (the real-photo contact sheet, when the run scored the photos).",
     )
     release.add_argument("--run", type=Path, required=True, help="a finished `segmin pipeline` run folder")
     release.add_argument(
@@ -69,9 +70,9 @@ def _release(args: argparse.Namespace) -> int:
 
 def _plan(
     run: Path, families: list[str] | None, root: Path, force: bool
-) -> dict[str, tuple[Path, dict[str, Any], Any]]:
-    """{name: (exported ONNX, card, real-photo contact sheet image or None)} for every family to release;
-    errors before anything is written."""
+) -> dict[str, tuple[Path, dict[str, Any], bytes | None]]:
+    """{name: (exported ONNX, card, the real-photo contact sheet as JPEG bytes or None)} for every
+    family to release; every error comes before anything is written."""
     from segmin.app.model_card import build_card
     from segmin.nav_eval.runtime.shipped_models import SHEET_SUFFIX, SHIPPED_NAMES
 
@@ -96,29 +97,33 @@ def _plan(
     return planned
 
 
-def _contact_sheet(run: Path, card: dict[str, Any]) -> Any:
-    """The run's real-photo contact sheet as an image, None when the run scored no photos."""
+def _contact_sheet(run: Path, card: dict[str, Any]) -> bytes | None:
+    """The run's real-photo contact sheet as JPEG (a third of the PNG's size in the wheel), None
+    when the run scored no photos."""
     import cv2
 
     if not card["real_photos"]:
         return None
     path = run / card["real_photos"]["contact_sheet"]
-    if not path.is_file():
-        raise ValueError(f"{path}: the real-photo contact sheet of a scored model is missing")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
     if image is None:
-        raise ValueError(f"{path}: unreadable contact sheet")
-    return image
+        raise ValueError(
+            f"{path}: the scored model's real-photo contact sheet is missing or unreadable "
+            "(rerun `segmin pipeline` with this --out to score the photos again)"
+        )
+    ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    if not ok:
+        raise ValueError(f"{path}: could not encode the contact sheet as JPEG")
+    return jpeg.tobytes()
 
 
-def _write_release(source: Path, card: dict[str, Any], sheet: Any, root: Path, name: str) -> None:
+def _write_release(source: Path, card: dict[str, Any], sheet: bytes | None, root: Path, name: str) -> None:
     """The model with its card in the metadata, then the card files and the contact sheet (each
-    written atomically; the sheet as JPEG, a third of the PNG's size in the wheel)."""
-    import cv2
+    written atomically)."""
     import onnx
 
     from segmin.app.model_card import card_markdown
-    from segmin.common.atomic import atomic_path, write_text
+    from segmin.common.atomic import atomic_path, write_bytes, write_text
     from segmin.common.outputs import make_dirs
     from segmin.export import metadata as md
     from segmin.export.onnx import set_metadata
@@ -136,7 +141,5 @@ def _write_release(source: Path, card: dict[str, Any], sheet: Any, root: Path, n
     sheet_path = root / f"{name}{SHEET_SUFFIX}"
     if sheet is None:  # a replaced model's sheet would show another model's errors
         sheet_path.unlink(missing_ok=True)
-        return
-    with atomic_path(sheet_path, suffix=".jpg") as tmp:
-        if not cv2.imwrite(str(tmp), sheet, [cv2.IMWRITE_JPEG_QUALITY, 85]):
-            raise OSError(f"{tmp}: could not write the contact sheet")
+    else:
+        write_bytes(sheet_path, sheet)

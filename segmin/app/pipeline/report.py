@@ -28,7 +28,7 @@ def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCac
     curves = run_dir / "report" / "training_curves.png"
     _training_curves(run_dir, families, curves)
     model_results, oracle_results = _nav_eval_results(config, run_dir, families)
-    cards = shipped_cards(families)
+    cards = shipped_cards(run_dir, families)
     lines = [
         *_title_and_stages(config, cache, families),
         *_rendered_data(run_dir, cache),
@@ -218,19 +218,22 @@ REAL_REFERENCES = (
 )
 
 
-def shipped_cards(families: list[str]) -> dict[str, dict[str, Any]]:
-    """The model cards of the shipped models named like the run's families, where this install has them.
+def shipped_cards(run_dir: Path, families: list[str]) -> dict[str, dict[str, Any]]:
+    """The model cards of the shipped models named like the run's families, where this install has
+    them and they are not this run's own models (a release run's report after its release).
 
     Why in a report: what a run just trained is best judged beside what segmin ships for the same
     crop family (`segmin models list`); the figures are the cards' own, nothing is re-measured.
     """
+    from segmin.app.pipeline.cache import file_digest
     from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES, shipped_model
 
     cards = {}
     for family in families:
         entry = shipped_model(family) if family in SHIPPED_NAMES else None
         card = entry.card() if entry is not None and entry.present else None
-        if card is not None:
+        exported = run_dir / "export" / family / f"{family}.onnx"
+        if card is not None and not (exported.is_file() and file_digest(exported) == card.get("onnx_sha256")):
             cards[family] = card
     return cards
 
@@ -273,7 +276,9 @@ def _real_photos(
             f"| {family} | {_num(val_iou)} | {fmt(o['mean_iou'])} | {fmt(o['pooled_iou'])} | "
             f"{fmt(o['precision'])} | {fmt(o['recall'])} | {fmt(o['pixel_accuracy'])} |"
         )
-    shipped_rows = {f: c["real_photos"] for f, c in cards.items() if c.get("real_photos")} if shipped else {}
+    shipped_rows = {
+        f: c["real_photos"] for f, c in cards.items() if shipped and (c.get("real_photos") or {}).get("shipped_photos")
+    }
     for family, real in shipped_rows.items():
         lines.append(
             f"| {family}: shipped model | {_num(cards[family].get('synthetic_val_iou'))} | {fmt(real['mean_iou'])} | "

@@ -167,7 +167,9 @@ class PipelineRunner:
         from segmin.app.pipeline.report import shipped_cards, write_pipeline_report
 
         # The shipped models' cards are shown beside the run's: a release changes the report.
-        report_hash = hash_inputs("report", upstream, to_dict(self.config), shipped_cards(list(self.config.families)))
+        report_hash = hash_inputs(
+            "report", upstream, to_dict(self.config), shipped_cards(self.run_dir, list(self.config.families))
+        )
         report = self._stage(
             "report",
             "report",
