@@ -19,16 +19,19 @@ from segmin.app.pipeline.stages import load_results, read_metrics_csv
 from segmin.common.atomic import atomic_path, write_text
 
 
-def write_pipeline_report(config: PipelineConfig, run_dir: Path, cache: StageCache, log) -> dict[str, str]:
+def write_pipeline_report(
+    config: PipelineConfig, run_dir: Path, cache: StageCache, log, cards: dict[str, dict[str, Any]]
+) -> dict[str, str]:
     """Write run_dir/report.md and run_dir/report.html; returns their paths.
 
-    The report's sections in order, each built by its own function from what the stages left.
+    The report's sections in order, each built by its own function from what the stages left;
+    `cards` are the shipped models' cards to set beside the run's (`shipped_cards`, which the
+    caller has already hashed into the report stage's inputs).
     """
     families = list(config.families)
     curves = run_dir / "report" / "training_curves.png"
     _training_curves(run_dir, families, curves)
     model_results, oracle_results = _nav_eval_results(config, run_dir, families)
-    cards = shipped_cards(run_dir, families)
     lines = [
         *_title_and_stages(config, cache, families),
         *_rendered_data(run_dir, cache),

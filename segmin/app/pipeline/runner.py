@@ -167,14 +167,13 @@ class PipelineRunner:
         from segmin.app.pipeline.report import shipped_cards, write_pipeline_report
 
         # The shipped models' cards are shown beside the run's: a release changes the report.
-        report_hash = hash_inputs(
-            "report", upstream, to_dict(self.config), shipped_cards(self.run_dir, list(self.config.families))
-        )
+        cards = shipped_cards(self.run_dir, list(self.config.families))
+        report_hash = hash_inputs("report", upstream, to_dict(self.config), cards)
         report = self._stage(
             "report",
             "report",
             report_hash,
-            lambda folder, fresh: write_pipeline_report(self.config, self.run_dir, self.cache, self.log),
+            lambda folder, fresh: write_pipeline_report(self.config, self.run_dir, self.cache, self.log, cards),
             reads=tuple(upstream),
         )
         return Path(report["markdown"])
