@@ -27,6 +27,7 @@ from segmin.export.onnx import (
     DeployWrapper,
     build_metadata,
     check_graph_io,
+    drop_node_metadata,
     export_graph,
     set_metadata,
 )
@@ -221,6 +222,7 @@ def _export_verified_fp32(
         export_graph(model, tmp, input_size=input_size, exporter=options.exporter, opset=opset)
         graph = onnx.load(str(tmp))
         check_graph_io(graph, input_size, str(out))
+        drop_node_metadata(graph)
         set_metadata(graph, meta)
         onnx.save(graph, str(tmp))
         del graph

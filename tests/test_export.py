@@ -94,6 +94,8 @@ def test_metadata_present(exported) -> None:
     assert "sha256:" in meta[md.KEY_CHECKPOINT]
     assert "verification" in meta
     onnx.checker.check_model(str(out), full_check=True)
+    # No exporter stack traces (the building machine's paths) ride along in the nodes.
+    assert not [node.name for node in onnx.load(str(out)).graph.node if node.metadata_props]
 
 
 def test_fp16_and_int8_variants_run_and_are_reported(exported, frames_dir) -> None:
