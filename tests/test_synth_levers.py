@@ -52,6 +52,7 @@ def _frame(world, backend: str = "tiny", s: float = 1.0, pitch: float = 0.0, siz
         ({"structures": {"post_styles": ["plastic"]}}, "structures.post_styles"),
         ({"structures": {"wire_radius": [0.0, 0.01]}}, "structures.wire_radius"),
         ({"plants": {"canes": [5, 2]}}, "plants.canes"),
+        ({"plants": {"upright_shoots": [-1, 2]}}, "plants.upright_shoots"),
         ({"plants": {"dormant_leaves": 1.5}}, "plants.dormant_leaves"),
         ({"crop": "pear", "plants": {"dormant_probability": 0.5}}, "plants.dormant_probability"),
         ({"appearance": {"shade_value": [0.5, 1.2]}}, "appearance.shade_value"),
@@ -140,6 +141,26 @@ def test_bare_dormant_vine_has_canes_and_no_leaves():
     assert 5 * 3 <= len(plant.canes) <= 8 * 3  # three pieces a cane
     assert canopy.n_triangles == 8 * len(plant.canes)  # 4-sided prisms at the fine level, no leaf
     assert canopy.vertices[:, 2].min() > 0.3  # canes rise from the cordon, not from the ground
+
+
+def test_upright_shoots_rise_above_the_canopy_top():
+    """Each shoot adds one leaf cluster, all of them above the hedge's top; none on a winter vine,
+    and a vine without them draws the same plant as before the lever existed."""
+    along = np.array([1.0, 0.0])
+
+    def plant(**plants):
+        return make_plant(spec_from_dict(tiny(plants=plants)), np.random.default_rng(5), np.zeros(3), along, 0)
+
+    plain = plant()
+    top = max(centre[2] + radii[2] for centre, radii in plain.clusters)
+    shoots = plant(upright_shoots=[4, 4])
+    added = shoots.clusters[len(plain.clusters) :]
+    assert len(added) == 4
+    assert all(centre[2] > top for centre, _ in added)
+    assert len(shoots.segments) == len(plain.segments) + 4  # one stem a shoot
+    assert [c[0].tolist() for c in shoots.clusters[: len(plain.clusters)]] == [c[0].tolist() for c in plain.clusters]
+    winter = plant(upright_shoots=[4, 4], dormant_probability=1.0)
+    assert len(winter.clusters) == len(plant(dormant_probability=1.0).clusters)
 
 
 def test_deep_shade_variant_is_darker_and_greyer():

@@ -141,7 +141,31 @@ def make_plant(spec: WorldSpec, rng: np.random.Generator, base: np.ndarray, alon
         _dormant(plant, spec, rng)
     _low_branches(plant, spec, rng)
     _hanging_shoots(plant, spec, rng)
+    if not dormant:  # a winter vine's canes take the shoots' place
+        _upright_shoots(plant, spec, rng)
     return plant
+
+
+def _upright_shoots(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> None:
+    """Untrimmed shoots rising above the canopy top (vines in spring and early summer, before
+    hedging; water sprouts on trained trees): a thin stem with a few leaves along its upper part,
+    labelled canopy like the rest of the plant.
+    Rows seen from between them show these as a sparse fringe above the top wire, which a model
+    that only saw hedged canopies leaves out. Nothing is drawn (no random draw either) when the
+    spec asks for none, so worlds without them render as before.
+    """
+    ps = spec.plants
+    if not any(ps.upright_shoots) or not plant.clusters:
+        return
+    top = max(c[0][2] + c[1][2] for c in plant.clusters)
+    half_span = 0.45 * ps.spacing
+    for _ in range(_i(rng, ps.upright_shoots)):
+        start = np.array([rng.uniform(-half_span, half_span), rng.normal(0, 0.05), top - rng.uniform(0.0, 0.15)])
+        rise = rng.uniform(0.25, 0.65)
+        tip = start + np.array([rng.normal(0, 0.12), rng.normal(0, 0.1), rise])
+        _seg(plant, start, tip, 0.005, 0.003)
+        upper = start + 0.7 * (tip - start)  # above the hedge's top
+        plant.clusters.append((upper, np.array([0.08, 0.07, 0.1 + 0.3 * rise]) * rng.uniform(0.7, 1.3)))
 
 
 def _seg(plant: Plant, a, b, r0: float, r1: float) -> None:

@@ -172,6 +172,7 @@ class PlantsSpec:
     leaf_size: Range = (0.08, 0.14)  # triangle edge length (fine level of detail)
     leaf_density: float = 0.7  # 0..1, how much of each cluster's shell is covered
     hanging_shoots: tuple[int, int] = (0, 0)  # shoots per plant hanging from the canopy into the row
+    upright_shoots: tuple[int, int] = (0, 0)  # untrimmed shoots per vine rising above the canopy top
     sparse_probability: float = 0.0  # chance a plant is a sparse young vine (a third to half the leaves)
     dormant_probability: float = 0.0  # chance a vine is dormant (winter): bare canes, few or no leaves
     dormant_leaves: float = 0.1  # leaf density of a dormant vine, as a share of leaf_density (0 = bare)
@@ -189,7 +190,7 @@ class PlantsSpec:
         _check_range("plants.canopy_bottom", self.canopy_bottom)
         _check_range("plants.canopy_width", self.canopy_width, strict=True)
         _check_range("plants.leaf_size", self.leaf_size, strict=True)
-        for name in ("clusters", "branches", "low_branches", "hanging_shoots", "canes"):
+        for name in ("clusters", "branches", "low_branches", "hanging_shoots", "upright_shoots", "canes"):
             a, b = getattr(self, name)
             if a < 0 or a > b:
                 raise ValueError(f"plants.{name}: need 0 <= low <= high, got [{a}, {b}]")
