@@ -172,7 +172,7 @@ class PlantsSpec:
     leaf_size: Range = (0.08, 0.14)  # triangle edge length (fine level of detail)
     leaf_density: float = 0.7  # 0..1, how much of each cluster's shell is covered
     hanging_shoots: tuple[int, int] = (0, 0)  # shoots per plant hanging from the canopy into the row
-    upright_shoots: tuple[int, int] = (0, 0)  # untrimmed shoots per vine rising above the canopy top
+    upright_shoots: tuple[int, int] = (0, 0)  # untrimmed shoots per plant rising above the canopy top
     sparse_probability: float = 0.0  # chance a plant is a sparse young vine (a third to half the leaves)
     dormant_probability: float = 0.0  # chance a vine is dormant (winter): bare canes, few or no leaves
     dormant_leaves: float = 0.1  # leaf density of a dormant vine, as a share of leaf_density (0 = bare)
