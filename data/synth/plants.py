@@ -157,7 +157,7 @@ def _upright_shoots(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> 
     ps = spec.plants
     if not any(ps.upright_shoots) or not plant.clusters:
         return
-    top = max(c[0][2] + c[1][2] for c in plant.clusters)
+    top = _canopy_top(plant)
     half_span = 0.45 * ps.spacing
     for _ in range(_i(rng, ps.upright_shoots)):
         start = np.array([rng.uniform(-half_span, half_span), rng.normal(0, 0.05), top - rng.uniform(0.0, 0.15)])
@@ -166,6 +166,11 @@ def _upright_shoots(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> 
         _seg(plant, start, tip, 0.005, 0.003)
         upper = start + 0.7 * (tip - start)  # above the hedge's top
         plant.clusters.append((upper, np.array([0.08, 0.07, 0.1 + 0.3 * rise]) * rng.uniform(0.7, 1.3)))
+
+
+def _canopy_top(plant: Plant) -> float:
+    """Height of the highest leaf cluster's top: where winter canes end and upright shoots start."""
+    return max(centre[2] + radii[2] for centre, radii in plant.clusters)
 
 
 def _seg(plant: Plant, a, b, r0: float, r1: float) -> None:
@@ -215,7 +220,7 @@ def _dormant(plant: Plant, spec: WorldSpec, rng: np.random.Generator) -> None:
     """
     ps = spec.plants
     plant.density = ps.leaf_density * ps.dormant_leaves
-    top = max(c[0][2] + c[1][2] for c in plant.clusters)
+    top = _canopy_top(plant)
     for _ in range(_i(rng, ps.canes)):
         arm = plant.segments[int(rng.integers(1, 3))]
         t = rng.uniform(0.1, 1.0)
