@@ -115,13 +115,20 @@ def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_ru
     assert card["recipe"]["profile"] == "tiny" and len(card["recipe"]["config_sha256"]) == 16
     assert card["real_photos"]["shipped_photos"] is False  # its real-eval record names no photo folder
     assert card["closed_loop"] == [
-        {"field": "straight_vineyard", "method": "segmind", "runs": 2, "successes": 1, "mae": pytest.approx(0.2)}
+        {
+            "field": "straight_vineyard",
+            "method": "segmind",
+            "runs": 2,
+            "successes": 1,
+            "mae": pytest.approx(0.2),
+            "mae_successful": pytest.approx(0.1),
+        }
     ]
     for text in (
         "7.7 min of epochs on test box, 2 CPU cores",
         "mean IoU 0.610",
         "precision 0.640",
-        "| straight_vineyard | segmind | 1/2 |",
+        "| straight_vineyard | segmind | 1/2 | 0.200 | 0.100 |",
         "MIT",
         "contact sheet `vineyards.real.jpg` beside this card",
     ):
@@ -187,3 +194,27 @@ def test_models_list_runs_without_torch_or_onnx(registry) -> None:
     )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     assert "vineyards: not in this install" in out and "heavy: []" in out
+
+
+@pytest.mark.parametrize("name", ["vineyards", "trees"])
+def test_the_package_cards_are_what_the_card_code_writes_and_the_onnx_carries(name, monkeypatch) -> None:
+    """A card's Markdown, JSON and the ONNX metadata agree, so the card code and the shipped files never drift."""
+    from segmin.app.model_card import card_markdown
+
+    monkeypatch.delenv(ENV_MODELS_DIR, raising=False)
+    model = shipped_model(name)
+    card = model.card()
+    assert card is not None and model.present
+    assert card_markdown(card) == model.card_markdown.read_text(encoding="utf-8")
+    metadata = OnnxSegmenter(name, threads=1).metadata
+    assert json.loads(metadata["model_card_json"]) == card
+    assert metadata["model_card"] == card_markdown(card)
+
+
+def test_the_pipeline_report_shows_the_shipped_cards_mae_over_all_and_successful_runs() -> None:
+    """A run that left the row early has a short path: the report keeps its MAE apart from the full runs'."""
+    from segmin.app.pipeline.report import _closed_loop
+
+    row = {"field": "high_trees", "method": "segmind", "runs": 3, "successes": 0, "mae": 0.5, "mae_successful": None}
+    lines = _closed_loop([], [], {"trees": {"closed_loop": [row]}})
+    assert "| trees | high_trees | segmind | 0/3 | 0.500 | – |" in lines

@@ -106,11 +106,16 @@ def card_markdown(card: dict[str, Any]) -> str:
         )
     lines += ["", "## Closed loop", ""]
     if card["closed_loop"]:
-        lines += ["| field | method | successes | MAE m |", "|---|---|---|---|"]
         lines += [
-            f"| {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {format_figure(r['mae'])} |"
+            "| field | method | successes | MAE m, all runs | MAE m, successful runs |",
+            "|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {format_figure(r['mae'])} "
+            f"| {format_figure(r.get('mae_successful'))} |"
             for r in card["closed_loop"]
         ]
+        lines += ["", "A failed run's MAE covers the path until it failed (collision, leaving the row or stalling)."]
     else:
         lines.append("Not measured in this run.")
     return "\n".join([*lines, "", "## Licence", "", card["licence"], "", f"Source run: `{card['source_run']}`", ""])
@@ -186,7 +191,11 @@ def _real_photos(cache: StageCache, family: str) -> dict[str, Any] | None:
 
 
 def _closed_loop(run_dir: Path, cache: StageCache, family: str) -> list[dict[str, Any]]:
-    """Per field and method: runs, successes and mean MAE of the family's nav-eval results."""
+    """Per field and method: runs, successes and mean MAE of the family's nav-eval results.
+
+    The MAE is given over all runs and over the successful ones: a run that left the row early has
+    a short path whose MAE cannot be compared with a full run's.
+    """
     nav = _finished(cache, f"nav-eval/{family}")
     if nav is None:
         return []
@@ -196,17 +205,23 @@ def _closed_loop(run_dir: Path, cache: StageCache, family: str) -> list[dict[str
         groups.setdefault((row["field"], row["method"]), []).append(row)
     summary = []
     for (field, method), group in groups.items():
-        maes = [float(r["mae"]) for r in group if r.get("mae") is not None and math.isfinite(float(r["mae"]))]
         summary.append(
             {
                 "field": field,
                 "method": method,
                 "runs": len(group),
                 "successes": sum(bool(r.get("success")) for r in group),
-                "mae": sum(maes) / len(maes) if maes else None,
+                "mae": _mean_mae(group),
+                "mae_successful": _mean_mae([r for r in group if r.get("success")]),
             }
         )
     return summary
+
+
+def _mean_mae(rows: list[dict[str, Any]]) -> float | None:
+    """Mean of the rows' finite MAEs; None when no row has one."""
+    maes = [float(r["mae"]) for r in rows if r.get("mae") is not None and math.isfinite(float(r["mae"]))]
+    return sum(maes) / len(maes) if maes else None
 
 
 def _duration(seconds: float | None) -> str:

@@ -191,11 +191,12 @@ def _closed_loop(model_results: list[Any], oracle_results: list[Any], cards: dic
         lines += [
             "The shipped models of the same families, from their model cards (their release run's fields and runs):",
             "",
-            "| model | field | method | successes | MAE m |",
-            "|---|---|---|---|---|",
+            "| model | field | method | successes | MAE m, all runs | MAE m, successful runs |",
+            "|---|---|---|---|---|---|",
         ]
         lines += [
-            f"| {family} | {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {_num(r['mae'])} |"
+            f"| {family} | {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {_num(r['mae'])} "
+            f"| {_num(r.get('mae_successful'))} |"
             for family, rows in loops.items()
             for r in rows
         ]
