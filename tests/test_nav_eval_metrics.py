@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics, mean_std
-from segmin.nav_eval.sim.robot import Robot, RobotConfig, collides, footprint_distances
+from segmin.nav_eval.sim.robot import Robot, RobotConfig, footprint_distances
 from segmin.nav_eval.sim.track import Trajectory, point_on_polyline, project_onto_polyline
 
 
@@ -111,7 +111,6 @@ def test_footprint_distance_and_collision() -> None:
     assert d[0] == pytest.approx(1.0 - 0.255 - 0.1)
     assert d[1] == pytest.approx(0.5 - 0.215 - 0.05)
     assert d[2] < 0  # centre inside the footprint
-    assert collides(0.0, 0.0, 0.0, circles, 0.51, 0.43)
     # Turned 90 degrees, the long side faces +y: the second circle gets closer.
     d90 = footprint_distances(0.0, 0.0, math.pi / 2, circles[1:2], 0.51, 0.43)
     assert d90[0] == pytest.approx(0.5 - 0.255 - 0.05)

@@ -216,9 +216,3 @@ def footprint_distances(x: float, y: float, yaw: float, circles: np.ndarray, len
     outside = np.hypot(np.maximum(ox, 0.0), np.maximum(oy, 0.0))
     inside = np.minimum(np.maximum(ox, oy), 0.0)
     return outside + inside - circles[:, 2]
-
-
-def collides(x: float, y: float, yaw: float, circles: np.ndarray, length: float, width: float) -> bool:
-    """True when the footprint at (x, y, yaw) overlaps any circle."""
-    d = footprint_distances(x, y, yaw, circles, length, width)
-    return bool(d.size and d.min() < 0.0)

@@ -161,12 +161,6 @@ class StageCache:
                 return f"{stage} changed since it ran"
         return changed_file(self.run_dir, record.files)
 
-    def invalidate(self, stage: str) -> None:
-        """Mark a stage as not finished (its work folder stays, so resumable work is kept)."""
-        record = self.record(stage)
-        if record is not None:
-            self.started(stage, record.input_hash)
-
 
 class Timer:
     """Wall-clock seconds since construction."""
