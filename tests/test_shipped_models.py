@@ -217,4 +217,4 @@ def test_the_pipeline_report_shows_the_shipped_cards_mae_over_all_and_successful
 
     row = {"field": "high_trees", "method": "segmind", "runs": 3, "successes": 0, "mae": 0.5, "mae_successful": None}
     lines = _closed_loop([], [], {"trees": {"closed_loop": [row]}})
-    assert "| trees | high_trees | segmind | 0/3 | 0.500 | – |" in lines
+    assert "| trees | high_trees | segmind | 0/3 | 0.500 | n/a |" in lines

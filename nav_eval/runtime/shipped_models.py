@@ -15,11 +15,12 @@ robot that keeps its models outside the Python environment).
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from segmin.common.figures import format_figure
 
 SHIPPED_NAMES: tuple[str, ...] = ("vineyards", "trees")
 ENV_MODELS_DIR = "SEGMIN_MODELS_DIR"
@@ -115,13 +116,6 @@ def headline(card: dict[str, Any]) -> str:
             f"{format_figure(latency.get('median'), 2)} ms a frame ({latency.get('threads', '?')} threads)",
         ]
     )
-
-
-def format_figure(value: Any, digits: int = 3) -> str:
-    """A card figure: `digits` decimals, or n/a for one not measured."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "n/a"
-    return f"{value:.{digits}f}"
 
 
 def format_size(size: Any) -> str:

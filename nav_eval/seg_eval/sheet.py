@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from segmin.common.figures import format_figure
 from segmin.data.overlay import tint_mask
-from segmin.nav_eval.seg_eval.summary import EvalSummary, ImageResult, fmt
+from segmin.nav_eval.seg_eval.summary import EvalSummary, ImageResult
 
 # Contact-sheet colours (RGB): right crop, false crop, missed crop.
 TRUE_CROP = (0, 200, 0)
@@ -58,7 +59,7 @@ def sheet_row(
     c = result.counts
     _label(
         caption,
-        f"{result.name}   IoU {fmt(c.iou)}   precision {fmt(c.precision)}   recall {fmt(c.recall)}",
+        f"{result.name}   IoU {format_figure(c.iou)}   precision {format_figure(c.precision)}   recall {format_figure(c.recall)}",
         (4, 14),
         0.42,
     )
@@ -75,7 +76,7 @@ def contact_sheet(rows: list[np.ndarray], summary: EvalSummary) -> np.ndarray:
     f = summary.figures()
     title = (
         f"{Path(summary.model).name} on {Path(summary.data).name}: {f['images']} images, mean IoU "
-        f"{fmt(f['mean_iou'])}, pooled IoU {fmt(f['pooled_iou'])}, P {fmt(f['precision'])}, R {fmt(f['recall'])}"
+        f"{format_figure(f['mean_iou'])}, pooled IoU {format_figure(f['pooled_iou'])}, P {format_figure(f['precision'])}, R {format_figure(f['recall'])}"
     )
     _label(header, title, (6, 18), 0.45)
     panel = width // 3

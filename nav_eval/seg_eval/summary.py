@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from segmin.common.figures import format_figure
 from segmin.common.seg_metrics import ConfusionMatrix, PixelCounts
 
 
@@ -98,11 +99,11 @@ class EvalSummary:
         lines = [
             f"{self.model} ({self.kind}, input {h}x{w}, threshold {self.threshold:g}) on {self.data}: "
             f"{f['images']} images",
-            f"  mean IoU over images  {fmt(f['mean_iou'])}",
-            f"  pooled IoU            {fmt(f['pooled_iou'])}",
-            f"  precision (pooled)    {fmt(f['precision'])}",
-            f"  recall (pooled)       {fmt(f['recall'])}",
-            f"  pixel accuracy        {fmt(f['pixel_accuracy'])}",
+            f"  mean IoU over images  {format_figure(f['mean_iou'])}",
+            f"  pooled IoU            {format_figure(f['pooled_iou'])}",
+            f"  precision (pooled)    {format_figure(f['precision'])}",
+            f"  recall (pooled)       {format_figure(f['recall'])}",
+            f"  pixel accuracy        {format_figure(f['pixel_accuracy'])}",
         ]
         if f["images_without_prediction"]:
             lines.append(f"  {f['images_without_prediction']} image(s) with no crop predicted: precision n/a there")
@@ -120,11 +121,6 @@ DEFINITIONS = {
     "pooled": "pooled_iou, precision, recall, pixel_accuracy: the same formulas on counts summed over all images",
     "resolution": "prediction resized (bilinear probability) to the ground-truth mask size, then thresholded",
 }
-
-
-def fmt(value: float | None) -> str:
-    """A figure for people: three decimals, or n/a when undefined."""
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3f}"
 
 
 def json_safe(values: dict[str, Any]) -> dict[str, Any]:

@@ -21,7 +21,8 @@ from segmin.app.pipeline.cache import StageCache, file_digest
 from segmin.app.pipeline.report import count_frames
 from segmin.app.pipeline.runner import RECIPE_FILE
 from segmin.app.pipeline.stages import read_metrics_csv
-from segmin.nav_eval.runtime.shipped_models import format_figure, format_size
+from segmin.common.figures import format_figure
+from segmin.nav_eval.runtime.shipped_models import format_size
 
 LICENCE = (
     "MIT (segmin's code and these weights). Trained on frames segmin renders itself; the real photos "

@@ -17,6 +17,7 @@ from segmin.app.pipeline.cache import StageCache
 from segmin.app.pipeline.config import PipelineConfig
 from segmin.app.pipeline.stages import load_results, read_metrics_csv
 from segmin.common.atomic import atomic_path, write_text
+from segmin.common.figures import format_figure
 
 
 def write_pipeline_report(
@@ -131,8 +132,8 @@ def _training(cache: StageCache, families: list[str], curves: Path) -> list[str]
             o = record.outputs
             lines.append(
                 f"| {family} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
-                f"{_num(o['best_val_iou'])} | {_num(o['best_val_pixel_acc'])} | {o.get('kept', 'best')} | "
-                f"{_num(kept_val_iou(o))} | {record.seconds:.0f} |"
+                f"{format_figure(o['best_val_iou'])} | {format_figure(o['best_val_pixel_acc'])} | {o.get('kept', 'best')} | "
+                f"{format_figure(kept_val_iou(o))} | {record.seconds:.0f} |"
             )
     lines += [
         "",
@@ -195,8 +196,8 @@ def _closed_loop(model_results: list[Any], oracle_results: list[Any], cards: dic
             "|---|---|---|---|---|---|",
         ]
         lines += [
-            f"| {family} | {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {_num(r['mae'])} "
-            f"| {_num(r.get('mae_successful'))} |"
+            f"| {family} | {r['field']} | {r['method']} | {r['successes']}/{r['runs']} | {format_figure(r['mae'])} "
+            f"| {format_figure(r.get('mae_successful'))} |"
             for family, rows in loops.items()
             for r in rows
         ]
@@ -270,23 +271,21 @@ def _real_photos(
         "| family | synthetic val IoU | real mean IoU | real pooled IoU | precision | recall | pixel acc |",
         "|---|---|---|---|---|---|---|",
     ]
-    from segmin.nav_eval.seg_eval.summary import fmt  # undefined figures read "n/a", as eval-seg prints them
-
     for family, record in records.items():
         o = record.outputs
         train = cache.record(f"train/{family}")
         val_iou = kept_val_iou(train.outputs) if train and train.outputs else None
         lines.append(
-            f"| {family} | {_num(val_iou)} | {fmt(o['mean_iou'])} | {fmt(o['pooled_iou'])} | "
-            f"{fmt(o['precision'])} | {fmt(o['recall'])} | {fmt(o['pixel_accuracy'])} |"
+            f"| {family} | {format_figure(val_iou)} | {format_figure(o['mean_iou'])} | {format_figure(o['pooled_iou'])} | "
+            f"{format_figure(o['precision'])} | {format_figure(o['recall'])} | {format_figure(o['pixel_accuracy'])} |"
         )
     shipped_rows = {
         f: c["real_photos"] for f, c in cards.items() if shipped and (c.get("real_photos") or {}).get("shipped_photos")
     }
     for family, real in shipped_rows.items():
         lines.append(
-            f"| {family}: shipped model | {_num(cards[family].get('synthetic_val_iou'))} | {fmt(real['mean_iou'])} | "
-            f"{fmt(real['pooled_iou'])} | {fmt(real['precision'])} | {fmt(real['recall'])} | n/a |"
+            f"| {family}: shipped model | {format_figure(cards[family].get('synthetic_val_iou'))} | {format_figure(real['mean_iou'])} | "
+            f"{format_figure(real['pooled_iou'])} | {format_figure(real['precision'])} | {format_figure(real['recall'])} | n/a |"
         )
     lines.append("")
     if shipped_rows:
@@ -316,10 +315,6 @@ def _real_photos(
 def count_frames(root: Path, domains: list[str]) -> int:
     """Rendered frames of `domains` under a render split folder (the report's and the model cards' counts)."""
     return sum(len(list((root / d).glob("*/images/*/*.png"))) for d in domains)
-
-
-def _num(value: Any) -> str:
-    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3f}"
 
 
 def _comparison(results: list[Any]) -> list[str]:
