@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from segmin.common.atomic import write_bytes, write_json, write_text
+from segmin.common.figures import format_mean_std
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, mean_std
 
 # What one evaluation writes to its --out (the figures and videos beside them are named per field).
@@ -116,13 +117,6 @@ def summarise(results: list[Any]) -> list[dict[str, Any]]:
     return summary
 
 
-def _fmt(ms: tuple[float, float, int], digits: int) -> str:
-    mean, std, n = ms
-    if n == 0:
-        return "–"
-    return f"{mean:.{digits}f} ± {std:.{digits}f}"
-
-
 def table3_markdown(results: list[Any]) -> str:
     """Markdown table: per field and method, ours (mean ± std) with the paper's value in brackets."""
     digits = {"clearance_time": 2, "mae": 3, "mse": 3, "heading_avg": 3, "v_avg": 3, "omega_std": 3}
@@ -133,14 +127,14 @@ def table3_markdown(results: list[Any]) -> str:
     for e in summarise(results):
         cells = []
         for i, key in enumerate(TABLE_METRICS):
-            ours = _fmt(e[key], digits[key])
+            ours = format_mean_std(e[key][0], e[key][1], digits[key])
             paper = f" ({e['paper'][i]:.{digits[key]}f})" if e["paper"] else ""
             cells.append(ours + paper)
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(e["reasons"].items())) or "–"
         lines.append(
             f"| {e['field']} | {e['method']} | {e['successes']}/{e['runs']} | "
             + " | ".join(cells)
-            + f" | {_fmt(e['min_plant_distance'], 3)} | {reasons} |"
+            + f" | {format_mean_std(e['min_plant_distance'][0], e['min_plant_distance'][1])} | {reasons} |"
         )
     return "\n".join(lines) + "\n"
 

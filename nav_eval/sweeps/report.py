@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from segmin.common.atomic import write_text
+from segmin.common.figures import format_mean_std
 from segmin.nav_eval.evaluation.report import summarise
 from segmin.nav_eval.sweeps.spec import PARAMETERS, SweepPlan
 
@@ -109,10 +110,6 @@ def sweep_csv(rows: list[dict]) -> str:
     return buffer.getvalue()
 
 
-def _cell(mean: float, std: float) -> str:
-    return "–" if math.isnan(mean) else f"{mean:.3f} ± {std:.3f}"
-
-
 def summary_markdown(
     plan: SweepPlan, rows: list[dict], figures: dict[str, str], *, executed: int, reused: int, errored: int
 ) -> str:
@@ -164,7 +161,7 @@ def summary_markdown(
             for m in methods:
                 r = per_method[m]
                 fails = f" ({r['failures']})" if r["failures"] else ""
-                cells += [f"{r['successes']}/{r['runs']}{fails}", _cell(r["mae_mean"], r["mae_std"])]
+                cells += [f"{r['successes']}/{r['runs']}{fails}", format_mean_std(r["mae_mean"], r["mae_std"])]
             lines.append(f"| {value} | " + " | ".join(cells) + " |")
         if name in figures:
             lines += ["", f"![{name}]({figures[name]})"]

@@ -15,3 +15,10 @@ def format_figure(value: Any, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"
     return f"{value:.{digits}f}"
+
+
+def format_mean_std(mean: float, std: float, digits: int = 3) -> str:
+    """ "mean ± std" over runs, or n/a when no run gave the figure (mean NaN)."""
+    if math.isnan(mean):
+        return "n/a"
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"
