@@ -289,6 +289,7 @@ def test_the_shipped_jackal_parameter_file_is_complete_and_valid() -> None:
     params = node_params(values, path.parent)
     assert params.navigator.method == "segmind" and params.runtime.command_hz == 5
     assert values["enabled"] is False
+    assert params.node.model == "vineyards"  # the shipped model: the file drives a robot on day one
 
 
 # ---- SegCorridor's inputs: CameraInfo and Imu ----------------------------------------------

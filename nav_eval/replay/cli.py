@@ -13,7 +13,8 @@ if TYPE_CHECKING:
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
     replay = commands.add_parser(
         "replay",
-        help="run the robot runtime over a recorded sequence (frames or video): commands.csv, plot, overlay video",
+        help="run the robot runtime over a recorded sequence (frames, video or a ROS bag): commands.csv, plot, "
+        "overlay video",
         description="Runs RowFollower (the runtime a robot runs, at the paper's 20 Hz masks / 5 Hz commands) "
         "over a folder of RGB frames (with optional aligned uint16 millimetre depth PNGs or float metre .npy "
         "named alike), a video, or the colour (and depth) topics of a ROS bag (times from the header stamps), and writes commands.csv, overlay.mp4 and commands.png (the plot needs the "

@@ -7,6 +7,7 @@ import sys
 
 from segmin.app.pipeline.config import STAGES
 from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.common.shipped import shipped_names
 
 
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
@@ -20,7 +21,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument(
         "--config",
         default="quick",
-        help="profile name in configs/pipeline/ (quick, paper, micro) or a YAML path (default: quick)",
+        help=f"profile name in configs/pipeline/ ({', '.join(shipped_names('pipeline'))}) or a YAML path "
+        "(default: quick)",
     )
     parser.add_argument("--out", default=None, help="run folder (default: runs/<profile>)")
     parser.add_argument(
