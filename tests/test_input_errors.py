@@ -87,13 +87,14 @@ def test_a_numpy_depth_threshold_is_a_number():
         NavigatorConfig(method="segmin", depth_threshold=np.float32("nan"))
 
 
-def test_preview_zero_frames_is_refused(tmp_path):
+def test_preview_zero_frames_is_refused(tmp_path, capsys):
     from segmin.app.cli import main
 
     assert (
         main(["synth", "preview", "--world", "straight_vineyard", "--frames", "0", "--out", str(tmp_path / "p.png")])
         == 2
     )
+    assert "--frames: must be >= 1, got 0" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -421,9 +421,9 @@ def test_the_core_drives_segcorridor_as_the_simulator_from_camera_info_and_imu(c
     sent = [(_stamp_s(o.stamp), o.command.v, o.command.omega) for o in out.sent]
     assert len(commands) > 5
     assert [s[1:] for s in sent] == [c[1:3] for c in commands]
-    assert out.logged == [
-        f"{topics.COLOUR_INFO}: camera 48x48, fx {core.follower.navigator.camera.fx:.1f}: runtime (re)started"
-    ]
+    recorded_fx = next(m.k[0] for topic, _, m in messages if topic == topics.COLOUR_INFO)
+    assert core.follower.navigator.camera.fx == pytest.approx(recorded_fx)
+    assert out.logged == [f"{topics.COLOUR_INFO}: camera 48x48, fx {recorded_fx:.1f}: runtime (re)started"]
 
 
 def test_frames_before_camera_info_or_of_another_size_stop_the_robot_naming_the_topic(corridor_run) -> None:

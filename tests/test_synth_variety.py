@@ -78,11 +78,11 @@ def test_new_elements_have_the_right_label(client):
     world = build_world(spec_from_dict(tiny(**VARIED)), client)
     renderer = Renderer(world, CameraModel(width=48, height=48, hfov_deg=110.0))
     seen = _labels_by_kind(world, renderer, _poses(world))
-    for kind in ("backdrop_tree", "backdrop", "wood", "ground", "plants", "structure"):
+    for kind in ("backdrop_tree", "backdrop", "wood", "ground", "grass", "plants", "structure"):
         assert kind in seen, f"no {kind} pixels in the frames: {sorted(seen)}"
     assert seen["plants"] == {True}  # canopy label: leaves only
     for kind in ("backdrop_tree", "backdrop", "wood", "ground", "grass", "structure"):
-        assert seen.get(kind, {False}) == {False}, f"{kind} must be 0 in the mask"
+        assert seen[kind] == {False}, f"{kind} must be 0 in the mask"
 
 
 def test_plant_label_counts_trunks_as_vegetation(client):

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from segmin.common.figures import format_figure
 from segmin.common.machine import load_average
 
 OBSERVATIONS: dict[str, tuple[str, ...]] = {
@@ -109,4 +110,5 @@ def format_gym_rows(rows: Sequence[GymBenchRow]) -> str:
 
 
 def _ratio(rate: float, to: float | None) -> str:
-    return f"{rate / to:.2f}" if to else "nan"
+    """The rate as a multiple of `to`; n/a where nothing was timed to compare with."""
+    return format_figure(rate / to if to else None, 2)
