@@ -37,6 +37,21 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     )
     release.add_argument("--force", action="store_true", help="replace models already in the registry")
     release.set_defaults(func=_release)
+    to_torch = sub.add_parser(
+        "to-torch",
+        help="a shipped (or any segmin fp32 ONNX) model as a PyTorch state dict to train from",
+        description="Writes the model's network as a PyTorch state dict that training loads with "
+        "backbone_weights=FILE, to fine-tune a shipped model on your own frames. The exporter folded each "
+        "BatchNorm into its convolution; their statistics are measured again on --frames (any segmin dataset "
+        "root: rendered frames or your own; only the images are read). The result computes what the ONNX model "
+        "computes (checked on those frames).",
+    )
+    to_torch.add_argument("--model", required=True, help="a shipped model name or an fp32 segmin .onnx file")
+    to_torch.add_argument("--frames", type=Path, required=True, help="dataset root whose images calibrate BatchNorm")
+    to_torch.add_argument("--count", type=int, default=64, help="frames to use, evenly spread (default 64)")
+    to_torch.add_argument("--out", type=Path, required=True, help="the state dict to write (.pt)")
+    to_torch.add_argument("--force", action="store_true", help="replace --out when it exists")
+    to_torch.set_defaults(func=_to_torch)
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -143,3 +158,28 @@ def _write_release(source: Path, card: dict[str, Any], sheet: bytes | None, root
         sheet_path.unlink(missing_ok=True)
     else:
         write_bytes(sheet_path, sheet)
+
+
+def _to_torch(args: argparse.Namespace) -> int:
+    import torch
+
+    from segmin.common.atomic import atomic_path
+    from segmin.common.outputs import make_dirs
+    from segmin.models.from_onnx import check_conversion, network_from_onnx
+    from segmin.nav_eval.runtime.shipped_models import resolve_model
+
+    if args.count < 1:
+        raise ValueError(f"--count {args.count}: must be >= 1")
+    if args.out.exists() and not args.force:
+        raise ValueError(f"{args.out}: already exists (use --force to replace it)")
+    source = resolve_model(args.model)
+    network, frames = network_from_onnx(source, args.frames, args.count)
+    worst = check_conversion(network, source, frames)
+    make_dirs(args.out.parent, what="--out folder")
+    with atomic_path(args.out) as tmp:
+        torch.save(network.state_dict(), tmp)
+    print(
+        f"wrote {args.out}: the network of {source}, BatchNorm statistics from {len(frames)} frames of {args.frames} "
+        f"(largest probability difference to the ONNX model {worst:.1e}); train from it with backbone_weights={args.out}"
+    )
+    return 0
