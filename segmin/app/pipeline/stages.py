@@ -27,7 +27,10 @@ def resolve_backbone(config: PipelineConfig, log) -> str:
     if imagenet_weights_cached():
         log(f"using the cached ImageNet backbone weights at {imagenet_weights_path()}")
         return "imagenet"
-    log(f"no ImageNet backbone file at {imagenet_weights_path()}: training from scratch (backbone_weights=none)")
+    log(
+        f"no ImageNet backbone file at {imagenet_weights_path()}: families without backbone_weights of their own "
+        "train from scratch (backbone_weights=none)"
+    )
     return "none"
 
 
