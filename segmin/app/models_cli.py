@@ -165,7 +165,7 @@ def _to_torch(args: argparse.Namespace) -> int:
 
     from segmin.common.atomic import atomic_path
     from segmin.common.outputs import make_dirs
-    from segmin.models.from_onnx import check_conversion, network_from_onnx
+    from segmin.export.to_torch import check_conversion, network_from_onnx
     from segmin.nav_eval.runtime.shipped_models import resolve_model
 
     if args.count < 1:
