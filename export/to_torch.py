@@ -17,9 +17,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import onnx
 import torch
+from onnx import numpy_helper
 from torch import nn
 
+from segmin.export import metadata as md
+from segmin.export.onnx import DeployWrapper
+from segmin.export.verify import load_frames, torch_reference, verify_against_torch
 from segmin.models.lraspp import SegmentationNet, build_model
 
 _WRAPPER_PREFIX = "model."  # the exporter's wrapper module holds the SegmentationNet as `model`
@@ -36,9 +41,6 @@ def network_from_onnx(
     ValueError naming the file when it is not an fp32 segmin model whose weights fit the
     architecture its metadata names, or naming the folder when it has no frames.
     """
-    from segmin.export import metadata as md
-    from segmin.export.verify import load_frames
-
     props, tensors = _read_segmin_onnx(path)
     frames = load_frames(frames_root, md.parse_input_size(props.get(md.KEY_INPUT_SIZE, "")), limit=count)
     model = build_model("none", architecture=props.get(md.KEY_ARCHITECTURE, "lraspp_mobilenet_v3_large"))
@@ -49,11 +51,6 @@ def network_from_onnx(
 
 def _read_segmin_onnx(path: Path) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
     """(metadata, the network's weights by PyTorch name) of an fp32 segmin ONNX file."""
-    import onnx
-    from onnx import numpy_helper
-
-    from segmin.export import metadata as md
-
     try:
         graph_model = onnx.load(str(path))
     except Exception as exc:  # DecodeError, OSError: whatever onnx raises for a file that is not a model
@@ -74,9 +71,6 @@ def _read_segmin_onnx(path: Path) -> tuple[dict[str, str], dict[str, torch.Tenso
 def check_conversion(model: SegmentationNet, path: Path, frames: np.ndarray) -> float:
     """The largest probability difference between the network and the ONNX model at `path` on
     `frames`; VerificationError (a ValueError) beyond the exporter's own bound."""
-    from segmin.export.onnx import DeployWrapper
-    from segmin.export.verify import torch_reference, verify_against_torch
-
     return verify_against_torch(path, torch_reference(DeployWrapper(model.eval())), frames, 0.5).max_abs_diff
 
 
@@ -130,8 +124,6 @@ def _measure_batchnorm_inputs(model: SegmentationNet, frames: np.ndarray, batch:
             sums[name] += torch.stack([torch.full_like(x[:, 0], x.shape[1]), x.sum(1), (x * x).sum(1)])
 
         return record
-
-    from segmin.export.onnx import DeployWrapper
 
     handles = [m.register_forward_pre_hook(hook(name)) for name, m in norms.items()]
     wrapper = DeployWrapper(model.eval())  # the ONNX graph's own normalisation of uint8 frames
