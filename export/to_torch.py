@@ -42,7 +42,7 @@ def network_from_onnx(
     architecture its metadata names, or naming the folder when it has no frames.
     """
     props, tensors = _read_segmin_onnx(path)
-    frames = load_frames(frames_root, md.parse_input_size(props.get(md.KEY_INPUT_SIZE, "")), limit=count)
+    frames = load_frames(frames_root, md.parse_input_size(props[md.KEY_INPUT_SIZE]), limit=count)
     model = build_model("none", architecture=props.get(md.KEY_ARCHITECTURE, "lraspp_mobilenet_v3_large"))
     _load_folded(model, tensors, path)
     _measure_batchnorm_inputs(model, frames, batch)
@@ -56,8 +56,7 @@ def _read_segmin_onnx(path: Path) -> tuple[dict[str, str], dict[str, torch.Tenso
     except Exception as exc:  # DecodeError, OSError: whatever onnx raises for a file that is not a model
         raise ValueError(f"{path}: not a readable ONNX model ({type(exc).__name__}: {exc})") from exc
     props = {p.key: p.value for p in graph_model.metadata_props}
-    if props.get(md.KEY_FORMAT) != md.FORMAT:
-        raise ValueError(f"{path}: not a segmin ONNX model (no {md.KEY_FORMAT}={md.FORMAT} in its metadata)")
+    md.check_metadata(props, str(path))
     if props.get(md.KEY_PRECISION, "fp32") != "fp32":
         raise ValueError(f"{path}: a {props[md.KEY_PRECISION]} model; convert the fp32 file")
     tensors = {
