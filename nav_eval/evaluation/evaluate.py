@@ -42,6 +42,7 @@ from segmin.nav_eval.sim.factories import (
     make_segmenter,
     make_simulator,
 )
+from segmin.nav_eval.sim.mask_closing import with_closing
 from segmin.nav_eval.sim.mask_dropout import with_dropout
 from segmin.nav_eval.sim.protocols import FrameSegmenter
 from segmin.nav_eval.sim.track import Trajectory
@@ -274,7 +275,7 @@ class Worker:
             result.depth_threshold = config.depth_threshold(ctx.spec.name, ctx.spec.family)
             simulator = make_simulator(ctx, config)
             result.gap = simulator.gap
-            segmenter = with_dropout(self.segmenter, config.perception, job.seed)
+            segmenter = with_dropout(with_closing(self.segmenter, config.perception), config.perception, job.seed)
             follower = make_follower(job.method, result.depth_threshold, config)
             with _recorder(job, self.model, config, ctx, result.depth_threshold) as recorder:
                 episode = run_episode(

@@ -12,6 +12,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any, Literal
 
+from segmin.data.canopy_region import check_closing_radius
 from segmin.nav_eval.sim.robot import RobotConfig
 
 DEFAULT_CONFIG = "default"  # the shipped configs/nav/default.yaml
@@ -60,6 +61,10 @@ class Perception:
     # "erode" shrinks the vegetation (missed leaves), "drop" empties the mask (a lost inference).
     mask_dropout: float = 0.0
     mask_dropout_mode: Literal["erode", "drop"] = "erode"
+    # The masks closed with a disc of this radius (px) before the navigator (and any dropout)
+    # sees them (nav_eval.sim.mask_closing): with the oracle and the models' data.label_closing,
+    # a perfect model of the canopy-region label. 0: the masks as the segmenter gives them.
+    mask_closing: int = 0
     # The robot's IMU roll and pitch reach the navigator (SegCorridor levels its depth points
     # with them; the paper's methods do not use them). false: level ground is assumed.
     imu: bool = True
@@ -75,6 +80,7 @@ class Perception:
             )
         if not 0.0 <= self.mask_dropout <= 1.0:
             raise ValueError(f"perception.mask_dropout must be within [0, 1], got {self.mask_dropout}")
+        check_closing_radius(self.mask_closing, "perception.mask_closing")
         for name in ("width", "height"):
             v = getattr(self, name)
             if v is not None and v < 8:
