@@ -204,12 +204,15 @@ def test_a_killed_writers_lock_is_free_while_its_forked_workers_still_live(tmp_p
     from segmin.data.synth.writer import lock_path
 
     job = _job(tmp_path, frames=2)
+    # The worker itself reports that it runs: a fork's child runs its at-fork handlers before
+    # anything else, so the kill below cannot come before the child was scheduled (under load
+    # the parent could print the child's pid and be killed while the child had not run yet).
     code = (
         "import os, sys, time\nfrom segmin.common.lock import writer_lock\n"
         "with writer_lock(sys.argv[1], 'test'):\n"
-        "    child = os.fork()\n"
-        "    if child == 0:\n        time.sleep(60)\n        os._exit(0)\n"
-        "    print(child, flush=True)\n    time.sleep(60)\n"
+        "    if os.fork() == 0:\n"
+        "        print(os.getpid(), flush=True)\n        time.sleep(60)\n        os._exit(0)\n"
+        "    time.sleep(60)\n"
     )
     holder = subprocess.Popen([sys.executable, "-c", code, str(lock_path(job))], stdout=subprocess.PIPE, text=True)
     worker = int(holder.stdout.readline())
