@@ -1,5 +1,6 @@
-"""The canopy region for any segmenter (nav_eval.sim.mask_closing): the oracle as a perfect model
-of the label the networks learn."""
+"""Masks closed before a navigator sees them: in the simulator for any segmenter
+(nav_eval.sim.mask_closing, the oracle as a perfect model of the label the networks learn) and in
+the robot runtime's navigator (NavigatorConfig.mask_closing)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from segmin.data.canopy_region import canopy_region
+from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.sim.config import Perception, load_nav_config
 from segmin.nav_eval.sim.mask_closing import ClosedMasks, with_closing
 from segmin.nav_eval.sim.oracle import OracleSegmenter
@@ -49,3 +51,34 @@ def test_the_perception_config_decides_and_checks_the_radius() -> None:
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="perception.mask_closing"):
             Perception(mask_closing=bad)
+
+
+def _navigator(mask_closing: int) -> Navigator:
+    return Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, smooth_window=1, mask_closing=mask_closing))
+
+
+def test_the_navigator_steers_past_a_bare_branch_when_it_closes_the_masks() -> None:
+    """The branch's empty columns tie with the corridor's as the histogram minimum (SegMin takes
+    the mean of tied columns): closed, only the corridor is free."""
+    mask = _crown_with_branch_gap().mask
+    mask[5:50, :10] = mask[5:50, 150:] = True  # both rows reach the image borders
+    depth = np.full(mask.shape, 2.0, dtype=np.float32)
+    # Without: the mean of the branch's 3 columns and the corridor's 40, pulled towards the crown.
+    assert _navigator(0).step(mask, depth).target_column == pytest.approx((3 * 45 + 40 * 99.5) / 43)
+    assert _navigator(4).step(mask, depth).target_column == pytest.approx(99.5)  # the corridor's centre
+
+
+def test_the_navigator_closes_each_mask_before_the_fusion_as_the_simulator_does() -> None:
+    """NavigatorConfig.mask_closing gives the commands of masks closed by perception.mask_closing."""
+    rng = np.random.default_rng(0)
+    depth = np.full((64, 160), 2.0, dtype=np.float32)
+    closing, closed_before = _navigator(4), _navigator(0)
+    for shift in range(5):
+        mask = np.roll(_crown_with_branch_gap().mask, 3 * shift, axis=1) & (rng.random((64, 160)) > 0.1)
+        by_navigator = closing.step(mask, depth)
+        by_simulator = closed_before.step(canopy_region(mask, 4), depth)
+        assert (by_navigator.v, by_navigator.omega) == (by_simulator.v, by_simulator.omega)
+        np.testing.assert_array_equal(closing.fused_mask(), closed_before.fused_mask())
+    for bad in (-1, 2.0, False):
+        with pytest.raises(ValueError, match="^mask_closing must be an integer >= 0 px"):
+            NavigatorConfig(method="segmind", depth_threshold=5.0, mask_closing=bad)

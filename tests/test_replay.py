@@ -110,6 +110,29 @@ def test_replay_writes_all_outputs_and_the_commands_of_the_runtime(sequence, mod
     )
 
 
+class _CrownWithAHole:
+    """A segmenter that sees one crown across the image, with a 4 px hole (a bare branch) right of centre."""
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        mask = np.zeros(rgb.shape[:2], dtype=bool)
+        mask[4:40] = True
+        mask[10:34, 36:40] = False
+        return mask
+
+
+@pytest.mark.parametrize("mask_closing", [0, 3])
+def test_mask_closing_reaches_the_replayed_navigator(sequence, model, tmp_path, monkeypatch, mask_closing) -> None:
+    """Without closing, SegMin steers at the hole (column 37.5); closed, every column is alike and
+    it steers straight (the mean of all the tied columns: the image centre, 23.5)."""
+    rgb_dir, _, _ = sequence
+    monkeypatch.setattr("segmin.nav_eval.runtime.segmenter.OnnxSegmenter", lambda *_, **__: _CrownWithAHole())
+    argv = ["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin"]
+    argv += ["--depth-threshold", "5", "--mask-closing", str(mask_closing), "--out", str(tmp_path / "out")]
+    assert main(argv) == 0
+    targets = {row[3] for row in read_commands_csv(tmp_path / "out" / "commands.csv")}
+    assert targets == ({23.5} if mask_closing else {37.5})
+
+
 def test_without_depth_segmin_runs_on_the_mask_and_segmind_is_refused(sequence, model, tmp_path, capsys) -> None:
     rgb_dir, _, _ = sequence
     assert (

@@ -47,6 +47,13 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     replay.add_argument(
         "--depth-threshold", type=float, required=True, help="depth cut d_th in metres (paper: 5, 8, 10)"
     )
+    replay.add_argument(
+        "--mask-closing",
+        type=int,
+        default=0,
+        help="close each mask with a disc of this radius, px, before the fusion (default 0: the paper's; "
+        "see the shipped model's card)",
+    )
     replay.add_argument("--segment-hz", type=int, default=20, help="segmentation rate (default 20, the paper's)")
     replay.add_argument("--command-hz", type=int, default=5, help="command rate, divides --segment-hz (default 5)")
     replay.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
@@ -85,6 +92,7 @@ def _replay(args: argparse.Namespace) -> int:
         source=_bag_source(args),
         method=args.method,
         depth_threshold=args.depth_threshold,
+        mask_closing=args.mask_closing,
         depth=args.depth,
         fps=args.fps,
         timestamps=args.timestamps,

@@ -100,6 +100,7 @@ def replay(
     *,
     method: str,
     depth_threshold: float,
+    mask_closing: int = 0,
     depth: str | Path | None = None,
     fps: float | None = None,
     timestamps: str | Path | None = None,
@@ -114,7 +115,7 @@ def replay(
     The sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then)."""
     if str(model) == "oracle":
         raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
-    navigator_config = NavigatorConfig(method=method, depth_threshold=depth_threshold)
+    navigator_config = NavigatorConfig(method=method, depth_threshold=depth_threshold, mask_closing=mask_closing)
     has_depth = source.has_depth if source is not None else depth is not None
     if not has_depth and method == "segmind":
         raise ValueError("--method segmind needs --depth (depth frames); without depth use segmin (mask alone)")

@@ -131,6 +131,8 @@ DESCRIPTIONS: dict[str, str] = {
     "the camera intrinsics: camera_info_topic or camera_fx ... camera_height, and takes the IMU's roll and pitch)",
     "depth_threshold": "depth cut d_th in metres (paper: 5 vineyards, 8 pear rows and pergolas, 10 tall trees)",
     "fuse_frames": "masks ORed per command (paper: 3)",
+    "mask_closing": "SegMin, SegMinD, SegZeros: each mask closed with a disc of this radius (px of the mask) before "
+    "the fusion, so small holes inside a crown do not read as free columns (0: off, the paper's)",
     "smooth_window": "columns of the histogram's moving average (odd)",
     "v_max": "top forward speed, m/s",
     "omega_max": "top turn rate, rad/s",
@@ -305,7 +307,7 @@ def _corridor_camera(node: NodeSettings) -> CameraGeometry | None:
 
 def as_values(params: NodeParams) -> dict[str, Any]:
     """The parameters as plain name -> value (what the node declares). SegCorridor's config lacks
-    the paper's navigator-only parameters (smooth_window, omega_gain, zeros_*): they are the defaults."""
+    the paper's navigator-only parameters (mask_closing, smooth_window, omega_gain, zeros_*): they are the defaults."""
     values = {**DEFAULTS, **dataclasses.asdict(params.node), **dataclasses.asdict(params.runtime)}
     values.update({k: v for k, v in dataclasses.asdict(params.navigator).items() if k in DEFAULTS})
     return values
