@@ -60,6 +60,7 @@ def test_bench_navigator_prints_every_method(capsys: pytest.CaptureFixture[str])
         "segmin",
         "segmind",
         "segzeros",
+        "segmind, mask_closing 8",
         "segcorridor",
         "segcorridor, trunk mode",
         "segcorridor, drift observer",
