@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from segmin.data.canopy_region import canopy_region
+from segmin.nav_eval.runtime.mask_closing import close_mask
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
 from segmin.nav_eval.sim.config import Perception, load_nav_config
 from segmin.nav_eval.sim.mask_closing import ClosedMasks, with_closing
@@ -57,24 +58,34 @@ def _navigator(mask_closing: int) -> Navigator:
     return Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, smooth_window=1, mask_closing=mask_closing))
 
 
+def _rows_with_branch_gap(scale: int = 1) -> np.ndarray:
+    """Two rows 224 x `scale` px wide reaching the image borders, 40 x `scale` px of corridor
+    between them, the left crown split by a bare branch 3 x `scale` px wide."""
+    mask = np.zeros((64 * scale, 224 * scale), dtype=bool)
+    mask[5 * scale : 50 * scale] = True
+    mask[:, 110 * scale : 150 * scale] = False  # the corridor
+    mask[5 * scale : 50 * scale, 54 * scale : 57 * scale] = False  # the branch
+    return mask
+
+
 def test_the_navigator_steers_past_a_bare_branch_when_it_closes_the_masks() -> None:
     """The branch's empty columns tie with the corridor's as the histogram minimum (SegMin takes
     the mean of tied columns): closed, only the corridor is free."""
-    mask = _crown_with_branch_gap().mask
-    mask[5:50, :10] = mask[5:50, 150:] = True  # both rows reach the image borders
+    mask = _rows_with_branch_gap()
     depth = np.full(mask.shape, 2.0, dtype=np.float32)
     # Without: the mean of the branch's 3 columns and the corridor's 40, pulled towards the crown.
-    assert _navigator(0).step(mask, depth).target_column == pytest.approx((3 * 45 + 40 * 99.5) / 43)
-    assert _navigator(4).step(mask, depth).target_column == pytest.approx(99.5)  # the corridor's centre
+    assert _navigator(0).step(mask, depth).target_column == pytest.approx((3 * 55 + 40 * 129.5) / 43)
+    assert _navigator(4).step(mask, depth).target_column == pytest.approx(129.5)  # the corridor's centre
 
 
 def test_the_navigator_closes_each_mask_before_the_fusion_as_the_simulator_does() -> None:
-    """NavigatorConfig.mask_closing gives the commands of masks closed by perception.mask_closing."""
+    """At the simulator's 224 px, NavigatorConfig.mask_closing gives the commands of masks closed
+    by perception.mask_closing."""
     rng = np.random.default_rng(0)
-    depth = np.full((64, 160), 2.0, dtype=np.float32)
+    depth = np.full((64, 224), 2.0, dtype=np.float32)
     closing, closed_before = _navigator(4), _navigator(0)
     for shift in range(5):
-        mask = np.roll(_crown_with_branch_gap().mask, 3 * shift, axis=1) & (rng.random((64, 160)) > 0.1)
+        mask = np.roll(_rows_with_branch_gap(), 3 * shift, axis=1) & (rng.random((64, 224)) > 0.1)
         by_navigator = closing.step(mask, depth)
         by_simulator = closed_before.step(canopy_region(mask, 4), depth)
         assert (by_navigator.v, by_navigator.omega) == (by_simulator.v, by_simulator.omega)
@@ -82,3 +93,16 @@ def test_the_navigator_closes_each_mask_before_the_fusion_as_the_simulator_does(
     for bad in (-1, 2.0, False):
         with pytest.raises(ValueError, match="^mask_closing must be an integer >= 0 px"):
             NavigatorConfig(method="segmind", depth_threshold=5.0, mask_closing=bad)
+
+
+@pytest.mark.parametrize("scale", [2, 3])
+def test_the_radius_means_the_same_on_a_wider_camera(scale: int) -> None:
+    """The same scene at 448 or 672 px: the same radius fills the branch, keeps the corridor and
+    removes no vegetation, as at 224 px (the radius is in px at 224 px of width)."""
+    mask = _rows_with_branch_gap(scale)
+    closed = close_mask(mask, 4)
+    assert closed[10 * scale : 45 * scale, 54 * scale : 57 * scale].all()  # the branch is filled
+    assert not closed[:, 110 * scale : 150 * scale].any()  # the corridor stays free
+    assert (closed >= mask).all()
+    depth = np.full(mask.shape, 2.0, dtype=np.float32)
+    assert _navigator(4).step(mask, depth).target_column == pytest.approx(130 * scale - 0.5)  # the corridor's centre

@@ -131,8 +131,9 @@ DESCRIPTIONS: dict[str, str] = {
     "the camera intrinsics: camera_info_topic or camera_fx ... camera_height, and takes the IMU's roll and pitch)",
     "depth_threshold": "depth cut d_th in metres (paper: 5 vineyards, 8 pear rows and pergolas, 10 tall trees)",
     "fuse_frames": "masks ORed per command (paper: 3)",
-    "mask_closing": "SegMin, SegMinD, SegZeros: each mask closed with a disc of this radius (px of the mask) before "
-    "the fusion, so small holes inside a crown do not read as free columns (0: off, the paper's)",
+    "mask_closing": "SegMin, SegMinD, SegZeros: each mask closed with a disc of this radius (px at 224 px of image "
+    "width, whatever the camera's) before the fusion, so small holes inside a crown do not read as free columns "
+    "(0: off, the paper's; 8 with the shipped trees model)",
     "smooth_window": "columns of the histogram's moving average (odd)",
     "v_max": "top forward speed, m/s",
     "omega_max": "top turn rate, rad/s",

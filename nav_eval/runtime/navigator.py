@@ -35,10 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from segmin.data.canopy_region import canopy_region, check_closing_radius
+from segmin.data.canopy_region import check_closing_radius
 
 from .checks import check_depth_threshold, check_positive
 from .control import Command, CommandSmoother, clip, stop_command
+from .mask_closing import close_mask
 from .methods import DEPTH_METHODS, PAPER_METHODS
 from .protocols import NavigatorInputs
 
@@ -57,10 +58,11 @@ class NavigatorConfig:
     method: str
     depth_threshold: float
     fuse_frames: int = 3
-    # Beyond the paper (0: off): each mask closed with a disc of this radius, px of the mask, before
-    # the fusion. The shipped trees model paints the branches and holes inside a crown unevenly;
-    # under tall trees that tips SegMinD's near tie between the row ahead and the nearest trunk
-    # (docs/guide/navigation.md).
+    # Beyond the paper (0: off): each mask closed with a disc of this radius before the fusion, in
+    # px at 224 px of image width (nav_eval.runtime.mask_closing: the same on any camera). The
+    # shipped trees model paints the branches and holes inside a crown unevenly; under tall trees
+    # that tips SegMinD's near tie between the row ahead and the nearest trunk. 8 is the setting
+    # to run that model with (docs/guide/models.md).
     mask_closing: int = 0
     smooth_window: int = 11
     v_max: float = 0.5
@@ -284,7 +286,7 @@ class Navigator:
 
     def _push(self, mask_b: np.ndarray, stamp: float) -> None:
         n = self.config.fuse_frames
-        mask_b = canopy_region(mask_b, self.config.mask_closing)  # the mask itself when 0
+        mask_b = close_mask(mask_b, self.config.mask_closing)  # the mask itself when 0
         if self._masks is None or self._masks.shape[1:] != mask_b.shape:
             self._masks = np.zeros((n, *mask_b.shape), dtype=bool)
             self._stamps[:] = -np.inf
