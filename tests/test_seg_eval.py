@@ -161,6 +161,23 @@ def test_mean_iou_over_photos_differs_from_the_pooled_iou(tmp_path: Path) -> Non
     ]
 
 
+def test_truth_closing_scores_against_the_canopy_region(tmp_path: Path) -> None:
+    leaves = np.zeros((16, 16), bool)
+    leaves[:, 2:14:2] = True  # six shoots one pixel apart: the exact mask calls the gaps background
+    band = np.zeros((16, 16), bool)
+    band[:, 2:13] = True  # a model that paints the canopy region, gaps included
+    data = write_pairs(tmp_path / "set", [(band, leaves)])
+    exact, _ = evaluate(fake_predictor((16, 16)), find_frames(data), data)
+    assert exact.images[0].counts == PixelCounts(tp=96, fp=80, fn=0, tn=80)
+    closed, _ = evaluate(fake_predictor((16, 16)), find_frames(data), data, truth_closing=2)
+    assert closed.images[0].counts == PixelCounts(tp=176, fp=0, fn=0, tn=80)
+    assert "truth closed with a 2 px disc" in closed.summary_lines()[0]
+    saved = json.loads(Path(write_results(closed, None, tmp_path / "out")["json"]).read_text())
+    assert saved["truth_closing"] == 2
+    with pytest.raises(ValueError, match="truth closing radius must be an integer >= 0"):
+        evaluate(fake_predictor((16, 16)), find_frames(data), data, truth_closing=-1)
+
+
 # ----------------------------------------------------------------------------- command
 
 
@@ -255,6 +272,9 @@ def test_bad_models_fail_with_one_line(tmp_path: Path, capsys) -> None:
         == 2
     )
     assert "evaluation data folder not found" in one_error_line(capsys)
+    out = str(tmp_path / "out")
+    assert main(["eval-seg", "--model", str(garbage), "--data", str(data), "--out", out, "--truth-closing", "-2"]) == 2
+    assert "--truth-closing must be an integer >= 0 px, got -2" in one_error_line(capsys)
     # training takes only multiples of 32 (train.config), so eval-seg refuses any other side, naming --size
     for size in ("33", "16"):
         out = str(tmp_path / "out")

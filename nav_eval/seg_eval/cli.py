@@ -42,6 +42,14 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         default=None,
         help="square input size for a checkpoint, a multiple of 32 (default: its training size; an ONNX input is fixed)",
     )
+    parser.add_argument(
+        "--truth-closing",
+        type=int,
+        default=0,
+        metavar="PX",
+        help="score against the canopy region: each mask closed with a disc of PX pixels, as a training "
+        "config's data.label_closing builds its labels (default 0: the exact masks)",
+    )
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime / torch threads (default 2)")
     parser.add_argument("--force", action="store_true", help="overwrite results already in --out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -70,6 +78,7 @@ def run_eval_seg(args: argparse.Namespace) -> int:
         threshold=args.threshold,
         size=args.size,
         threads=args.threads,
+        truth_closing=args.truth_closing,
         progress=not args.no_progress and sys.stderr.isatty(),
     )
     paths = write_results(summary, sheet, out, force=args.force)

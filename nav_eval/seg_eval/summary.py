@@ -55,6 +55,7 @@ class EvalSummary:
     kind: str  # "onnx" or "checkpoint"
     threshold: float
     input_size: tuple[int, int]
+    truth_closing: int = 0  # px; > 0: scored against the canopy region, not the exact masks
     images: list[ImageResult] = field(default_factory=list)
 
     @property
@@ -87,6 +88,7 @@ class EvalSummary:
             "kind": self.kind,
             "threshold": self.threshold,
             "input_size": list(self.input_size),
+            "truth_closing": self.truth_closing,
             "summary": json_safe(self.figures()),
             "definitions": DEFINITIONS,
             "rows": [json_safe(r.row()) for r in self.images],
@@ -98,7 +100,8 @@ class EvalSummary:
         h, w = self.input_size
         lines = [
             f"{self.model} ({self.kind}, input {h}x{w}, threshold {self.threshold:g}) on {self.data}: "
-            f"{f['images']} images",
+            f"{f['images']} images"
+            + (f", truth closed with a {self.truth_closing} px disc (canopy region)" if self.truth_closing else ""),
             f"  mean IoU over images  {format_figure(f['mean_iou'])}",
             f"  pooled IoU            {format_figure(f['pooled_iou'])}",
             f"  precision (pooled)    {format_figure(f['precision'])}",
@@ -119,6 +122,7 @@ DEFINITIONS = {
     "pixel_accuracy": "(TP + TN) / pixels",
     "mean_iou": "mean of the per-image IoUs",
     "pooled": "pooled_iou, precision, recall, pixel_accuracy: the same formulas on counts summed over all images",
+    "truth_closing": "radius in px of the disc the ground truth was closed with before scoring (0: exact masks)",
     "resolution": "prediction resized (bilinear probability) to the ground-truth mask size, then thresholded",
 }
 
