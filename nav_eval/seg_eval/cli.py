@@ -57,6 +57,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def run_eval_seg(args: argparse.Namespace) -> int:
+    from segmin.data.canopy_region import check_closing_radius
     from segmin.data.real_sets import shipped_real_data
     from segmin.nav_eval.runtime.shipped_models import looks_like_name, resolve_model
     from segmin.nav_eval.seg_eval.results import check_out_dir, write_results
@@ -64,6 +65,7 @@ def run_eval_seg(args: argparse.Namespace) -> int:
 
     if args.threads < 1:
         raise ValueError(f"--threads {args.threads}: must be >= 1")
+    check_closing_radius(args.truth_closing, "--truth-closing")  # before the model loads
     model = resolve_model(args.model) if looks_like_name(args.model) else args.model  # "vineyards": the shipped file
     data = args.data if args.data is not None else shipped_real_data()
     out = args.out if args.out is not None else Path("runs") / "eval-seg" / args.model.stem

@@ -110,7 +110,6 @@ def evaluate_model(
     truth_closing: int = 0,
 ) -> tuple[EvalSummary, np.ndarray | None]:
     """`load_predictor` + `load_labelled_frames` + `evaluate` (data is checked first: it is cheaper)."""
-    check_closing_radius(truth_closing, "--truth-closing")
     frames = load_labelled_frames(data)
     predictor = load_predictor(model, threshold=threshold, size=size, threads=threads)
     return evaluate(predictor, frames, data, progress=progress, truth_closing=truth_closing)
