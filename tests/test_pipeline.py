@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
@@ -318,14 +319,17 @@ def test_profiles_are_validated() -> None:
 def test_every_shipped_profile_builds_its_training_configs(profile: str, tmp_path: Path) -> None:
     """A family's train_overrides are applied only when its training starts: a typo there would
     surface hours into a run, so each shipped profile's training configs are built here."""
-    from segmin.app.pipeline.stages import train_config_for
+    from segmin.app.pipeline.stages import check_keep, train_config_for
 
     config = load_pipeline_config(profile)
     for family, plan in config.families.items():
-        train = train_config_for(config, family, plan, tmp_path, {"train": ["synth_a"], "val": ["synth_val_a"]}, "none")
-        assert train.family == family
-        if profile != "micro":  # the full-size profiles train on the canopy-region label
-            assert train.data.label_closing == 4, (profile, family)
+        for step in config.training_chain(family):  # every stage of a chain
+            domains = {"train": ["synth_a"], "val": ["synth_val_a"]}
+            train = train_config_for(config, family, plan, tmp_path, domains, "none", step)
+            assert train.family == family
+            check_keep(step, train, f"{profile} {step.key}")
+            if "micro" not in profile:  # the full-size profiles train on the canopy-region label
+                assert train.data.label_closing == 4, (profile, family)
 
 
 def test_train_seed_reaches_every_family_and_null_keeps_the_configs_own(tmp_path: Path) -> None:
@@ -499,3 +503,175 @@ def test_ctrl_c_stops_the_trainings_side_by_side_and_each_saves_its_place(
 def read_rows(path: Path) -> list[str]:
     """The data rows of a metrics.csv (none while it does not exist)."""
     return path.read_text().splitlines()[1:] if path.is_file() else []
+
+
+# ------------------------------------------------------------------ the release recipe in one run
+
+RELEASE_CHAIN = ("train/vineyards/base", "train/vineyards/tree_edges", "train/vineyards/by_trees")
+
+
+@dataclass
+class ReleaseRun:
+    """The micro release profile, killed in its second vineyards stage and run again."""
+
+    out: Path
+    first: str  # what the killed run printed
+    second: str  # what the run that resumed it printed
+    code: int
+
+
+@pytest.fixture(scope="module")
+def release_run(tmp_path_factory: pytest.TempPathFactory) -> ReleaseRun:
+    """`segmin pipeline --config release_micro`, interrupted (as by Ctrl-C) after the first of
+    the tree_edges stage's two epochs, then the same command again."""
+    import contextlib
+    import io
+
+    import segmin.train.run as train_run
+
+    out = tmp_path_factory.mktemp("release_micro") / "run"
+    argv = ["pipeline", "--config", "release_micro", "--out", str(out)]
+    epoch = train_run.train_epoch
+
+    def killed_in_the_second_epoch(run, state) -> None:
+        if run.out_dir.name == "tree_edges" and state.epoch == 1:
+            raise KeyboardInterrupt
+        epoch(run, state)
+
+    first, second = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(first):
+        patch.setattr(train_run, "train_epoch", killed_in_the_second_epoch)
+        assert main(argv) == 130
+    with contextlib.redirect_stdout(second):
+        code = main(argv)
+    return ReleaseRun(out, first.getvalue(), second.getvalue(), code)
+
+
+def test_the_release_profile_chains_its_stages_by_checkpoint(release_run: ReleaseRun) -> None:
+    """Each vineyards fine-tuning stage starts from the checkpoint the stage before it kept (in
+    the run, no ONNX between), on its own render folder with the worlds before it and its own."""
+    import torch
+    import yaml
+
+    from segmin.models.lraspp import build_model
+
+    assert release_run.code == 0
+    cache = StageCache(release_run.out)
+    starts = []
+    for before, key in itertools.pairwise(RELEASE_CHAIN):
+        config = yaml.safe_load((release_run.out / key / "config.yaml").read_text())
+        assert config["backbone_weights"] == cache.record(before).outputs["checkpoint"], key
+        assert set(cache.record(key).reads) == {"render", before}
+        starts.append(Path(config["backbone_weights"]).name)
+    assert starts == ["best.pt", "swa.pt"]  # base keeps best, tree_edges the weight average (keep:)
+    domains = cache.record("render").outputs["training_sets"]["vineyards"]
+    assert [len(domains[s]["domains"]) for s in ("base", "tree_edges", "by_trees")] == [1, 2, 2]
+    assert domains["by_trees"]["root"] == "train-vineyards-by_trees"
+
+    def weights(key: str) -> torch.Tensor:
+        state = torch.load(cache.record(key).outputs["checkpoint"], weights_only=True)["model"]
+        return next(v for k, v in state.items() if k.endswith("weight") and v.dim() == 4)
+
+    # A few steps at lr 1e-4 move the weights by about 1e-3 at most; a network of its own differs by far more.
+    fresh = next(v for k, v in build_model("none").state_dict().items() if k.endswith("weight") and v.dim() == 4)
+    assert (weights(RELEASE_CHAIN[1]) - weights(RELEASE_CHAIN[0])).abs().max() < 1e-2
+    assert (fresh - weights(RELEASE_CHAIN[0])).abs().max() > 1e-1
+
+
+def test_a_killed_release_run_resumes_at_its_stage_and_epoch(release_run: ReleaseRun) -> None:
+    assert "train/vineyards/base: done" in release_run.first
+    assert "train/vineyards/tree_edges: done" not in release_run.first
+    for key in ("render", "train/vineyards/base"):
+        assert f"{key}: up to date, skipped" in release_run.second
+    assert "train/vineyards/tree_edges: resuming an interrupted run" in release_run.second
+    assert "resuming " in release_run.second and "epoch 2" in release_run.second  # from last.pt, not epoch 1
+    rows = read_rows(release_run.out / "train" / "vineyards" / "tree_edges" / "metrics.csv")
+    assert [row.split(",")[0] for row in rows] == ["1", "2"]  # every epoch once
+    assert "train/vineyards/by_trees: done" in release_run.second
+
+
+def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run: ReleaseRun) -> None:
+    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+    from segmin.nav_eval.runtime.shipped_models import models_dir
+
+    folder = release_run.out / "release"
+    for suffix in (".onnx", ".md", ".card.json", ".real.jpg"):
+        assert (folder / f"vineyards{suffix}").stat().st_size > 0, suffix
+    card = json.loads(OnnxSegmenter(str(folder / "vineyards.onnx"), threads=1).metadata["model_card_json"])
+    assert card == json.loads((folder / "vineyards.card.json").read_text())
+    assert card["command"] == f"segmin pipeline --config release_micro --out {release_run.out}"
+    assert card["recipe"]["profile"] == "release_micro"
+    assert [s["stage"] for s in card["stages"]] == list(RELEASE_CHAIN)
+    assert [s["start"] for s in card["stages"]] == [
+        "none",
+        "train/vineyards/base/best.pt",
+        "train/vineyards/tree_edges/swa.pt",
+    ]
+    assert [s["seed"] for s in card["stages"]] == [0, 0, 0]
+    assert [(w["world"], w["seed"], w["frames"]) for w in card["stages"][2]["worlds"]] == [
+        ("train_vineyard_a", 2101, 2),
+        ("train_vineyard_d_tree_edges", 2122, 2),
+    ]
+    assert card["data"]["train_frames"] == 4 and card["data"]["val_frames"] == 2
+    assert [(w["world"], w["seed"]) for w in card["data"]["validation"]] == [("slope_vineyard_s4", 5201)]
+    markdown = (folder / "vineyards.md").read_text()
+    assert "## Training stages" in markdown and "from train/vineyards/tree_edges/swa.pt" in markdown
+    # Into the run's folder only: the package's registry keeps its own models.
+    shipped = models_dir() / "vineyards.card.json"
+    assert not shipped.is_file() or json.loads(shipped.read_text())["recipe"]["profile"] != "release_micro"
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (
+            "families.vineyards.validation=[{world: train_vineyard_d_tree_edges, seed: 1}]",
+            "training world of vineyards",
+        ),
+        ("families.vineyards.validation=[{world: straight_vineyard, seed: 1}]", "test field of vineyards"),
+        ("families.vineyards.val_worlds=[train_vineyard_a]", "exactly one of the two"),
+        ("families.vineyards.validation=[]", "exactly one of the two"),
+        ("families.vineyards.validation=[{world: tune_pear, seed: 1}, {world: tune_pear, seed: 1}]", "listed twice"),
+        ("families.vineyards.validation=[{world: tune_pear, seed: 1, frames: 0}]", "frames must be >= 1"),
+        ("families.vineyards.finetune=[{name: a, train_overrides: [backbone_weights=x.pt]}]", "previous stage"),
+        ("families.vineyards.finetune=[{name: base}]", "other than 'base'"),
+        ("families.vineyards.finetune=[{name: a}, {name: a}]", "must differ"),
+        (
+            "families={apples: {train_worlds: [train_trees_a], val_worlds: [train_trees_a], fields: [pear_field]}}",
+            "release: no family",
+        ),
+    ],
+)
+def test_release_profiles_are_validated(override: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_pipeline_config("release_micro", [override])
+
+
+def test_a_stage_whose_keep_rule_its_training_contradicts_is_refused_before_the_first_stage(tmp_path: Path) -> None:
+    config = load_pipeline_config("release_micro", ["families.vineyards.keep=swa"])
+    runner = PipelineRunner(config, tmp_path / "run", log=lambda message: None)
+    with pytest.raises(ValueError, match="families.vineyards: stage base: keep is 'swa', so its training must set"):
+        runner.run()
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_release_profile_is_the_shipped_recipe() -> None:
+    """release.yaml is the recipe of the shipped models: trees in one stage, vineyards in three
+    (7 worlds x 860 frames, 50 epochs; + tree edges, 8 x 750, 12 epochs at 1e-4; + young vines by
+    trees, 10 x 600, 16 epochs at 3e-4), each keeping its weight average, validated on held-out worlds."""
+    from segmin.app.pipeline.stages import train_config_for
+
+    config = load_pipeline_config("release")
+    assert config.release
+    chain = config.training_chain("vineyards")
+    assert [(len(s.worlds), s.frames_per_world) for s in chain] == [(7, 860), (8, 750), (10, 600)]
+    assert [s.keep for s in chain] == ["swa", "swa", "swa"]
+    assert [s.key for s in config.training_chain("trees")] == ["train/trees"]
+    domains = {"train": ["synth_a"], "val": ["synth_val_a"]}
+    plan = config.families["vineyards"]
+    trained = [train_config_for(config, "vineyards", plan, Path("r"), domains, "none", s, "init.pt") for s in chain]
+    assert [(t.epochs, t.lr, t.swa_start_epoch) for t in trained] == [(50, 3e-4, 38), (12, 1e-4, 7), (16, 3e-4, 9)]
+    assert {t.backbone_weights for t in trained} == {"init.pt"} and {t.data.label_closing for t in trained} == {4}
+    for family, plan in config.families.items():
+        held_out = {v.world for v in plan.validation}
+        assert held_out and not held_out & {w for s in config.training_chain(family) for w in s.worlds}

@@ -1,8 +1,9 @@
 """Model cards: what a released model is, how it was made and how well it does, from its pipeline run.
 
 Why a card: a shipped model is only as trustworthy as what is known about it. The card gathers,
-from the stage records of one `segmin pipeline` run folder (nothing is re-measured), the recipe
-and its hash, the data (worlds, frame counts), the training time and machine, the synthetic
+from the stage records of one `segmin pipeline` run folder (nothing is re-measured), the command
+and the recipe with its hash, the data (worlds with their seeds, frame counts), the chain of
+training stages (each fine-tuning stage from the one before), the training time and machine, the synthetic
 validation IoU, the real-photo IoU / precision / recall with the contact sheet, the closed-loop
 results, the onnxruntime latency and the licence. A stage the run did not do is reported as
 "not measured", never guessed. `card_markdown` renders it for people; the same dict goes beside
@@ -18,8 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from segmin.app.pipeline.cache import StageCache, file_digest
+from segmin.app.pipeline.config import FIRST_STAGE
 from segmin.app.pipeline.report import count_frames
-from segmin.app.pipeline.runner import RECIPE_FILE
+from segmin.app.pipeline.runner import COMMAND_FILE, RECIPE_FILE
 from segmin.app.pipeline.stages import read_metrics_csv
 from segmin.common.figures import format_figure
 from segmin.nav_eval.runtime.shipped_models import format_size
@@ -37,10 +39,16 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
     at least the training and the export; the evaluations are optional).
     """
     cache = StageCache(run_dir)
-    train, export = _finished(cache, f"train/{family}"), _finished(cache, f"export/{family}")
-    if train is None or export is None:
-        raise ValueError(f"{run_dir}: no finished train/{family} and export/{family} stages (run `segmin pipeline`)")
+    export = _finished(cache, f"export/{family}")
+    # The training stages that made the model, first to last (records from before fine-tuning
+    # stages existed name none: the family's one training stage).
+    keys = list(export.get("train_stages", [f"train/{family}"])) if export is not None else [f"train/{family}"]
+    chain = [_finished(cache, key) for key in keys]
+    train = chain[-1]
+    if train is None or export is None or None in chain:
+        raise ValueError(f"{run_dir}: no finished {keys[-1]} and export/{family} stages (run `segmin pipeline`)")
     onnx = _in_run(run_dir, f"export/{family}", export["onnx"])
+    worlds = ((_finished(cache, "render") or {}).get("worlds") or {}).get(family, [])
     return {
         "name": family,
         "family": family,
@@ -49,15 +57,18 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
         "onnx_sha256": file_digest(onnx),
         "onnx_mb": round(onnx.stat().st_size / 1e6, 2),
         "recipe": _recipe(run_dir),
-        "data": _data(run_dir, cache, family),
+        "command": _command(run_dir),
+        "data": _data(run_dir, cache, family, _stage_name(keys[-1])),
         "training": {
             "epochs": train.get("epochs"),
             "image_size": train.get("image_size"),
             "backbone_weights": train.get("backbone_weights"),
             "kept": train.get("kept"),
-            "seconds": _training_seconds(run_dir, family),
+            "seed": train.get("seed"),
+            "seconds": _chain_seconds(run_dir, keys),
             "machine": train.get("machine"),
         },
+        "stages": [_stage_entry(run_dir, key, outputs, worlds) for key, outputs in zip(keys, chain, strict=True)],
         "synthetic_val_iou": train.get("kept_val_iou"),
         "real_photos": _real_photos(cache, family),
         "closed_loop": _closed_loop(run_dir, cache, family),
@@ -76,14 +87,25 @@ def card_markdown(card: dict[str, Any]) -> str:
         "",
         f"- network: `{card['architecture']}`, input {format_size(card['input_size'])} (uint8 RGB NHWC), "
         f"{card['onnx_mb']} MB fp32 ONNX, sha256 `{card['onnx_sha256'][:16]}`",
-        f"- recipe: pipeline profile `{recipe['profile']}`, config sha256 `{recipe['config_sha256']}`",
+        f"- recipe: pipeline profile `{recipe['profile']}`, config sha256 `{recipe['config_sha256']}`"
+        + (f"; command `{card['command']}`" if card.get("command") else ""),
         f"- data: {data['train_frames']} rendered training frames from {', '.join(data['train_worlds']) or '?'}; "
-        f"{data['val_frames']} validation frames from held-out worlds {', '.join(data['val_worlds']) or '?'}",
-        f"- training: {training['epochs']} epochs at {training['image_size']} px, backbone "
+        f"{data['val_frames']} validation frames from held-out worlds {', '.join(data['val_worlds']) or '?'}"
+        + (f" ({_world_list(data['validation'])})" if data.get("validation") else ""),
+        f"- training: {training['epochs']} epochs at {training['image_size']} px, seed {training.get('seed', '?')}, backbone "
         f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} on "
         f"{training['machine'] or 'a machine the run did not record'}",
         f"- synthetic validation IoU: {format_figure(card['synthetic_val_iou'])}",
     ]
+    if len(card.get("stages") or []) > 1:
+        lines += ["", "## Training stages", ""]
+        lines += [
+            f"{i}. `{st['stage']}`: from {st['start']}, {st['epochs']} epochs, seed {st['seed']}, kept `{st['kept']}` (validation IoU "
+            f"{format_figure(st['val_iou'])}), {_duration(st['seconds'])}; {st['frames']} frames from "
+            f"{_world_list(st['worlds'])}"
+            for i, st in enumerate(card["stages"], 1)
+        ]
+        lines.append("")
     if real:
         lines.append(
             f"- real photos ({real['images']} labelled vineyard photos, a test set): mean IoU "
@@ -127,17 +149,58 @@ def _finished(cache: StageCache, stage: str) -> dict[str, Any] | None:
     return dict(record.outputs) if record is not None and record.finished and record.outputs else None
 
 
-def _training_seconds(run_dir: Path, family: str) -> float | None:
-    """The training's time: the sum of its epochs' wall time from metrics.csv (None without one).
+def _training_seconds(run_dir: Path, key: str) -> float | None:
+    """A training stage's time: the sum of its epochs' wall time from metrics.csv (None without one).
 
     Why not the stage record's time: a stage resumed after an interruption records only the
     last process's share (a release training of hours resumed near its end would read minutes).
     metrics.csv keeps every finished epoch's time across resumes; an epoch resumed from a
     mid-epoch checkpoint counts from its resume, so an interruption loses at most part of one.
     """
-    rows = read_metrics_csv(run_dir / "train" / family / "metrics.csv")
+    rows = read_metrics_csv(run_dir / key / "metrics.csv")
     seconds = [row["seconds"] for row in rows if "seconds" in row]
     return sum(seconds) if seconds else None
+
+
+def _chain_seconds(run_dir: Path, keys: list[str]) -> float | None:
+    """The whole chain's time of epochs (None when no stage recorded one)."""
+    times = [t for t in (_training_seconds(run_dir, key) for key in keys) if t is not None]
+    return sum(times) if times else None
+
+
+def _stage_entry(run_dir: Path, key: str, outputs: dict[str, Any], worlds: list[dict[str, Any]]) -> dict[str, Any]:
+    """One training stage of the chain: where it started, its data and what it kept."""
+    own = [w for w in worlds if w.get("stage") == _stage_name(key)]
+    start = str(outputs.get("backbone_weights"))
+    run = str(run_dir)
+    return {
+        "stage": key,
+        # A fine-tuning stage starts from a checkpoint inside the run: named by its path in the run.
+        "start": Path(start).relative_to(run).as_posix() if start.startswith(run) else start,
+        "epochs": outputs.get("epochs"),
+        "seed": outputs.get("seed"),
+        "kept": outputs.get("kept"),
+        "val_iou": outputs.get("kept_val_iou"),
+        "seconds": _training_seconds(run_dir, key),
+        "worlds": own,
+        "frames": sum(int(w["frames"]) for w in own),
+    }
+
+
+def _stage_name(key: str) -> str:
+    """train/<family>/<stage> -> <stage>; a family's only stage, train/<family>, is its first."""
+    return key.split("/")[2] if key.count("/") > 1 else FIRST_STAGE
+
+
+def _world_list(worlds: list[dict[str, Any]]) -> str:
+    """world (seed s, n frames), ... for people."""
+    return ", ".join(f"{w['world']} (seed {w['seed']}, {w['frames']} frames)" for w in worlds) or "?"
+
+
+def _command(run_dir: Path) -> str | None:
+    """The `segmin pipeline` command line that ran the run (None for a run from before it was recorded)."""
+    path = run_dir / COMMAND_FILE
+    return path.read_text(encoding="utf-8").strip() if path.is_file() else None
 
 
 def _in_run(run_dir: Path, stage: str, recorded: str) -> Path:
@@ -162,14 +225,19 @@ def _recipe(run_dir: Path) -> dict[str, str]:
     return {"profile": str(profile), "config_sha256": hashlib.sha256(text.encode()).hexdigest()[:16]}
 
 
-def _data(run_dir: Path, cache: StageCache, family: str) -> dict[str, Any]:
+def _data(run_dir: Path, cache: StageCache, family: str, stage: str) -> dict[str, Any]:
+    """The last training stage's frames (the model's final data) and the validation frames."""
     render = _finished(cache, "render") or {}
     domains = render.get("domains", {}).get(family, {"train": [], "val": []})
+    sets = (render.get("training_sets") or {}).get(family, {})
+    last = sets.get(stage, {"root": "train", "domains": domains["train"]})
+    worlds = (render.get("worlds") or {}).get(family, [])
     return {
-        "train_worlds": list(domains["train"]),
+        "train_worlds": list(last["domains"]),
         "val_worlds": list(domains["val"]),
-        "train_frames": count_frames(run_dir / "render" / "train", domains["train"]),
+        "train_frames": count_frames(run_dir / "render" / last["root"], last["domains"]),
         "val_frames": count_frames(run_dir / "render" / "val", domains["val"]),
+        "validation": [w for w in worlds if w.get("stage") == "validation"],
     }
 
 

@@ -74,13 +74,23 @@ def _release(args: argparse.Namespace) -> int:
     from segmin.nav_eval.runtime.shipped_models import models_dir
 
     root = args.to if args.to is not None else models_dir()
-    planned = _plan(args.run, args.families, root, args.force)
-    for name, (source, card, sheet) in planned.items():
-        _write_release(source, card, sheet, root, name)
+    for name, (_, card, sheet) in release_run(args.run, root, families=args.families, force=args.force).items():
         onnx = root / f"{name}.onnx"
         extra = f", {card['real_photos']['contact_sheet_file']}" if sheet is not None else ""
         print(f"released {name}: {onnx} ({onnx.stat().st_size / 1e6:.1f} MB) with {name}.md, {name}.card.json{extra}")
     return 0
+
+
+def release_run(
+    run: Path, root: Path, *, families: list[str] | None = None, force: bool = False
+) -> dict[str, tuple[Path, dict[str, Any], bytes | None]]:
+    """Release the run's models into `root`: what `segmin models release` does, and the last
+    stage of a pipeline profile with `release: true` (into the run's own release/ folder).
+    Returns what was released: {name: (exported ONNX, card, contact sheet bytes or None)}."""
+    planned = _plan(run, families, root, force)
+    for name, (source, card, sheet) in planned.items():
+        _write_release(source, card, sheet, root, name)
+    return planned
 
 
 def _plan(

@@ -37,6 +37,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def _pipeline(args: argparse.Namespace) -> int:
+    import shlex
     from pathlib import Path
 
     from segmin.app.pipeline.config import load_pipeline_config
@@ -45,10 +46,24 @@ def _pipeline(args: argparse.Namespace) -> int:
 
     config = load_pipeline_config(args.config, overrides_of(args))
     out = Path(args.out) if args.out else Path("runs") / config.profile
+    command = shlex.join(
+        [
+            "segmin",
+            "pipeline",
+            "--config",
+            args.config,
+            "--out",
+            str(out),
+            *(["--from", args.from_stage] if args.from_stage else []),
+            *overrides_of(args),
+        ]
+    )
     try:
-        report = PipelineRunner(config, out, from_stage=args.from_stage).run()
+        report = PipelineRunner(config, out, from_stage=args.from_stage, command=command).run()
     except RunErrors as exc:  # the stage stays unfinished; a rerun does it again
         print(f"segmin: error: {exc}", file=sys.stderr)
         return 1
+    if config.release:
+        print(f"released: {out / 'release'} (models, cards and contact sheets as `segmin models release` ships them)")
     print(f"report: {report} (and {report.with_suffix('.html')})")
     return 0

@@ -2,10 +2,13 @@
 
 The paper trains one model per crop family and tests it on that family's fields: the trees
 model drives the high-tree and pear rows, the vineyards model the three vineyards. A profile
-lists, per family, the training worlds, the held-out validation worlds (rendered with another
-seed, so they are never the worlds the training frames came from), the training config and the
-test fields. Training and nav configs are shipped names or YAML paths (relative to the
-working folder).
+lists, per family, the training worlds, the held-out validation worlds, the training config and the
+test fields. Validation is either `validation` (worlds no training stage uses, each rendered
+from a seed of its own: what a model choice may look at) or `val_worlds` (the training worlds
+grown again from another seed: the quick profiles). A family may add fine-tuning stages
+(`finetune`), each starting from the checkpoint the stage before it kept, so that a recipe
+of several trainings is one run. Training and nav configs are shipped names or YAML paths
+(relative to the working folder).
 """
 
 from __future__ import annotations
@@ -19,28 +22,131 @@ from segmin.common.executor import Executor
 from segmin.common.shipped import resolve_config
 from segmin.nav_eval.runtime.methods import METHODS
 
-STAGES: tuple[str, ...] = ("render", "train", "export", "real-eval", "nav-eval", "report")
+STAGES: tuple[str, ...] = ("render", "train", "export", "real-eval", "nav-eval", "report", "release")
+
+# Which checkpoint of a training is the model: the weight average of the last epochs (`swa`,
+# nothing is chosen by a figure), or the epoch with the best validation IoU (`best`).
+Keep = Literal["swa", "best"]
+FIRST_STAGE = "base"  # the name of a family's first training stage
+
+
+@dataclass
+class ValidationWorld:
+    """A held-out world a family validates on: a world no training stage uses, rendered from a
+    seed of its own, so a choice made on its figures cannot fit the training frames (nor the
+    real photos, which no stage reads)."""
+
+    world: str
+    seed: int
+    frames: int = 120
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed!r}")
+        if isinstance(self.frames, bool) or self.frames < 1:
+            raise ValueError(f"frames must be >= 1, got {self.frames!r}")
+
+
+@dataclass
+class FineTunePlan:
+    """A training stage after the family's first: it starts from the checkpoint the stage before it
+    kept (PyTorch, in the same run: no export and conversion between), on that stage's worlds plus
+    `add_worlds`, with the family's training config and overrides, then its own."""
+
+    name: str
+    add_worlds: list[str] = field(default_factory=list)
+    frames_per_world: int | None = None  # null: the previous stage's
+    train_overrides: list[str] = field(default_factory=list)
+    keep: Keep | None = None  # the model-choice rule, checked against the training config
+
+    def __post_init__(self) -> None:
+        if not self.name.replace("_", "").isalnum() or self.name == FIRST_STAGE:
+            raise ValueError(f"name {self.name!r}: a word (letters, digits, _) other than {FIRST_STAGE!r}")
+        if self.frames_per_world is not None and (isinstance(self.frames_per_world, bool) or self.frames_per_world < 1):
+            raise ValueError(f"frames_per_world must be >= 1 or null, got {self.frames_per_world!r}")
+        if any(item.split("=", 1)[0].strip() == "backbone_weights" for item in self.train_overrides):
+            raise ValueError("train_overrides: backbone_weights is the previous stage's checkpoint; do not set it")
+
+
+@dataclass(frozen=True)
+class TrainStep:
+    """One training stage of a family's chain, as the runner runs it (derived, not configured)."""
+
+    key: str  # the stage key: train/<family> alone, train/<family>/<name> in a chain
+    name: str
+    worlds: tuple[str, ...]
+    frames_per_world: int
+    render_split: str  # the render folder of its training frames
+    overrides: tuple[str, ...]  # after the family's train_overrides
+    keep: Keep | None
 
 
 @dataclass
 class FamilyPlan:
-    """One crop family: its worlds, its training config and the fields its model drives."""
+    """One crop family: its worlds, its training config (and fine-tuning stages), the fields its model drives."""
 
     train_worlds: list[str]
-    val_worlds: list[str]
-    fields: list[str]
+    # Legacy validation: the training worlds again from another seed (render.val_seed_offset).
+    val_worlds: list[str] = field(default_factory=list)
+    fields: list[str] = field(default_factory=list)
     train_config: str = "quick"  # a shipped training config or a YAML path
     train_overrides: list[str] = field(default_factory=list)
     # Frames rendered per training world for this family (default: render.frames_per_world), so
     # a family with more worlds can keep the same number of frames, and the same training time.
     frames_per_world: int | None = None
+    # Held-out validation worlds with their own seeds and frame counts (instead of val_worlds).
+    validation: list[ValidationWorld] = field(default_factory=list)
+    keep: Keep | None = None  # the first stage's model-choice rule (null: whatever the training config does)
+    finetune: list[FineTunePlan] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        for name in ("train_worlds", "val_worlds", "fields"):
+        for name in ("train_worlds", "fields"):
             if not getattr(self, name):
                 raise ValueError(f"{name}: list at least one world")
+        if bool(self.val_worlds) == bool(self.validation):
+            raise ValueError("give the held-out worlds in validation (or val_worlds), exactly one of the two")
         if self.frames_per_world is not None and (isinstance(self.frames_per_world, bool) or self.frames_per_world < 1):
             raise ValueError(f"frames_per_world must be >= 1 or null, got {self.frames_per_world!r}")
+        names = [stage.name for stage in self.finetune]
+        if len(set(names)) != len(names):
+            raise ValueError(f"finetune: stage names must differ, got {names}")
+        pairs = [(v.world, v.seed) for v in self.validation]
+        if len(set(pairs)) != len(pairs):
+            raise ValueError(f"validation: a world and seed listed twice in {pairs}")
+
+    def training_chain(self, family: str, default_frames: int) -> list[TrainStep]:
+        """The family's training stages in order: the first on `train_worlds`, then each fine-tuning
+        stage on the worlds before it plus its own. A family without fine-tuning keeps the stage key
+        and render folder it always had (train/<family>, render/train)."""
+        chained = bool(self.finetune)
+        frames = self.frames_per_world or default_frames
+        worlds = tuple(self.train_worlds)
+        steps = [
+            TrainStep(
+                key=f"train/{family}/{FIRST_STAGE}" if chained else f"train/{family}",
+                name=FIRST_STAGE,
+                worlds=worlds,
+                frames_per_world=frames,
+                render_split="train",
+                overrides=(),
+                keep=self.keep,
+            )
+        ]
+        for stage in self.finetune:
+            worlds = (*worlds, *(w for w in stage.add_worlds if w not in worlds))
+            frames = stage.frames_per_world or frames
+            steps.append(
+                TrainStep(
+                    key=f"train/{family}/{stage.name}",
+                    name=stage.name,
+                    worlds=worlds,
+                    frames_per_world=frames,
+                    render_split=f"train-{family}-{stage.name}",
+                    overrides=tuple(stage.train_overrides),
+                    keep=stage.keep,
+                )
+            )
+        return steps
 
 
 @dataclass
@@ -158,6 +264,9 @@ class PipelineConfig:
     # Not a stage input: the outputs are the same on either.
     executor: str = "local"
     ray_address: str | None = None
+    # End with the release stage: what `segmin models release` ships (models, cards, contact
+    # sheets) written into <run>/release/, never into the package.
+    release: bool = False
 
     def __post_init__(self) -> None:
         if not self.families:
@@ -166,10 +275,39 @@ class PipelineConfig:
         if self.train_seed is not None and (isinstance(self.train_seed, bool) or self.train_seed < 0):
             raise ValueError(f"train_seed must be >= 0 or null, got {self.train_seed!r}")
         check_training_sources(self)
+        check_held_out(self)
+        if self.release:
+            from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
+
+            if not set(self.families) & set(SHIPPED_NAMES):
+                raise ValueError(f"release: no family is named as a shipped model ({', '.join(SHIPPED_NAMES)})")
+
+    def training_chain(self, family: str) -> list[TrainStep]:
+        """`family`'s training stages in order; the last one's model is exported."""
+        return self.families[family].training_chain(family, self.render.frames_per_world)
 
     def fan_out(self) -> Executor:
         """The render and nav-eval stages' executor."""
         return Executor(self.executor, self.ray_address)
+
+
+def check_held_out(config: PipelineConfig) -> None:
+    """A `validation` world is held out: no training stage of any family renders it, and it is
+    none of the closed-loop test fields (a choice made on it would then fit the test)."""
+    trained = {w: f for f in config.families for step in config.training_chain(f) for w in step.worlds}
+    fields = {w: f for f, plan in config.families.items() for w in plan.fields}
+    for family, plan in config.families.items():
+        for entry in plan.validation:
+            if entry.world in trained:
+                raise ValueError(
+                    f"families.{family}.validation: {entry.world} is a training world of {trained[entry.world]}; "
+                    "validation worlds must be held out"
+                )
+            if entry.world in fields:
+                raise ValueError(
+                    f"families.{family}.validation: {entry.world} is a test field of {fields[entry.world]}; "
+                    "validation worlds must be held out"
+                )
 
 
 def check_training_sources(config: PipelineConfig) -> None:
@@ -184,7 +322,8 @@ def check_training_sources(config: PipelineConfig) -> None:
 
     extra = [config.real_eval.data] if config.real_eval.data is not None else []
     for family, plan in config.families.items():
-        overrides = dict(item.split("=", 1) for item in plan.train_overrides if "=" in item)
+        own = [*plan.train_overrides, *(item for stage in plan.finetune for item in stage.train_overrides)]
+        overrides = dict(item.split("=", 1) for item in own if "=" in item)
         data_overrides = {k: v.strip() for k, v in overrides.items() if k.strip().startswith("data.")}
         paths = {
             f"families.{family}.train_config": plan.train_config,
@@ -197,6 +336,8 @@ def check_training_sources(config: PipelineConfig) -> None:
         names = {
             f"families.{family}.train_worlds": plan.train_worlds,
             f"families.{family}.val_worlds": plan.val_worlds,
+            f"families.{family}.validation": [v.world for v in plan.validation],
+            **{f"families.{family}.finetune.{s.name}.add_worlds": s.add_worlds for s in plan.finetune},
             **{
                 f"families.{family}.train_overrides {k}": [d.strip(" '\"") for d in v.strip("[]").split(",")]
                 for k, v in data_overrides.items()

@@ -30,13 +30,17 @@ def write_pipeline_report(
     caller has already hashed into the report stage's inputs).
     """
     families = list(config.families)
+    # Every training stage by its label: the family, or family/stage in a chain of fine-tuning stages.
+    trainings = {
+        step.key.removeprefix("train/"): step.key for family in families for step in config.training_chain(family)
+    }
     curves = run_dir / "report" / "training_curves.png"
-    _training_curves(run_dir, families, curves)
+    _training_curves(run_dir, trainings, curves)
     model_results, oracle_results = _nav_eval_results(config, run_dir, families)
     lines = [
         *_title_and_stages(config, cache, families),
         *_rendered_data(run_dir, cache),
-        *_training(cache, families, curves),
+        *_training(cache, trainings, curves),
         *_export(cache, families),
         "",
         *_real_photos(config, cache, families, cards),
@@ -83,7 +87,8 @@ def _title_and_stages(config: PipelineConfig, cache: StageCache, families: list[
     ]
     for key in [
         "render",
-        *[f"{s}/{f}" for s in ("train", "export", "real-eval", "nav-eval") for f in families],
+        *[step.key for f in families for step in config.training_chain(f)],
+        *[f"{s}/{f}" for s in ("export", "real-eval", "nav-eval") for f in families],
         *(["nav-eval/oracle"] if config.nav.oracle else []),
     ]:
         record = cache.record(key)
@@ -118,20 +123,20 @@ def _rendered_data(run_dir: Path, cache: StageCache) -> list[str]:
     return lines
 
 
-def _training(cache: StageCache, families: list[str], curves: Path) -> list[str]:
-    """Section 2: one row per family's training, and the training curves."""
+def _training(cache: StageCache, trainings: dict[str, str], curves: Path) -> list[str]:
+    """Section 2: one row per training stage ({label: stage key}), and the training curves."""
     lines = [
         "## 2. Training",
         "",
         "| family | epochs | image size | backbone | best val IoU | pixel acc | exported | its val IoU | time s |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for family in families:
-        record = cache.record(f"train/{family}")
+    for label, key in trainings.items():
+        record = cache.record(key)
         if record and record.outputs:
             o = record.outputs
             lines.append(
-                f"| {family} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
+                f"| {label} | {o['epochs']} | {o['image_size']} | {o['backbone_weights']} | "
                 f"{format_figure(o['best_val_iou'])} | {format_figure(o['best_val_pixel_acc'])} | {o.get('kept', 'best')} | "
                 f"{format_figure(kept_val_iou(o))} | {record.seconds:.0f} |"
             )
@@ -273,7 +278,7 @@ def _real_photos(
     ]
     for family, record in records.items():
         o = record.outputs
-        train = cache.record(f"train/{family}")
+        train = cache.record(config.training_chain(family)[-1].key)
         val_iou = kept_val_iou(train.outputs) if train and train.outputs else None
         lines.append(
             f"| {family} | {format_figure(val_iou)} | {format_figure(o['mean_iou'])} | {format_figure(o['pooled_iou'])} | "
@@ -338,13 +343,13 @@ def _comparison(results: list[Any]) -> list[str]:
     return lines or ["(no SegMinD runs)"]
 
 
-def _training_curves(run_dir: Path, families: list[str], path: Path) -> None:
+def _training_curves(run_dir: Path, trainings: dict[str, str], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    histories = {f: read_metrics_csv(run_dir / "train" / f / "metrics.csv") for f in families}
+    histories = {label: read_metrics_csv(run_dir / key / "metrics.csv") for label, key in trainings.items()}
     if not any(histories.values()):
         return
     fig, (loss_ax, iou_ax) = plt.subplots(1, 2, figsize=(10, 3.6))

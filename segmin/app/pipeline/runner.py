@@ -1,9 +1,16 @@
 """Run the stages in order, skipping what is up to date and resuming what was interrupted.
 
-Stage keys and folders: `render`, `train/<family>`, `export/<family>`, `real-eval/<family>`,
-`nav-eval/<family>`, `nav-eval/oracle`, `report`. A stage's input hash chains the hashes of the stages it reads, so
-changing a training config reruns that family's training, export and evaluation, and nothing
-else. `--from STAGE` reruns that stage and every later one from scratch.
+Stage keys and folders: `render`, `train/<family>` (a family with fine-tuning stages:
+`train/<family>/base`, then `train/<family>/<name>` for each), `export/<family>`,
+`real-eval/<family>`, `nav-eval/<family>`, `nav-eval/oracle`, `report`, and with `release: true`
+`release`. A stage's input hash chains the hashes of the stages it reads, so changing a training
+config reruns that family's training (and its later fine-tuning stages), export and evaluation,
+and nothing else. `--from STAGE` reruns that stage and every later one from scratch.
+
+A family's training stages run in order, each fine-tuning stage from the checkpoint the stage
+before it kept; with `parallel_training` the families' n-th stages run side by side. An
+interrupted chain resumes where it stopped: its finished stages are skipped, the interrupted one
+continues from its last.pt (the epoch it had reached), the later ones run.
 
 A finished stage is skipped only while its recorded output files are as it left them and the
 stages it read still hold what it read (`StageCache.stale`): a deleted or truncated output
@@ -22,13 +29,14 @@ import yaml
 
 from segmin.app.pipeline import stages
 from segmin.app.pipeline.cache import StageCache, Timer, file_manifest, hash_inputs
-from segmin.app.pipeline.config import STAGES, PipelineConfig
+from segmin.app.pipeline.config import STAGES, PipelineConfig, TrainStep
 from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.common.atomic import write_text
 from segmin.common.config import to_dict
 from segmin.common.outputs import check_output_dir, make_dirs
 
 RECIPE_FILE = "pipeline.yaml"
+COMMAND_FILE = "command.txt"  # the command line of the run's last invocation, for the model cards
 
 
 class PipelineRunner:
@@ -41,6 +49,7 @@ class PipelineRunner:
         *,
         from_stage: str | None = None,
         log: Callable[[str], None] | None = None,
+        command: str | None = None,
     ) -> None:
         if from_stage is not None and from_stage not in STAGES:
             raise ValueError(f"--from: unknown stage {from_stage!r}; stages are {', '.join(STAGES)}")
@@ -49,6 +58,7 @@ class PipelineRunner:
         self.cache = StageCache(self.run_dir)
         self.forced = set(STAGES[STAGES.index(from_stage) :]) if from_stage else set()
         self.log = log or _default_log
+        self.command = command
         self.skipped: list[str] = []
         self.ran: list[str] = []
 
@@ -69,6 +79,8 @@ class PipelineRunner:
         make_dirs(self.run_dir, "--out")  # only now: a refused run leaves no empty folder
         # The resolved profile, overrides applied: the recipe a model card names and hashes.
         write_text(self.run_dir / RECIPE_FILE, yaml.safe_dump(to_dict(config), sort_keys=False))
+        if self.command is not None:
+            write_text(self.run_dir / COMMAND_FILE, self.command + "\n")
         upstream: dict[str, str] = {}
         render = self._render(upstream)
         nav_config = stages.nav_config(config)
@@ -76,7 +88,10 @@ class PipelineRunner:
         if config.real_eval.enabled:
             self._real_eval(models, real_fingerprint, upstream)
         self._nav_eval(models, nav_config, upstream)
-        return self._report(upstream)
+        report = self._report(upstream)
+        if config.release:
+            self._release(upstream)
+        return report
 
     def _render(self, upstream: dict[str, str]) -> dict[str, Any]:
         """The rendered training and validation worlds (the render stage's outputs)."""
@@ -92,32 +107,69 @@ class PipelineRunner:
     def _train_and_export(
         self, render: dict[str, Any], backbone: Any, upstream: dict[str, str]
     ) -> dict[str, tuple[str, str]]:
-        """Train every family (maybe side by side), then export each; {family: (onnx path, export hash)}."""
+        """Train every family's chain of stages, then export each family's last; {family: (onnx path, export hash)}."""
         config = self.config
-        render_hash = upstream["render"]
-        jobs: dict[str, tuple[Any, str]] = {}
-        for family, plan in config.families.items():
-            train_config = stages.train_config_for(
-                config, family, plan, self.cache.folder("render"), render["domains"][family], backbone
-            )
-            jobs[family] = (train_config, hash_inputs("train", render_hash, to_dict(train_config)))
-        trained_all = self._train_families(jobs)
+        chains = {family: config.training_chain(family) for family in config.families}
+        trained_all = self._train_chains(chains, render, backbone, upstream)
         models: dict[str, tuple[str, str]] = {}
-        for family, (_, train_hash) in jobs.items():
-            trained = trained_all[family]
-            export_hash = hash_inputs("export", train_hash, to_dict(config.export))
+        for family, chain in chains.items():
+            final = chain[-1].key
+            export_hash = hash_inputs("export", upstream[final], to_dict(config.export))
             exported = self._stage(
                 "export",
                 f"export/{family}",
                 export_hash,
-                lambda folder, fresh, ckpt=trained["checkpoint"], fam=family: stages.export_stage(
-                    config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log
-                ),
-                reads=("render", f"train/{family}"),  # the checkpoint, its training frames, the val frames
+                lambda folder, fresh, ckpt=trained_all[family]["checkpoint"], fam=family, keys=[s.key for s in chain]: {
+                    **stages.export_stage(
+                        config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log
+                    ),
+                    "train_stages": keys,  # the chain that made the model, for its card
+                },
+                reads=("render", final),  # the checkpoint, its training frames, the val frames
             )
             models[family] = (exported["onnx"], export_hash)
-            upstream.update({f"train/{family}": train_hash, f"export/{family}": export_hash})
+            upstream[f"export/{family}"] = export_hash
         return models
+
+    def _train_chains(
+        self, chains: dict[str, list[TrainStep]], render: dict[str, Any], backbone: Any, upstream: dict[str, str]
+    ) -> dict[str, dict[str, Any]]:
+        """Every family's training stages in order; the outputs of each family's last stage.
+
+        Round n trains the n-th stage of every family that has one (side by side with
+        `parallel_training`). A fine-tuning stage starts from the previous stage's kept
+        checkpoint, and its input hash chains that stage's: a retrained first stage reruns the rest.
+        """
+        config = self.config
+        render_dir = self.cache.folder("render")
+        last: dict[str, tuple[str, dict[str, Any]]] = {}  # family -> (stage key, outputs)
+        for index in range(max(len(chain) for chain in chains.values())):
+            jobs: dict[str, tuple[Any, str]] = {}
+            keys: dict[str, str] = {}
+            reads: dict[str, tuple[str, ...]] = {}
+            for family, chain in chains.items():
+                if index >= len(chain):
+                    continue
+                step, before = chain[index], last.get(family)
+                domains = {"train": _training_domains(render, family, step), "val": render["domains"][family]["val"]}
+                train_config = stages.train_config_for(
+                    config,
+                    family,
+                    config.families[family],
+                    render_dir,
+                    domains,
+                    backbone,
+                    step,
+                    init=before[1]["checkpoint"] if before else None,
+                )
+                chained = (upstream[before[0]],) if before else ()
+                jobs[family] = (train_config, hash_inputs("train", upstream["render"], *chained, to_dict(train_config)))
+                keys[family] = step.key
+                reads[family] = ("render", *((before[0],) if before else ()))
+            for family, outputs in self._train_families(jobs, keys, reads).items():
+                upstream[keys[family]] = jobs[family][1]
+                last[family] = (keys[family], outputs)
+        return {family: outputs for family, (_, outputs) in last.items()}
 
     def _real_eval(self, models: dict[str, tuple[str, str]], fingerprint: Any, upstream: dict[str, str]) -> None:
         """Score every exported model on the labelled real photos."""
@@ -178,12 +230,32 @@ class PipelineRunner:
         )
         return Path(report["markdown"])
 
+    def _release(self, upstream: dict[str, str]) -> None:
+        """What `segmin models release` ships, written into the run's release/ folder (never into
+        the package): each shipped-name family's model with its card, card JSON and contact sheet."""
+        from segmin.app.models_cli import release_run
+
+        config = self.config
+        families = released_families(config)
+        inputs = {key: value for key, value in upstream.items() if key != "report"}
+        self._stage(
+            "release",
+            "release",
+            hash_inputs("release", inputs, to_dict(config), families),
+            lambda folder, fresh: {
+                "folder": str(folder),
+                "released": list(release_run(self.run_dir, folder, families=families, force=True)),
+            },
+            reads=tuple(inputs),
+        )
+
     def preflight(self) -> None:
         """Load every config the stages will load, before the first one runs.
 
-        A typo in `nav.overrides`, a family's training config or its fields would otherwise
-        surface only after rendering and training (hours in). The configs loaded here are
-        discarded: the stages load them again with the paths only the render stage knows.
+        A typo in `nav.overrides`, a family's training config (any stage's) or its fields would
+        otherwise surface only after rendering and training (hours in), as would a stage whose
+        `keep` rule its training config contradicts. The configs loaded here are discarded: the
+        stages load them again with the paths only the render stage knows.
         """
         from segmin.nav_eval.evaluation.evaluate import resolve_fields
         from segmin.train.config import load_train_config
@@ -191,7 +263,11 @@ class PipelineRunner:
         stages.nav_config(self.config)
         for family, plan in self.config.families.items():
             try:
-                load_train_config(plan.train_config, [f"family={family}", *plan.train_overrides])
+                for step in self.config.training_chain(family):
+                    train_config = load_train_config(
+                        plan.train_config, [f"family={family}", *plan.train_overrides, *step.overrides]
+                    )
+                    stages.check_keep(step, train_config, f"stage {step.name}")
                 resolve_fields(plan.fields)
             except ValueError as exc:
                 raise type(exc)(f"families.{family}: {exc}") from exc
@@ -247,13 +323,22 @@ class PipelineRunner:
         self.log(f"{key}: done in {timer.seconds:.1f} s")
         self.ran.append(key)
 
-    def _train_families(self, jobs: dict[str, tuple[Any, str]]) -> dict[str, dict[str, Any]]:
-        """Train every family (config, input hash): one after the other, or side by side in
-        processes of their own when the profile says `parallel_training` (see `train_side_by_side`)."""
+    def _train_families(
+        self,
+        jobs: dict[str, tuple[Any, str]],
+        keys: dict[str, str] | None = None,
+        reads: dict[str, tuple[str, ...]] | None = None,
+    ) -> dict[str, dict[str, Any]]:
+        """Train one stage of every family (config, input hash): one after the other, or side by
+        side in processes of their own when the profile says `parallel_training` (see
+        `train_side_by_side`). `keys`: each family's stage key (default train/<family>); `reads`:
+        the stages each reads (default the render stage)."""
+        keys = keys or {family: f"train/{family}" for family in jobs}
+        reads = reads or dict.fromkeys(jobs, ("render",))
         results: dict[str, dict[str, Any]] = {}
         todo: dict[str, tuple[Any, Path, bool]] = {}
         for family, (train_config, train_hash) in jobs.items():
-            key = f"train/{family}"
+            key = keys[family]
             if not self.config.parallel_training:
                 results[family] = self._stage(
                     "train",
@@ -262,7 +347,7 @@ class PipelineRunner:
                     lambda folder, fresh, tc=train_config: stages.train_stage(
                         tc, folder, resume=_resumable(folder, fresh), log=self.log
                     ),
-                    reads=("render",),
+                    reads=reads[family],
                 )
                 continue
             done, fresh = self._begin("train", key, train_hash)
@@ -277,11 +362,25 @@ class PipelineRunner:
             failures = [error for error in outcomes.values() if isinstance(error, BaseException)]
             for family, outputs in outcomes.items():
                 if not isinstance(outputs, BaseException):  # a finished family is kept when another failed
-                    self._finish("train", f"train/{family}", jobs[family][1], timer, outputs, ("render",))
+                    self._finish("train", keys[family], jobs[family][1], timer, outputs, reads[family])
                     results[family] = outputs
             if failures:
                 raise failures[0]
         return results
+
+
+def _training_domains(render: dict[str, Any], family: str, step: TrainStep) -> list[str]:
+    """The rendered domains of a training stage (a render record from before fine-tuning stages
+    existed holds only the first stage's, under `domains`)."""
+    sets = render.get("training_sets", {}).get(family)
+    return list(sets[step.name]["domains"]) if sets else list(render["domains"][family]["train"])
+
+
+def released_families(config: PipelineConfig) -> list[str]:
+    """The profile's families that `segmin models release` ships (those named as a shipped model)."""
+    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
+
+    return [family for family in config.families if family in SHIPPED_NAMES]
 
 
 def _resumable(folder: Path, fresh: bool) -> bool:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from segmin.app.pipeline.config import FamilyPlan, PipelineConfig
+from segmin.app.pipeline.config import FIRST_STAGE, FamilyPlan, PipelineConfig, TrainStep, ValidationWorld
 from segmin.common.config import to_dict
 from segmin.common.outputs import make_dirs
 
@@ -54,15 +54,26 @@ def output_paths(stage: str, folder: Path, outputs: dict[str, Any]) -> list[Path
 
 
 def world_specs(config: PipelineConfig) -> dict[str, dict[str, Any]]:
-    """Every world to render, per family and split, as loaded specs (so YAML edits change the hash)."""
+    """Every world to render, per family and split, as loaded specs (so YAML edits change the hash).
+
+    A fine-tuning stage's worlds carry their frame count (its own render folder); a held-out
+    `validation` world its seed (in the spec) and frame count."""
     from segmin.data.synth.spec import load_world_spec
 
     specs: dict[str, dict[str, Any]] = {}
     for family, plan in config.families.items():
-        for split, names in (("train", plan.train_worlds), ("val", plan.val_worlds)):
-            for name in names:
-                spec = load_world_spec(name, _world_overrides(config, name, split))
-                specs[f"{family}/{split}/{name}"] = to_dict(spec)
+        for step in config.training_chain(family):
+            for name in step.worlds:
+                spec = to_dict(load_world_spec(name))
+                if step.render_split == "train":
+                    specs[f"{family}/train/{name}"] = spec
+                else:
+                    specs[f"{family}/{step.render_split}/{name}"] = {**spec, "frames": step.frames_per_world}
+        for name in plan.val_worlds:
+            specs[f"{family}/val/{name}"] = to_dict(load_world_spec(name, _world_overrides(config, name, "val")))
+        for entry in plan.validation:
+            spec = to_dict(load_world_spec(entry.world, validation_overrides(entry)))
+            specs[f"{family}/val/{entry.world}@{entry.seed}"] = {**spec, "frames": entry.frames}
     return specs
 
 
@@ -84,36 +95,80 @@ def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]
     return [f"seed={base.seed + config.render.val_seed_offset}", f"domain=synth_val_{stem}"]
 
 
+def validation_overrides(entry: ValidationWorld) -> list[str]:
+    """A held-out world grown from its own seed, under a domain that names world and seed."""
+    from segmin.data.synth.spec import load_world_spec
+
+    base = load_world_spec(entry.world)
+    stem = base.name[len("train_") :] if base.name.startswith("train_") else base.name
+    return [f"seed={entry.seed}", f"domain=synth_val_{stem}_{entry.seed}"]
+
+
+def _render_jobs(
+    config: PipelineConfig, family: str, plan: FamilyPlan
+) -> list[tuple[str, str | None, str, int, list[str]]]:
+    """(render folder, training stage or None for validation, world, frames, spec overrides) of
+    every world the family renders: each training stage's, then the validation worlds."""
+    jobs: list[tuple[str, str | None, str, int, list[str]]] = [
+        (step.render_split, step.name, name, step.frames_per_world, [])
+        for step in config.training_chain(family)
+        for name in step.worlds
+    ]
+    jobs += [
+        ("val", None, name, config.render.val_frames_per_world, _world_overrides(config, name, "val"))
+        for name in plan.val_worlds
+    ]
+    jobs += [("val", None, v.world, v.frames, validation_overrides(v)) for v in plan.validation]
+    return jobs
+
+
 def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) -> dict[str, Any]:
-    """Render training and held-out validation frames in the AgriSeg layout, plus a contact sheet."""
+    """Render training and held-out validation frames in the AgriSeg layout, plus a contact sheet.
+
+    Outputs: `domains` (per family, the first training stage's and the validation domains),
+    `training_sets` (per family and training stage, its render folder and domains) and `worlds`
+    (per family, every rendered world with its stage, seed and frame count: the model cards' data).
+    """
     from segmin.data.synth.camera import CameraModel
     from segmin.data.synth.spec import load_world_spec
     from segmin.data.synth.writer import RenderJob, render_dataset
 
     camera = CameraModel(width=config.render.size, height=config.render.size)
-    outputs: dict[str, Any] = {"domains": {}}
+    outputs: dict[str, Any] = {"domains": {}, "training_sets": {}, "worlds": {}}
     for family, plan in config.families.items():
-        domains: dict[str, list[str]] = {"train": [], "val": []}
-        train_frames = plan.frames_per_world or config.render.frames_per_world
-        for split, names, frames in (
-            ("train", plan.train_worlds, train_frames),
-            ("val", plan.val_worlds, config.render.val_frames_per_world),
-        ):
-            for name in names:
-                spec = load_world_spec(name, _world_overrides(config, name, split))
-                log(f"render: {family} {split} world {name} ({spec.domain}), {frames} frames")
-                job = RenderJob(
-                    spec=spec,
-                    out=folder / split,
-                    frames=frames,
-                    camera=camera,
-                    workers=config.render.workers,
-                    overwrite=overwrite,
-                    executor=config.fan_out(),
-                )
-                render_dataset(job)
-                domains[split].append(spec.domain)
-        outputs["domains"][family] = domains
+        sets: dict[str, dict[str, Any]] = {
+            step.name: {"root": step.render_split, "domains": []} for step in config.training_chain(family)
+        }
+        val_domains: list[str] = []
+        worlds: list[dict[str, Any]] = []
+        for split, stage, name, frames, overrides in _render_jobs(config, family, plan):
+            spec = load_world_spec(name, overrides)
+            log(
+                f"render: {family} {stage or 'validation'} world {name} ({spec.domain}, seed {spec.seed}), {frames} frames"
+            )
+            job = RenderJob(
+                spec=spec,
+                out=folder / split,
+                frames=frames,
+                camera=camera,
+                workers=config.render.workers,
+                overwrite=overwrite,
+                executor=config.fan_out(),
+            )
+            render_dataset(job)
+            (val_domains if stage is None else sets[stage]["domains"]).append(spec.domain)
+            worlds.append(
+                {
+                    "stage": stage or "validation",
+                    "world": name,
+                    "domain": spec.domain,
+                    "seed": spec.seed,
+                    "frames": frames,
+                }
+            )
+        outputs["domains"][family] = {"train": sets[FIRST_STAGE]["domains"], "val": val_domains}
+        outputs["training_sets"][family] = sets
+        outputs["worlds"][family] = worlds
     sheet = folder / "contact_sheet.png"
     _contact_sheet(config, camera, sheet)
     outputs["contact_sheet"] = str(sheet)
@@ -126,7 +181,7 @@ def _contact_sheet(config: PipelineConfig, camera, path: Path) -> None:
     from segmin.common.atomic import write_bytes
     from segmin.data.synth.cli import preview_sheet
 
-    worlds = [w for plan in config.families.values() for w in plan.train_worlds]
+    worlds = list(dict.fromkeys(w for family in config.families for w in config.training_chain(family)[-1].worlds))
     sheet = preview_sheet(worlds, config.render.contact_sheet_frames, camera)
     ok, png = cv2.imencode(".png", sheet[:, :, ::-1])
     if not ok:
@@ -144,13 +199,17 @@ def train_config_for(
     render_dir: Path,
     domains: dict[str, list[str]],
     backbone: str,
+    step: TrainStep | None = None,
+    init: str | None = None,
 ):
-    """The family's training config, pointed at this run's rendered frames."""
+    """The family's training config for one training stage (`step`, default its first), pointed at
+    this run's rendered frames. A fine-tuning stage starts from `init`, the previous stage's kept
+    checkpoint: set after every override, so the chain cannot be broken by one."""
     from segmin.train.config import load_train_config
 
     overrides = [
         f"family={family}",
-        f"data.root={render_dir / 'train'}",
+        f"data.root={render_dir / (step.render_split if step is not None else 'train')}",
         f"data.val_root={render_dir / 'val'}",
         f"data.domains=[{', '.join(domains['train'])}]",
         f"data.val_domains=[{', '.join(domains['val'])}]",
@@ -158,6 +217,8 @@ def train_config_for(
         # Side by side, each training gets one core's thread (a family's own override still wins).
         *(["threads=1"] if config.parallel_training else []),
         *plan.train_overrides,
+        *(step.overrides if step is not None else ()),
+        *([f"backbone_weights={init}"] if init is not None else []),
         # The profile's seed last: a spread run's train_seed=N must not lose to a family's own.
         *([f"seed={config.train_seed}"] if config.train_seed is not None else []),
     ]
@@ -171,6 +232,17 @@ def train_config_for(
             paths={"data.root": train_config.data.root, "data.val_root": train_config.data.val_root},
         )
     return train_config
+
+
+def check_keep(step: TrainStep, train_config, where: str) -> None:
+    """The stage's declared model-choice rule is what its training config does (swa.pt exactly
+    when weight averaging is on): the rule is written before training and cannot drift."""
+    if step.keep is None:
+        return
+    averages = train_config.swa_start_epoch is not None
+    if (step.keep == "swa") != averages:
+        need = "set swa_start_epoch" if step.keep == "swa" else "leave swa_start_epoch unset"
+        raise ValueError(f"{where}: keep is {step.keep!r}, so its training must {need}")
 
 
 def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, Any]:
@@ -202,6 +274,7 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
         "backbone_weights": train_config.backbone_weights,
         "image_size": train_config.image_size,
         "architecture": train_config.architecture,
+        "seed": train_config.seed,
         "machine": machine_summary(),  # for the model card: training time means little without it
     }
 
