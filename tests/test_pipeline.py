@@ -584,8 +584,9 @@ def test_a_killed_release_run_resumes_at_its_stage_and_epoch(release_run: Releas
     for key in ("render", "train/vineyards/base"):
         assert f"{key}: up to date, skipped" in release_run.second
     assert "train/vineyards/tree_edges: resuming an interrupted run" in release_run.second
-    assert "resuming " in release_run.second and "epoch 2" in release_run.second  # from last.pt, not epoch 1
-    rows = read_rows(release_run.out / "train" / "vineyards" / "tree_edges" / "metrics.csv")
+    folder = release_run.out / "train" / "vineyards" / "tree_edges"
+    assert f"resuming {folder / 'last.pt'}: epoch 2," in release_run.second  # from its last.pt, not epoch 1
+    rows = read_rows(folder / "metrics.csv")
     assert [row.split(",")[0] for row in rows] == ["1", "2"]  # every epoch once
     assert "train/vineyards/by_trees: done" in release_run.second
 

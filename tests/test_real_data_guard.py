@@ -53,15 +53,14 @@ def test_no_shipped_pipeline_profile_trains_on_real_photos(profile: str, tmp_pat
     real = config.real_eval.resolved_data()
     assert config.real_eval.data is None and real.resolve() == REAL.resolve()  # scored on the test set, never elsewhere
     for family, plan in config.families.items():
-        domains = {
-            "train": [f"synth_{w}" for w in plan.train_worlds],
-            "val": [f"synth_val_{w}" for w in plan.val_worlds],
-        }
-        train_config = train_config_for(config, family, plan, tmp_path / "render", domains, "none")
-        paths, names = train_sources(train_config)
-        check_not_real_data(f"{profile}/{family}", paths=paths, names=names, extra=[real])
-        for world in plan.train_worlds + plan.val_worlds:
-            assert not points_to_real_data(world, [real], is_path=False)
+        held_out = plan.val_worlds + [v.world for v in plan.validation]
+        for step in config.training_chain(family):  # every training stage, fine-tuning ones too
+            domains = {"train": [f"synth_{w}" for w in step.worlds], "val": [f"synth_val_{w}" for w in held_out]}
+            train_config = train_config_for(config, family, plan, tmp_path / "render", domains, "none", step)
+            paths, names = train_sources(train_config)
+            check_not_real_data(f"{profile}/{family}/{step.name}", paths=paths, names=names, extra=[real])
+            for world in (*step.worlds, *held_out):
+                assert not points_to_real_data(world, [real], is_path=False)
 
 
 # ----------------------------------------------------------------------------- the guard can fail
@@ -96,6 +95,8 @@ def test_the_checker_names_the_field() -> None:
         ["families.vineyards.train_overrides=[data.root=data/real/vineyard_rows]"],
         ["families.trees.train_worlds=[vineyard_rows]"],
         ["families.trees.val_worlds=[data/real/vineyard_rows/world.yaml]"],
+        ["families.vineyards.finetune=[{name: a, add_worlds: [vineyard_rows]}]"],
+        ["families.vineyards.finetune=[{name: a, train_overrides: [data.val_root=data/real/vineyard_rows]}]"],
     ],
 )
 def test_a_pipeline_profile_on_real_photos_is_refused(overrides: list[str]) -> None:

@@ -21,7 +21,7 @@ from typing import Any
 from segmin.app.pipeline.cache import StageCache, file_digest
 from segmin.app.pipeline.config import FIRST_STAGE
 from segmin.app.pipeline.report import count_frames
-from segmin.app.pipeline.runner import COMMAND_FILE, RECIPE_FILE
+from segmin.app.pipeline.run_files import COMMAND_FILE, RECIPE_FILE
 from segmin.app.pipeline.stages import read_metrics_csv
 from segmin.common.figures import format_figure
 from segmin.nav_eval.runtime.shipped_models import format_size
@@ -92,7 +92,9 @@ def card_markdown(card: dict[str, Any]) -> str:
         f"- data: {data['train_frames']} rendered training frames from {', '.join(data['train_worlds']) or '?'}; "
         f"{data['val_frames']} validation frames from held-out worlds {', '.join(data['val_worlds']) or '?'}"
         + (f" ({_world_list(data['validation'])})" if data.get("validation") else ""),
-        f"- training: {training['epochs']} epochs at {training['image_size']} px, seed {training.get('seed', '?')}, backbone "
+        f"- training: {training['epochs']} epochs at {training['image_size']} px"
+        + (f", seed {training['seed']}" if training.get("seed") is not None else "")
+        + ", backbone "
         f"{training['backbone_weights']}, kept `{training['kept']}`, {_duration(training['seconds'])} on "
         f"{training['machine'] or 'a machine the run did not record'}",
         f"- synthetic validation IoU: {format_figure(card['synthetic_val_iou'])}",
@@ -237,7 +239,8 @@ def _data(run_dir: Path, cache: StageCache, family: str, stage: str) -> dict[str
         "val_worlds": list(domains["val"]),
         "train_frames": count_frames(run_dir / "render" / last["root"], last["domains"]),
         "val_frames": count_frames(run_dir / "render" / "val", domains["val"]),
-        "validation": [w for w in worlds if w.get("stage") == "validation"],
+        # Each held-out world with its seed and frames (render records from before they were kept lack them).
+        **({"validation": [w for w in worlds if w.get("stage") == "validation"]} if worlds else {}),
     }
 
 

@@ -30,13 +30,11 @@ import yaml
 from segmin.app.pipeline import stages
 from segmin.app.pipeline.cache import StageCache, Timer, file_manifest, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig, TrainStep
+from segmin.app.pipeline.run_files import COMMAND_FILE, RECIPE_FILE
 from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.common.atomic import write_text
 from segmin.common.config import to_dict
 from segmin.common.outputs import check_output_dir, make_dirs
-
-RECIPE_FILE = "pipeline.yaml"
-COMMAND_FILE = "command.txt"  # the command line of the run's last invocation, for the model cards
 
 
 class PipelineRunner:
