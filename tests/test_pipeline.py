@@ -615,6 +615,12 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
     ]
     assert card["data"]["train_frames"] == 4 and card["data"]["val_frames"] == 2
     assert [(w["world"], w["seed"]) for w in card["data"]["validation"]] == [("slope_vineyard_s4", 5201)]
+    report = (release_run.out / "report.md").read_text()
+    assert (
+        "- **vineyards/by_trees** (fine-tuning stage, from the stage before's checkpoint): 4 training frames" in report
+    )
+    for label in ("vineyards/base", "vineyards/tree_edges", "vineyards/by_trees"):
+        assert f"| {label} | " in report  # one training row a stage
     markdown = (folder / "vineyards.md").read_text()
     assert "## Training stages" in markdown and "from train/vineyards/tree_edges/swa.pt" in markdown
     # Into the run's folder only: the package's registry keeps its own models.

@@ -39,7 +39,7 @@ def write_pipeline_report(
     model_results, oracle_results = _nav_eval_results(config, run_dir, families)
     lines = [
         *_title_and_stages(config, cache, families),
-        *_rendered_data(run_dir, cache),
+        *_rendered_data(config, run_dir, cache),
         *_training(cache, trainings, curves),
         *_export(cache, families),
         "",
@@ -102,8 +102,8 @@ def _title_and_stages(config: PipelineConfig, cache: StageCache, families: list[
     return lines
 
 
-def _rendered_data(run_dir: Path, cache: StageCache) -> list[str]:
-    """Section 1: frames rendered per family and split, and the contact sheet."""
+def _rendered_data(config: PipelineConfig, run_dir: Path, cache: StageCache) -> list[str]:
+    """Section 1: frames rendered per family and split (and per fine-tuning stage), and the contact sheet."""
     lines = ["", "## 1. Data: rendered training worlds", ""]
     render = cache.record("render")
     if render and render.outputs:
@@ -113,6 +113,14 @@ def _rendered_data(run_dir: Path, cache: StageCache) -> list[str]:
                 f"- **{family}**: {counts['train']} training frames from {', '.join(domains['train'])}; "
                 f"{counts['val']} validation frames from held-out worlds {', '.join(domains['val'])}"
             )
+            sets = (render.outputs.get("training_sets") or {}).get(family, {})
+            for step in config.training_chain(family)[1:] if family in config.families else []:
+                entry = sets.get(step.name, {"root": step.render_split, "domains": []})
+                frames = count_frames(run_dir / "render" / entry["root"], entry["domains"])
+                lines.append(
+                    f"- **{family}/{step.name}** (fine-tuning stage, from the stage before's checkpoint): {frames} "
+                    f"training frames from {', '.join(entry['domains'])}"
+                )
         lines += [
             "",
             "RGB | vegetation mask overlay | depth, one row per training world:",
