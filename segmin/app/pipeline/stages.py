@@ -88,20 +88,22 @@ def _world_overrides(config: PipelineConfig, name: str, split: str) -> list[str]
     """Validation worlds are the same kind of field grown from another seed, under their own domain."""
     if split == "train":
         return []
-    from segmin.data.synth.spec import load_world_spec
-
-    base = load_world_spec(name)
-    stem = base.name[len("train_") :] if base.name.startswith("train_") else base.name
-    return [f"seed={base.seed + config.render.val_seed_offset}", f"domain=synth_val_{stem}"]
+    seed, stem = _seed_and_stem(name)
+    return [f"seed={seed + config.render.val_seed_offset}", f"domain=synth_val_{stem}"]
 
 
 def validation_overrides(entry: ValidationWorld) -> list[str]:
     """A held-out world grown from its own seed, under a domain that names world and seed."""
+    _, stem = _seed_and_stem(entry.world)
+    return [f"seed={entry.seed}", f"domain=synth_val_{stem}_{entry.seed}"]
+
+
+def _seed_and_stem(world: str) -> tuple[int, str]:
+    """A world's own seed and its name without `train_` (the stem of its validation domain)."""
     from segmin.data.synth.spec import load_world_spec
 
-    base = load_world_spec(entry.world)
-    stem = base.name[len("train_") :] if base.name.startswith("train_") else base.name
-    return [f"seed={entry.seed}", f"domain=synth_val_{stem}_{entry.seed}"]
+    base = load_world_spec(world)
+    return base.seed, base.name.removeprefix("train_")
 
 
 def _render_jobs(
