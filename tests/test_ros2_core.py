@@ -476,3 +476,84 @@ def test_command_timing_reports_the_nodes_latency_and_period_jitter() -> None:
     assert summary["command period median ms"] == "200.00" and summary["command periods timed"] == "4"
     assert float(summary["command period jitter p99 ms"]) == pytest.approx(4.0, abs=0.1)
     assert CommandTiming().summary(5)["command period jitter p99 ms"] == "-"
+
+
+# ---- sensor faults: the runtime's stops, in the log and the diagnostics ---------------------
+
+
+def _feed_pairs(core: FollowerCore, frames: list, clock_offset: float = 0.0, depth_of=None) -> None:
+    for t, colour, depth in frames:
+        core.on_colour(colour, t + clock_offset)
+        core.on_depth(depth if depth_of is None else depth_of(t, colour), t + clock_offset)
+
+
+@pytest.mark.parametrize(("encoding", "blind"), [("32FC1", np.nan), ("16UC1", 0)])
+def test_a_blind_depth_camera_stops_the_robot_with_one_log_line_and_names_it_in_the_diagnostics(
+    run, encoding, blind
+) -> None:
+    frames, _ = run
+    core, out = _core()
+    _feed_pairs(core, frames[:13])
+    assert out.sent[-1].command.valid and out.sent[-1].command.v > 0
+    driving = len(out.sent)
+    _feed_pairs(
+        core, frames[13:25], depth_of=lambda t, c: depth_message(np.full((c.height, c.width), blind), t, encoding)
+    )
+    stops = out.sent[driving:]
+    assert stops and all(not o.command.valid and o.reason == "depth_invalid" for o in stops)
+    assert _stamp_s(stops[0].stamp) - frames[13][0] <= 0.2 + 1e-9
+    assert len(out.logged) == 1 and out.logged[0].startswith("robot stopped, sensor fault depth_invalid: 0% of the")
+    t = frames[24][0]
+    status = core.status(t)
+    assert status["sensor fault"] == "depth_invalid" and status["stopped because"].startswith("depth_invalid: 0% of")
+    core.tick(t + 0.3, t + 0.3)  # the watchdog names it too
+    assert not out.sent[-1].command.valid and out.sent[-1].reason.startswith("depth_invalid")
+    _feed_pairs(core, frames[25:40])
+    assert out.sent[-1].command.valid and out.sent[-1].command.v > 0
+    assert out.logged[1:] == ["sensor fault depth_invalid cleared: the runtime drives again"]
+    assert core.status(frames[39][0])["sensor fault"] == "-"
+
+
+def test_a_fault_that_comes_and_goes_is_logged_once_per_reason_within_log_every_s(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    for k, (t, colour, depth) in enumerate(frames[:40]):
+        image = colour
+        if k % 8 in (5, 6):  # a black image now and then
+            image = image_message(np.zeros((colour.height, colour.width, 3), np.uint8), t, "rgb8")
+            image.header = colour.header
+        core.on_colour(image, t)
+        core.on_depth(depth, t)
+    assert any(o.reason == "image_black" for o in out.sent) and out.sent[-1].command.valid
+    assert [line.split(":")[0] for line in out.logged] == [
+        "robot stopped, sensor fault image_black",
+        "sensor fault image_black cleared",
+    ]
+
+
+def test_frames_on_another_clock_stop_the_robot_naming_how_far_and_use_sim_time(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    offset = 1796571822.0  # a bag's own stamps against the node's wall clock
+    _feed_pairs(core, frames[:13], clock_offset=offset)
+    assert out.sent and all(not o.command.valid and o.reason == "clock_offset" for o in out.sent)
+    assert len(out.logged) == 1
+    assert "1796571822.000 s behind the follower's clock" in out.logged[0] and "use_sim_time" in out.logged[0]
+    now = frames[12][0] + offset
+    assert core.stop_reason(now).startswith("clock_offset: frame stamps are 1796571822.000 s behind")
+    core.tick(now + 0.3, now + 0.3)
+    assert out.sent[-1].reason.startswith("clock_offset")
+
+
+def test_a_second_kind_of_bad_input_on_a_topic_gets_its_own_log_line(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    t = frames[0][0]
+    bad = image_message(np.zeros((48, 48, 3), np.uint8), t, "rgb8")
+    bad.encoding = "yuv422"
+    core.on_colour(bad, t)
+    core.on_colour(frames[1][1], t + 0.01)
+    core.on_depth(depth_message(np.zeros((24, 48), np.uint16), frames[1][0], "16UC1"), t + 0.01)
+    core.on_colour(bad, t + 0.02)  # the first kind again within LOG_EVERY_S: no new line
+    assert len(out.logged) == 2
+    assert "'yuv422'" in out.logged[0] and "depth is 48x24" in out.logged[1]
