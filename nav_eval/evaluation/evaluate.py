@@ -42,6 +42,7 @@ from segmin.nav_eval.sim.factories import (
     make_segmenter,
     make_simulator,
 )
+from segmin.nav_eval.sim.faults import fault_metrics
 from segmin.nav_eval.sim.mask_closing import with_closing
 from segmin.nav_eval.sim.mask_dropout import with_dropout
 from segmin.nav_eval.sim.protocols import FrameSegmenter
@@ -77,6 +78,10 @@ class RunResult:
     start_x: float = math.nan
     start_y: float = math.nan
     start_yaw: float = math.nan
+    # The configured sensor faults' worst (sim.faults.fault_metrics): NaN without faults.
+    fault_stop_s: float = math.nan
+    fault_blind_m: float = math.nan
+    fault_resume_s: float = math.nan
     # The navigator's per-run statistics (`statistics()`, e.g. SegCorridor's mode shares), by column
     # name: a row has every method's columns (methods.STATISTIC_COLUMNS), NaN where its navigator
     # reported none.
@@ -290,6 +295,8 @@ class Worker:
             )
             for key in METRIC_KEYS:
                 setattr(result, key, metrics[key])
+            for key, value in fault_metrics(config.faults, episode.trajectory, episode.driving).items():
+                setattr(result, key, value)
             result.success, result.reason = episode.success, episode.reason
             result.goal_m = episode.goal_m
             result.sim_time = float(episode.trajectory.t[-1])

@@ -21,6 +21,7 @@ import numpy as np
 from segmin.common.atomic import write_bytes, write_json, write_text
 from segmin.common.figures import format_mean_std
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, mean_std
+from segmin.nav_eval.sim.faults import FAULT_METRIC_KEYS
 
 # What one evaluation writes to its --out (the figures and videos beside them are named per field).
 RESULT_FILES: tuple[str, ...] = ("results.csv", "results.json", "trajectories.json", "report.md")
@@ -59,6 +60,7 @@ CSV_COLUMNS = (
     "start_x",
     "start_y",
     "start_yaw",
+    *FAULT_METRIC_KEYS,
     "error",
     "config",
 )
