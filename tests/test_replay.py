@@ -257,6 +257,15 @@ def test_non_finite_npy_depth_is_no_reading_and_counted(sequence, model, tmp_pat
     assert all(np.isfinite(r[1]) and np.isfinite(r[2]) for r in result.commands)
 
 
+def test_a_black_stretch_of_a_recording_stops_the_runtime_and_is_noted(sequence, model, tmp_path) -> None:
+    rgb, _ = _copy(sequence, tmp_path)
+    for i in range(8, FRAMES):  # a covered lens from 0.27 s on
+        cv2.imwrite(str(rgb / f"{i:04d}.png"), np.zeros((48, 48, 3), np.uint8))
+    result = _run(model, rgb, None, fps=30, out=tmp_path / "out")  # SegMin on the images alone
+    assert [valid for *_, valid in result.commands] == [True, True, False, False]
+    assert "sensor faults stopped the robot (commands by reason: image_black 2)" in result.notes
+
+
 # ----------------------------------------------------------------------------- frame order and names
 
 
