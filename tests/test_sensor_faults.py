@@ -221,15 +221,28 @@ def test_bad_limits_are_named(values: dict, message: str) -> None:
         SensorChecks(**values)
 
 
-def test_every_reason_is_one_of_the_documented_names() -> None:
-    assert REASONS == (
-        "clock_offset",
-        "image_black",
-        "image_white",
-        "image_frozen",
-        "depth_invalid",
-        "depth_invalid_left",
-        "depth_invalid_right",
-    )
+def test_every_reason_comes_from_a_hand_built_frame() -> None:
+    half = W // 2
+    left, right = _depth(), _depth()
+    left[:, :half] = np.nan
+    right[:, half:] = 0.0
+    frozen = _rows(99)
+    cases = {
+        "depth": [(_rows(30 + k), _depth(np.nan)) for k in range(12)],
+        "left": [(_rows(30 + k), left) for k in range(12)],
+        "right": [(_rows(30 + k), right) for k in range(12)],
+        "black": [(np.zeros((H, W, 3), np.uint8), _depth())] * 3,
+        "white": [(np.full((H, W, 3), 255, np.uint8), _depth())] * 3,
+        "frozen": [(frozen, _depth())] * 20,
+    }
+    seen = set()
+    for frames in cases.values():
+        follower = _follower()
+        _drive(follower, _good(30, 0) + frames, 0)
+        seen.add(follower.sensor_fault[0])
+    follower = _follower()
+    _drive(follower, _good(3, 0), 0, now_offset=5.0)
+    seen.add(follower.sensor_fault[0])
+    assert seen == set(REASONS) and len(REASONS) == 7
     with pytest.raises(ValueError, match="checks must be a SensorChecks"):
         RuntimeConfig(checks={"frozen_s": 1.0})  # type: ignore[arg-type]
