@@ -62,7 +62,7 @@ class SensorChecks:
     black_level: int = 10  # a pixel is black when every channel is at most this
     white_level: int = 245  # ... white when every channel is at least this
     blank_share: float = 0.98  # share of black (white) pixels that makes the image black (white)
-    frozen_s: float = 0.5  # identical pixels for longer than this, while moving: frozen
+    frozen_s: float = 0.25  # identical pixels for longer than this, while moving: frozen (0.12 m at 0.5 m/s)
     max_clock_offset_s: float = 0.5  # frame stamp vs the follower's clock
     sample_pixels: int = 4096  # about this many pixels read per check (a regular grid)
 
