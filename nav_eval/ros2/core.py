@@ -247,7 +247,8 @@ class FollowerCore:
             output = self.follower.step(rgb, depth, t, attitude=attitude, now=now)
         except ValueError as exc:
             return self._reject(f"{self.params.node.colour_topic}: {exc}", now)
-        self._note_sensor_fault(self.follower.sensor_fault, now)
+        if self._note_sensor_fault(self.follower.sensor_fault, now) and not output.fresh:
+            self._send_stop(output.stopped, now)  # found between commands (an image, the clock): at once
         took = self._wall() - start
         self.step_s.append(took)
         self.frames += 1
@@ -294,11 +295,7 @@ class FollowerCore:
         """Stop the robot now (when enabled) and keep it stopped until the runtime gives a fresh command."""
         with self._lock:
             self.fault = why
-            send = self.enabled
-            if send:
-                self._last_sent = now
-        if send:
-            self.publish(Outgoing(STOP, None, why))
+        self._send_stop(why, now)
 
     def _warn(self, why: str, now: float, what: str) -> None:
         """Log `what: why`, at most once per LOG_EVERY_S for each kind of problem: `why` with its
@@ -311,18 +308,29 @@ class FollowerCore:
             self._logged[kind] = now
             self.log(line)
 
-    def _note_sensor_fault(self, fault: tuple[str, str] | None, now: float) -> None:
-        """One log line when the runtime's sensor fault changes (at most one per reason every LOG_EVERY_S)."""
+    def _note_sensor_fault(self, fault: tuple[str, str] | None, now: float) -> bool:
+        """One log line when the runtime's sensor fault changes (at most one per reason every
+        LOG_EVERY_S); True when a fault began with this frame."""
         reason = None if fault is None else fault[0]
         before, self._sensor_reason = self._sensor_reason, reason
         if reason == before:
-            return
+            return False
         if fault is not None:
             self._log_throttled(f"sensor {reason}", f"robot stopped, sensor fault {reason}: {fault[1]}", now)
         else:
             self._log_throttled(
                 f"sensor {before} cleared", f"sensor fault {before} cleared: the runtime drives again", now
             )
+        return fault is not None
+
+    def _send_stop(self, why: str | None, now: float) -> None:
+        """Publish a stop now (when enabled), outside the command schedule."""
+        with self._lock:
+            send = self.enabled
+            if send:
+                self._last_sent = now
+        if send:
+            self.publish(Outgoing(STOP, None, why))
 
     # ---- the watchdog and the switch -----------------------------------------------------------
     def tick(self, now: float, stamp_now: float) -> None:
