@@ -33,7 +33,7 @@ from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.follower import RuntimeConfig
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
-from segmin.nav_eval.runtime.sensor_faults import SensorChecks
+from segmin.nav_eval.runtime.sensor_faults import SensorChecks, check_depth_range
 from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
 
 NODE_NAME = "segmin_row_follower"
@@ -302,6 +302,10 @@ def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
 
     node = build(NodeSettings)
     merged["checks"] = build(SensorChecks)
+    try:
+        check_depth_range(merged["depth_threshold"], merged["checks"])
+    except ValueError as exc:
+        raise ValueError(f"parameter depth_threshold: {exc}") from None
     if merged["method"] == "segcorridor":
         return NodeParams(build(CorridorConfig), build(RuntimeConfig), node, _corridor_camera(node))
     params = NodeParams(build(NavigatorConfig), build(RuntimeConfig), node)

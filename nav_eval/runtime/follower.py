@@ -55,7 +55,7 @@ import numpy as np
 from .control import Command, stop_command
 from .navigator import to_metres, validated_attitude, validated_rgb
 from .protocols import MaskNavigator, Segmenter
-from .sensor_faults import SensorChecks, SensorFaults
+from .sensor_faults import SensorChecks, SensorFaults, check_depth_range
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).
 TIME_EPS = 1e-6
@@ -130,6 +130,7 @@ class RowFollower:
         self.segmenter = segmenter
         self.navigator = navigator
         self.config = config or RuntimeConfig()
+        check_depth_range(navigator.config.depth_threshold, self.config.checks)
         self._ratio = self.config.segment_hz // self.config.command_hz
         self._sensors = SensorFaults(self.config.checks)
         self.reset()

@@ -91,6 +91,16 @@ def _is_number(value: object) -> bool:
     return not isinstance(value, bool) and isinstance(value, numbers.Real)
 
 
+def check_depth_range(depth_threshold: float, checks: SensorChecks) -> None:
+    """ValueError unless the navigator's depth cut lies within the sensor's range: past
+    `max_depth_m` a reading is no reading, and it must never count as near vegetation."""
+    if depth_threshold > checks.max_depth_m:
+        raise ValueError(
+            f"depth_threshold ({depth_threshold:g} m) is beyond the sensor's range, max_depth_m "
+            f"({checks.max_depth_m:g} m): readings past the range would count as vegetation"
+        )
+
+
 def sample_step(shape: tuple[int, ...], pixels: int) -> int:
     """The stride of a regular grid holding about `pixels` pixels of an image of `shape`."""
     return max(1, math.isqrt(shape[0] * shape[1] // pixels))

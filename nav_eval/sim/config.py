@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from segmin.data.canopy_region import check_closing_radius
-from segmin.nav_eval.runtime.sensor_faults import SensorChecks
+from segmin.nav_eval.runtime.sensor_faults import SensorChecks, check_depth_range
 from segmin.nav_eval.sim.robot import RobotConfig
 
 DEFAULT_CONFIG = "default"  # the shipped configs/nav/default.yaml
@@ -209,6 +209,11 @@ class NavEvalConfig:
         for section in ("navigator", "corridor"):
             _check_section(section, getattr(self, section), self.perception.fuse_frames)
         check_faults(self.faults)
+        for name, threshold in {**self.depth_thresholds, **self.family_depth_thresholds}.items():
+            try:
+                check_depth_range(threshold, self.sensor_checks)
+            except ValueError as exc:
+                raise ValueError(f"depth threshold for {name!r}: {exc} (sensor_checks.max_depth_m)") from None
 
     def depth_threshold(self, name: str, family: str) -> float:
         """The depth cut for a field: by name, else by crop family."""
