@@ -213,6 +213,7 @@ def test_the_checks_take_well_under_a_millisecond_on_a_full_size_frame() -> None
         ({"black_level": 200, "white_level": 100}, "black_level (200) must be below white_level (100)"),
         ({"frozen_s": 0.0}, "frozen_s must be a number > 0"),
         ({"max_depth_m": float("nan")}, "max_depth_m must be a number > 0"),
+        ({"max_depth_m": float("inf")}, "max_depth_m must be a finite number of metres"),
         ({"max_clock_offset_s": "1"}, "max_clock_offset_s must be a number > 0"),
     ],
 )
