@@ -107,3 +107,19 @@ def test_a_simulated_fault_stops_the_robot_within_0_3_m_and_it_drives_on(kind: s
     assert metrics["fault_stop_s"] <= 0.2 and metrics["fault_blind_m"] < 0.3 and metrics["fault_resume_s"] <= 0.5
     stopped = [t for t, driving in episode.driving if not driving and t > 0.5]
     assert stopped and min(stopped) >= 2.0 and max(stopped) < 3.5
+
+
+def test_the_report_gives_the_worst_fault_metrics_per_field_and_method() -> None:
+    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.evaluation.report import faults_markdown
+
+    def result(run: int, stop: float, blind: float, resume: float) -> RunResult:
+        return RunResult(
+            field="pear_field", method="segmind", run=run, seed=run, model="oracle", success=True, reason="success",
+            fault_stop_s=stop, fault_blind_m=blind, fault_resume_s=resume,
+        )  # fmt: skip
+
+    faults = [SimFault("black_frame", 4.0, 2.0), SimFault("depth_dropout", 8.0, 1.0, region="left", share=0.5)]
+    text = faults_markdown([result(0, 0.1, 0.18, 0.1), result(1, 0.2, 0.25, math.nan)], faults)
+    assert "Injected in every run: black_frame 4-6 s; depth_dropout 8-9 s, left half, share 0.5." in text
+    assert "| pear_field | segmind | 0.20 | 0.25 | never |" in text
