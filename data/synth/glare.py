@@ -47,7 +47,7 @@ def apply_glare(
     blow = np.clip(strength * (0.75 + 0.5 * near_sun), 0, 1)[..., None] * sky[..., None]
     img = img + (1.0 - img) * blow
     # Bloom: the brightest parts bleed over their surroundings (thin leaves against the sky wash out).
-    bright = np.clip((img.max(axis=-1) - 0.8) / 0.2, 0, 1)
+    bright = np.clip((np.maximum(np.maximum(img[..., 0], img[..., 1]), img[..., 2]) - 0.8) / 0.2, 0, 1)
     sigma = max(1.0, 0.02 * w * (1 + strength))
     bloom = cv2.GaussianBlur(bright, (0, 0), sigma)
     img = img + (0.45 * strength) * bloom[..., None] * (1.0 - img)
@@ -64,18 +64,25 @@ def apply_glare(
 
 
 def _ghosts(img: np.ndarray, sun: tuple[float, float], strength: float, rng: np.random.Generator, xx, yy) -> np.ndarray:
-    """Faint coloured discs (the lens' internal reflections) on the line from the sun through the centre."""
+    """Faint coloured discs (the lens' internal reflections) on the line from the sun through the
+    centre; each is drawn inside its own bounding box (a full-frame pass per ghost costs more than
+    all the rest of the glare)."""
     h, w = img.shape[:2]
     cx, cy = w / 2, h / 2
     for _ in range(int(rng.integers(3, 7))):
         t = rng.uniform(-1.6, 0.6)  # 1 = the sun, 0 = the centre, < 0 = beyond it
         gx, gy = cx + (sun[0] - cx) * t, cy + (sun[1] - cy) * t
         radius = max(w, h) * rng.uniform(0.015, 0.09)
-        edge = np.clip((radius - np.hypot(xx - gx, yy - gy)) / max(1.0, 0.3 * radius), 0, 1)
         hue = rng.uniform(0, 1)
         colour = np.array(
             [0.5 + 0.5 * math.cos(2 * math.pi * (hue + k / 3)) for k in range(3)], np.float32
         )  # any hue, pastel
         alpha = strength * rng.uniform(0.08, 0.3)
-        img = img + (alpha * edge)[..., None] * colour * (1.0 - img)
+        x0, x1 = max(int(gx - radius), 0), min(int(gx + radius) + 2, w)
+        y0, y1 = max(int(gy - radius), 0), min(int(gy + radius) + 2, h)
+        if x0 >= x1 or y0 >= y1:  # outside the frame
+            continue
+        box = np.s_[y0:y1, x0:x1]
+        edge = np.clip((radius - np.hypot(xx[box] - gx, yy[box] - gy)) / max(1.0, 0.3 * radius), 0, 1)
+        img[box] += (alpha * edge)[..., None] * colour * (1.0 - img[box])
     return img
