@@ -184,7 +184,7 @@ def test_held_out_worlds_are_never_trained_on():
     def collect(node) -> None:
         if isinstance(node, dict):
             for key, value in node.items():
-                if key == "train_worlds":
+                if key in ("train_worlds", "add_worlds"):  # a family's worlds and a fine-tuning stage's
                     trained.update(value)
                 else:
                     collect(value)
