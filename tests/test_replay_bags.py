@@ -220,6 +220,16 @@ def test_raw_colour_honours_a_padded_row_stride(frames, encoding) -> None:
     assert decoded.dtype == np.uint8 and np.array_equal(decoded, rgb)
 
 
+@pytest.mark.parametrize("encoding", ["bgr8", "bgra8"])
+def test_blue_first_colour_is_swapped_to_rgb(encoding) -> None:
+    """The scene's pixels have red == blue, which a missing swap would pass; these do not."""
+    channels = len(encoding) - 1
+    blue_first = np.array([[[200, 100, 10, 255][:channels], [1, 2, 3, 4][:channels]]], np.uint8)  # B, G, R(, A)
+    message = image_message(np.zeros((1, 2, 3), np.uint8), 0.0, encoding)
+    message.data, message.step = blue_first.reshape(-1).copy(), 2 * channels
+    assert decode_colour(message, RGB).tolist() == [[[10, 100, 200], [3, 2, 1]]]
+
+
 def test_unpadded_raw_and_jpeg_messages_decode_as_rosbags_image_does(frames) -> None:
     from rosbags.image import message_to_cvimage
 
@@ -303,6 +313,15 @@ def test_the_pairer_takes_the_nearest_partner_and_drops_the_rest() -> None:
         pairer.add_depth(0.150, "d3")
     pairer.finish()
     assert pairer.dropped_depth == 2
+
+
+@pytest.mark.parametrize(("slop", "gap"), [(0.0, 0.0), (0.25, 0.25)])
+def test_a_gap_of_exactly_the_slop_pairs(slop, gap) -> None:
+    """The tolerance is inclusive: slop 0 pairs equal stamps (segmin's own bags), and a gap of exactly slop pairs."""
+    pairer = StampPairer(slop)
+    assert pairer.add_colour(1.0, "c") == []
+    assert [(c.item, d.item) for c, d in pairer.add_depth(1.0 + gap, "d")] == [("c", "d")]
+    assert pairer.dropped_colour == pairer.dropped_depth == 0
 
 
 def test_a_live_pairer_bounds_what_waits() -> None:

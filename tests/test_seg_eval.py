@@ -99,6 +99,15 @@ def test_an_all_background_model(tmp_path: Path) -> None:
         write_results(summary, sheet, tmp_path / "out")
 
 
+def test_a_probability_exactly_at_the_threshold_is_vegetation() -> None:
+    """The mask is `probability >= threshold`, as the robot's segmenter has it."""
+    levels = np.array([[0.25, 0.5, 0.5 - 2**-20, 0.75]], np.float32)
+    predictor = Predictor(Path("fake.onnx"), "onnx", (1, 4), 0.5, lambda batch: levels)
+    probs, mask = predictor.predict(np.zeros((1, 4, 3), np.uint8))  # the model's size: no resizing
+    assert np.array_equal(probs, levels)
+    assert mask.tolist() == [[False, True, False, True]]
+
+
 def test_the_real_photos_ship_with_the_package() -> None:
     root = shipped_real_data()
     frames = find_frames(root)

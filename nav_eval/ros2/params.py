@@ -187,7 +187,7 @@ DESCRIPTIONS: dict[str, str] = {
     "camera_cx": "principal point x, px",
     "camera_cy": "principal point y, px",
     "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
-    "camera_tilt_deg": "SegCorridor: camera tilt down from horizontal, degrees",
+    "camera_tilt_deg": "SegCorridor: camera tilt up from horizontal, degrees",
     "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
     "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
     "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",

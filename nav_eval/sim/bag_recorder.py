@@ -286,11 +286,12 @@ class RunRecorder:
         )
 
     def _write_static(self, t: float) -> None:
-        """map -> odom (the start pose), base_link -> camera_link (the mount, tilted down) ->
-        optical frame, base_link -> imu_link (at the base)."""
+        """map -> odom (the start pose), base_link -> camera_link (the mount, tilted up by tilt_deg as
+        the renderer and the runtime's camera model tilt it) -> optical frame, base_link -> imu_link
+        (at the base)."""
         assert self._odom_origin is not None
         mount = np.eye(4)
-        tilt = math.radians(float(self.camera.tilt_deg))  # REP 103: positive pitch lowers the nose
+        tilt = -math.radians(float(self.camera.tilt_deg))  # REP 103 pitch lowers the nose; tilt_deg raises it
         mount[:3, :3] = [[math.cos(tilt), 0.0, math.sin(tilt)], [0.0, 1.0, 0.0], [-math.sin(tilt), 0.0, math.cos(tilt)]]
         mount[:3, 3] = (float(self.camera.mount_forward), 0.0, float(self.camera.mount_height))
         optical = self._transform(t, topics.CAMERA_FRAME, topics.OPTICAL_FRAME, np.eye(4))
