@@ -71,7 +71,7 @@ def run_sweep(
     model_id = model_identity(spec.model)
     with writer_lock(out / ".sweep.lock", f"sweep {out}"):
         jobs, keys = _jobs(plan, out, model_id)
-        cached = {} if force else stored_runs(out / RUNS_FOLDER, _all_keys(keys), RunResult.from_stored)
+        cached = {} if force else stored_runs(out / RUNS_FOLDER, jobs, RunResult.from_stored)
         todo = [job for key, job in jobs.items() if key not in cached]
         new: dict[str, RunResult] = {}
         errored: list[RunResult] = []
@@ -127,7 +127,3 @@ def _field(plan: SweepPlan, variant: Variant, out: Path, written: set[str]) -> s
         )
         written.add(str(path))
     return str(path)
-
-
-def _all_keys(keys: list[list[tuple[str, str]]]) -> list[str]:
-    return [key for pairs in keys for _, key in pairs]
