@@ -108,3 +108,9 @@ def test_bad_models_and_outputs_are_one_line_and_nothing_is_replaced(exported, d
     assert "use --force" in capsys.readouterr().err and out.read_bytes() == b"keep"
     assert segmin_main([*base, "--model", str(onnx_path), "--force"]) == 0
     assert out.read_bytes() != b"keep"
+    # A folder as --out is named before the conversion, not by a temporary file after it.
+    folder = tmp_path / "weights"
+    folder.mkdir()
+    assert segmin_main([*base[:-1], str(folder), "--model", str(onnx_path), "--force"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--out {folder} is a folder" in err and "\n" not in err and list(folder.iterdir()) == []

@@ -36,7 +36,7 @@ from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
-from segmin.common.outputs import check_output_dir, make_dirs
+from segmin.common.outputs import check_writable, make_dirs
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.nets import shade_under_nets
 from segmin.data.synth.spec import WorldSpec
@@ -124,18 +124,6 @@ def frame_paths(out: Path, domain: str, frame: int, per_subset: int) -> dict[str
 
 def frame_done(paths: dict[str, Path]) -> bool:
     return all(p.is_file() for p in paths.values())
-
-
-def check_writable(out: Path) -> None:
-    """Fail before any rendering when `out` cannot be created or written."""
-    out = check_output_dir(out, "--out")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".segmin_probe_", dir=out)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise ValueError(f"--out {out}: not writable ({exc.strerror or exc})") from exc
 
 
 # --------------------------------------------------------------------------------- planning
