@@ -67,11 +67,14 @@ def test_bad_parameters_are_named(values, message) -> None:
 
 def test_parameter_files_the_way_ros_writes_them(tmp_path) -> None:
     path = tmp_path / "p.yaml"
-    path.write_text("/**:\n  ros__parameters:\n    v_max: 1\n    model: m.onnx\n    use_sim_time: true\n")
+    path.write_text(
+        "/**:\n  ros__parameters:\n    v_max: 1\n    model: m.onnx\n    use_sim_time: true\n    omega_gain: 5e-3\n"
+    )
     name, values = load_params_file(path)
     assert name == "segmin_row_follower"
     params = node_params(values, base=tmp_path)
     assert params.navigator.v_max == 1.0 and params.node.model == str(tmp_path / "m.onnx")
+    assert params.navigator.omega_gain == 5e-3  # a float, as rclpy's parser reads it
     for text in (
         "v_max: 1\n",
         "a:\n  ros__parameters: {}\nb:\n  ros__parameters: {}\n",

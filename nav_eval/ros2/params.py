@@ -26,6 +26,7 @@ from typing import Any
 
 import yaml
 
+from segmin.common.config import parse_yaml
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig
@@ -318,7 +319,7 @@ def load_params_file(path: str | Path) -> tuple[str, dict[str, Any]]:
     """(node name, parameters) of a ROS 2 parameter file (`name: ros__parameters: {...}`; `/**` allowed)."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = parse_yaml(path.read_text())  # 1e-3 is a float, as rclpy's own parser reads it
     except yaml.YAMLError as exc:
         raise ValueError(f"{path}: not YAML ({' '.join(str(exc).split())})") from None
     shape = f"{path}: expected one node section, '{NODE_NAME}: ros__parameters: {{...}}'"
