@@ -56,7 +56,7 @@ def test_parameter_names_follow_the_runtime_configs() -> None:
         ({"command_hz": 3}, "parameter segment_hz: segment_hz (20) must be a multiple of command_hz (3)"),
         ({"depth_topic": ""}, "parameter depth_topic: segmind needs depth"),
         ({"slop_s": 0.6}, "parameter slop_s: slop_s must be"),
-        ({"mask_closing": -2}, "parameter mask_closing: mask_closing must be an integer >= 0 px"),
+        ({"mask_closing": -2}, "parameter mask_closing: mask_closing must be an integer from 0 to 112 px"),
         ({"command_priority": 99}, "parameter command_priority: command_priority must be 0 (normal scheduling)"),
     ],
 )
