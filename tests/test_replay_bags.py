@@ -199,20 +199,15 @@ def test_bad_messages_in_a_bag_stop_with_one_line_naming_the_topic(frames, expor
     assert "depth is 48x24, rgb is 48x48" in line
 
 
+def _bag_argv(model: str, bag, out) -> list[str]:
+    """`segmin replay` of `bag` into `out` (SegMinD unless --method follows)."""
+    return ["replay", "--model", model, "--depth-threshold", "5", "--out", str(out), "--bag", str(bag)]
+
+
 def test_a_bag_that_pairs_nothing_stops_naming_slop_and_writes_nothing(frames, exported, tmp_path, capsys) -> None:
     """It exited 0, saying it wrote an overlay video that did not exist."""
     bag = write_bag(tmp_path / "bag", _messages(frames[:8], "rgb8", "16UC1", depth_offset=0.05), "mcap")
-    base = [
-        "replay",
-        "--model",
-        str(exported[0]),
-        "--depth-threshold",
-        "5",
-        "--out",
-        str(tmp_path / "o"),
-        "--bag",
-        str(bag),
-    ]
+    base = _bag_argv(str(exported[0]), bag, tmp_path / "o")
     line = _error([*base, "--rgb-topic", RGB, "--depth-topic", DEPTH, "--slop", "0.01"], capsys)
     assert f"no colour frame of {RGB} has a depth frame of {DEPTH} within --slop 0.01 s" in line
     assert "their nearest stamps are 0.0166667 s apart" in line  # 0.05 s late: nearest the next colour frame
@@ -225,7 +220,7 @@ def test_a_bag_that_pairs_nothing_stops_naming_slop_and_writes_nothing(frames, e
 def test_a_topic_without_messages_is_refused_before_any_output(frames, tmp_path, capsys, storage) -> None:
     store = ROS1 if storage == "ros1" else None
     bag = write_bag(tmp_path / "bag", _messages(frames[:3], "rgb8", None, store), storage, empty=(DEPTH,))
-    base = ["replay", "--model", "m.onnx", "--depth-threshold", "5", "--out", str(tmp_path / "o"), "--bag", str(bag)]
+    base = _bag_argv("m.onnx", bag, tmp_path / "o")
     line = _error([*base, "--rgb-topic", RGB, "--depth-topic", DEPTH], capsys)
     assert f"--depth-topic {DEPTH} has no messages; the bag has: " in line and f"{DEPTH} (" in line
     bag = write_bag(tmp_path / "colourless", [], storage, empty=(RGB,))
@@ -239,17 +234,7 @@ def test_millimetres_in_32fc1_are_refused_at_the_message_as_from_folders(frames,
     _, t, late = messages[5]  # frame 2's depth, sent in millimetres
     late.data = frames[2][1].astype(np.float32).view(np.uint8).reshape(-1).copy()
     bag = write_bag(tmp_path / "bag", messages, "mcap")
-    base = [
-        "replay",
-        "--model",
-        str(exported[0]),
-        "--depth-threshold",
-        "5",
-        "--out",
-        str(tmp_path / "o"),
-        "--bag",
-        str(bag),
-    ]
+    base = _bag_argv(str(exported[0]), bag, tmp_path / "o")
     line = _error([*base, "--rgb-topic", RGB, "--depth-topic", DEPTH], capsys)
     assert f"{DEPTH}: 32FC1: float depth must be metres, but its values range from" in line
     assert f"({DEPTH} message 2 (stamp {t:.9f} s))" in line
