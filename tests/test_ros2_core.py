@@ -221,6 +221,19 @@ def test_bad_frames_stop_the_robot_at_once_log_once_and_the_runtime_goes_on(run)
     assert len(out.logged) == logged + 1
 
 
+def test_millimetres_sent_as_32fc1_stop_the_robot_naming_the_topic(run) -> None:
+    """Read as metres, every plant would be 1000 times too far: the row would look open."""
+    frames, _ = run
+    core, out = _core()
+    t, colour, _ = frames[0]
+    depth = depth_message(np.zeros((48, 48), np.uint16), t, "32FC1")
+    depth.data = np.full((48, 48), 3000.0, np.float32).view(np.uint8).reshape(-1).copy()
+    core.on_colour(colour, t)
+    core.on_depth(depth, t)
+    assert core.frames == 0 and core.rejected == 1 and out.sent[-1].command.v == 0.0
+    assert out.sent[-1].reason.startswith(f"{topics.DEPTH}: 32FC1: float depth must be metres")
+
+
 def test_a_depth_frame_without_a_colour_partner_is_logged_and_counted(run) -> None:
     frames, _ = run
     core, out = _core()
