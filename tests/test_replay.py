@@ -133,6 +133,17 @@ def test_mask_closing_reaches_the_replayed_navigator(sequence, model, tmp_path, 
     assert targets == ({23.5} if mask_closing else {37.5})
 
 
+def test_a_mask_closing_beyond_the_frame_is_refused_naming_the_flag(sequence, model, tmp_path, capsys) -> None:
+    """100000 ran out of memory at the first frame; a disc wider than the 224 px reference frame closes nothing more."""
+    rgb_dir, _, _ = sequence
+    argv = ["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin"]
+    argv += ["--depth-threshold", "5", "--mask-closing", "100000", "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["segmin: error: --mask-closing must be an integer from 0 to 112 px, got 100000"]
+    assert not (tmp_path / "out").exists()
+
+
 def test_without_depth_segmin_runs_on_the_mask_and_segmind_is_refused(sequence, model, tmp_path, capsys) -> None:
     rgb_dir, _, _ = sequence
     assert (

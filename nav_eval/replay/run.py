@@ -149,6 +149,8 @@ def replay(
                 fault_stops[output.stopped] += 1
             result.commands.append((t, cmd.v, cmd.omega, cmd.target_column, cmd.valid))
             video.append(overlay_panel(image, output, depth_threshold))
+    if not result.commands:  # an empty table and no video are no replay: say so rather than "wrote"
+        raise ValueError(f"no frame of the {sequence.count} reached the runtime: nothing written")
     _write_outputs(out, result, video, follower.config.command_hz)
     if source is not None:
         result.notes.extend(source.notes())

@@ -27,6 +27,7 @@ from typing import Any
 
 import yaml
 
+from segmin.common.config import parse_yaml
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig
@@ -203,7 +204,7 @@ DESCRIPTIONS: dict[str, str] = {
     "camera_cx": "principal point x, px",
     "camera_cy": "principal point y, px",
     "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
-    "camera_tilt_deg": "SegCorridor: camera tilt down from horizontal, degrees",
+    "camera_tilt_deg": "SegCorridor: camera tilt up from horizontal, degrees",
     "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
     "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
     "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
@@ -345,7 +346,7 @@ def load_params_file(path: str | Path) -> tuple[str, dict[str, Any]]:
     """(node name, parameters) of a ROS 2 parameter file (`name: ros__parameters: {...}`; `/**` allowed)."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = parse_yaml(path.read_text())  # 1e-3 is a float, as rclpy's own parser reads it
     except yaml.YAMLError as exc:
         raise ValueError(f"{path}: not YAML ({' '.join(str(exc).split())})") from None
     shape = f"{path}: expected one node section, '{NODE_NAME}: ros__parameters: {{...}}'"
