@@ -83,9 +83,9 @@ def evaluate(
         data=str(root),
         kind=predictor.kind,
         threshold=predictor.threshold,
-        input_size=tuple(predictor.input_size),
+        input_size=predictor.input_size,
         truth_closing=truth_closing,
-    )  # type: ignore[arg-type]
+    )
     flat = len({(f.domain, f.subset) for f in frames}) == 1
     strips = find_strips(root, list(frames))  # before the model runs: a bad label fails fast
     picks = sheet_picks(len(frames), sheet_rows)

@@ -144,8 +144,8 @@ def photo_steering(prediction: np.ndarray, truth: np.ndarray, strip: np.ndarray 
 
 def strip_columns(strip: np.ndarray) -> np.ndarray:
     """bool per column at `STEERING_WIDTH`: the strip reaches it in some row (a column it only grazes counts)."""
-    reached = strip.any(axis=0).astype(np.float32)[None]
-    return cv2.resize(reached, (STEERING_WIDTH, 1), interpolation=cv2.INTER_AREA)[0] > 0
+    reached = np.asarray(strip.any(axis=0), np.float32)[None]
+    return np.asarray(cv2.resize(reached, (STEERING_WIDTH, 1), interpolation=cv2.INTER_AREA))[0] > 0
 
 
 def _run_around(corridor: np.ndarray, column: int) -> tuple[int, int]:
