@@ -70,7 +70,10 @@ def check_metadata(meta: Mapping[str, str], source: str) -> None:
             f"{source}: input layout {meta[KEY_INPUT_LAYOUT]!r} / channel order {meta[KEY_CHANNEL_ORDER]!r} "
             "not supported (expected NHWC / RGB)"
         )
-    parse_input_size(meta[KEY_INPUT_SIZE])
+    try:
+        parse_input_size(meta[KEY_INPUT_SIZE])
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
     try:
         threshold = float(meta[KEY_THRESHOLD])
     except ValueError:

@@ -119,6 +119,21 @@ def drop_node_metadata(model: onnx.ModelProto) -> None:
         del node.metadata_props[:]
 
 
+def load_segmin_model(path: str | Path) -> onnx.ModelProto:
+    """The segmin ONNX model at `path`, weights included.
+
+    ValueError naming the file when it is not one: a file onnx cannot parse (truncated, not ONNX)
+    gives protobuf's DecodeError or an OSError, which would otherwise reach the user as a traceback;
+    metadata that is not a segmin model's is named by `metadata.check_metadata`.
+    """
+    try:
+        model = onnx.load(str(path))
+    except Exception as exc:  # DecodeError, OSError: whatever onnx raises for a file that is not a model
+        raise ValueError(f"{path}: not a readable ONNX model ({type(exc).__name__}: {exc})") from exc
+    md.check_metadata({prop.key: prop.value for prop in model.metadata_props}, str(path))
+    return model
+
+
 def read_metadata(path: str | Path) -> dict[str, str]:
     """metadata_props of an ONNX file as a dict (weights are not loaded)."""
     model = onnx.load(str(path), load_external_data=False)

@@ -17,13 +17,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import onnx
 import torch
 from onnx import numpy_helper
 from torch import nn
 
 from segmin.export import metadata as md
-from segmin.export.onnx import DeployWrapper
+from segmin.export.onnx import DeployWrapper, load_segmin_model
 from segmin.export.verify import load_frames, torch_reference, verify_against_torch
 from segmin.models.lraspp import SegmentationNet, build_model
 
@@ -51,12 +50,8 @@ def network_from_onnx(
 
 def _read_segmin_onnx(path: Path) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
     """(metadata, the network's weights by PyTorch name) of an fp32 segmin ONNX file."""
-    try:
-        graph_model = onnx.load(str(path))
-    except Exception as exc:  # DecodeError, OSError: whatever onnx raises for a file that is not a model
-        raise ValueError(f"{path}: not a readable ONNX model ({type(exc).__name__}: {exc})") from exc
+    graph_model = load_segmin_model(path)
     props = {p.key: p.value for p in graph_model.metadata_props}
-    md.check_metadata(props, str(path))
     if props.get(md.KEY_PRECISION, "fp32") != "fp32":
         raise ValueError(f"{path}: a {props[md.KEY_PRECISION]} model; convert the fp32 file")
     tensors = {

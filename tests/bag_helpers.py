@@ -16,6 +16,7 @@ from rosbags.typesys import Stores, get_typestore
 
 ROS2 = get_typestore(Stores.ROS2_HUMBLE)
 ROS1 = get_typestore(Stores.ROS1_NOETIC)
+IMAGE = "sensor_msgs/msg/Image"
 
 
 def _header(store, t: float, frame_id: str = "camera_color_optical_frame"):
@@ -76,14 +77,17 @@ def depth_message(depth_mm: np.ndarray, t: float, encoding: str, store=ROS2):
     return _compressed(store, t, header + png.tobytes(), "16UC1; compressedDepth png")
 
 
-def write_bag(path: Path, messages: list[tuple[str, float, object]], storage: str = "mcap") -> Path:
-    """Write (topic, log time s, message) as `storage`: 'ros1' (path.bag), 'sqlite3' or 'mcap' (a folder)."""
+def write_bag(
+    path: Path, messages: list[tuple[str, float, object]], storage: str = "mcap", empty: tuple[str, ...] = ()
+) -> Path:
+    """Write (topic, log time s, message) as `storage`: 'ros1' (path.bag), 'sqlite3' or 'mcap' (a folder);
+    the `empty` topics are declared as `Image` topics with no message."""
     if storage == "ros1":
         from rosbags.rosbag1 import Writer as Writer1
 
         path = path.with_suffix(".bag")
         with Writer1(path) as writer:
-            connections = {}
+            connections = {topic: writer.add_connection(topic, IMAGE, typestore=ROS1) for topic in empty}
             for topic, t, message in messages:
                 if topic not in connections:
                     connections[topic] = writer.add_connection(topic, message.__msgtype__, typestore=ROS1)
@@ -93,7 +97,7 @@ def write_bag(path: Path, messages: list[tuple[str, float, object]], storage: st
 
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(path, version=9, storage_plugin=plugin) as writer:
-        connections = {}
+        connections = {topic: writer.add_connection(topic, IMAGE, typestore=ROS2) for topic in empty}
         for topic, t, message in messages:
             if topic not in connections:
                 connections[topic] = writer.add_connection(topic, message.__msgtype__, typestore=ROS2)

@@ -28,7 +28,7 @@ def test_vegetation_at_the_frame_edge_is_not_eaten_and_zero_keeps_the_mask():
     assert canopy_region(mask, 0) is mask
 
 
-@pytest.mark.parametrize("bad", [-1, 2.5, True, "3"])
+@pytest.mark.parametrize("bad", [-1, 2.5, True, "3", 113, 100000])
 def test_a_bad_radius_is_refused(bad):
     with pytest.raises(ValueError, match="label closing radius"):
         canopy_region(np.zeros((4, 4), np.uint8), bad)

@@ -63,7 +63,17 @@ def test_bad_configs_name_the_file_and_key(tmp_path, text, overrides, message) -
     assert "c.yaml" in str(info.value) or "key=value" in str(info.value)
 
 
-def test_missing_file_is_named(tmp_path) -> None:
+@pytest.mark.parametrize(
+    ("text", "value"), [("1e-3", 1e-3), ("5e-1", 0.5), ("1E+3", 1e3), ("-2.5e-4", -2.5e-4), ("1.5e3", 1.5e3)]
+)
+def test_exponent_floats_are_numbers_in_files_and_overrides(tmp_path, text, value) -> None:
+    """YAML 1.1 reads a float without a dot (or with an unsigned exponent) as text; configs must not."""
+    from_file = load_config(Outer, write(tmp_path, f"title: a\ninner:\n  rate: {text}\n"))
+    from_override = load_config(Outer, None, ["title=a", f"inner.rate={text}"])
+    assert from_file.inner.rate == from_override.inner.rate == value
+    config = load_config(Outer, None, ["title=1e", "epochs=12"])  # no exponent digits: text; ints stay ints
+    assert config.title == "1e" and config.epochs == 12 and isinstance(config.epochs, int)
+
     with pytest.raises(ConfigError, match="nope.yaml: config file not found"):
         load_config(Outer, tmp_path / "nope.yaml")
 

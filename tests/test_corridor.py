@@ -193,6 +193,26 @@ def test_a_row_seen_only_far_ahead_is_left_out_beside_one_seen_near(offset):
         assert command.centre[0] == pytest.approx(-offset, abs=0.05)
 
 
+def test_a_row_seen_from_near_is_fitted_though_most_of_it_lies_beyond_row_start_max():
+    """row_start_max reads where a row starts (the 10th percentile of its points' x), not where most
+    of it lies: the right row, seen whole up to the depth threshold, starts nearer than 1.8 m
+    though its median point is beyond; beside the left row, seen only up to 2.2 m, both are fitted."""
+    offset, limit = 0.2, 1.8
+    mask, depth = render_scene(vine_scene(offset, holes=0.0), size=SIZE)
+    left = np.zeros_like(mask)
+    left[:, : SIZE // 2] = True
+    mask = mask & ~(left & (depth > 2.2))
+    rows, cols = np.nonzero(mask & ~left & (depth <= 5.0))
+    x = scene_camera().robot_frame(rows, cols, depth[rows, cols])[0]
+    assert np.quantile(x, 0.1) < limit - 0.2 and np.median(x) > limit + 0.2
+    nav = navigator(row_start_max=limit)
+    settle(nav, vine_scene(offset, holes=0.0))
+    for _ in range(3):
+        command = nav.step(mask, depth)
+    assert command.mode == "both"
+    assert command.centre[0] == pytest.approx(-offset, abs=0.05)
+
+
 def test_two_rows_that_both_start_far_are_both_fitted():
     """Only a row that starts far beside a near one is left out: both far is no evidence of a gap."""
     mask, depth = render_scene(vine_scene(0.0, holes=0.0), size=SIZE)

@@ -127,6 +127,28 @@ def test_in_trunk_mode_centre_hold_steers_as_pure_pursuit():
     assert [(c.v, c.omega) for c in commands[0]] == [(c.v, c.omega) for c in commands[1]]
 
 
+def test_the_integral_turns_by_2v_over_the_lookahead_squared():
+    """centre_hold's integral term is (2 v / L_h²) S / T_i with S = ∫c_0 dt (L_h = 1.5 m here: at
+    the default 1 m, 2 v / L_h and 2 v / L_h² are the same number)."""
+    scene = DemoScene("vines", 0.9, 0.4, 2.0, None, 20.0, lateral_offset=0.15, yaw=0.0, hole_fraction=0.0)
+    mask, depth = render_scene(scene, size=SIZE)
+    commands = {}
+    for integral_time in (0.0, 2.0):
+        config = CorridorConfig(
+            depth_threshold=5.0,
+            controller="centre_hold",
+            ema_lambda=1.0,
+            hold_lookahead=1.5,
+            hold_integral_time=integral_time,
+        )
+        nav = CorridorNavigator(config, scene_camera())
+        commands[integral_time] = [nav.step(mask, depth, stamp=stamp) for stamp in (0.0, 0.2)]
+    plain, held = commands[0.0][-1], commands[2.0][-1]
+    offset = held.centre[0]  # c_0, integrated over the 0.2 s between the two frames
+    assert offset == pytest.approx(-0.15, abs=0.02) and abs(held.omega) < 0.9  # not clipped
+    assert held.omega - plain.omega == pytest.approx(2.0 * 0.5 / 1.5**2 * (offset * 0.2) / 2.0, rel=1e-6)
+
+
 def test_the_integral_is_clamped_and_restarts_with_the_run():
     integral = ClampedIntegral(limit=0.5)
     assert integral.update(1.0, stamp=0.0) == 0.0  # the first measurement has no time step

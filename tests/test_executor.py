@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import csv
 import functools
+import socket
 import sys
+import time
 from pathlib import Path
 
 import pytest
 from synth_helpers import tiny
 
 from segmin.app.cli import main as segmin_main
-from segmin.common.executor import Executor
+from segmin.common.executor import Executor, connect_ray
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.spec import spec_from_dict
 from segmin.data.synth.writer import RenderJob, render_dataset
@@ -98,6 +100,50 @@ def test_a_bad_executor_choice_is_one_line(tmp_path, capsys, monkeypatch) -> Non
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pip install 'segmin[cluster]'" in err[0]
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.fixture
+def ray_must_not_start(monkeypatch):
+    """Ray unconnected, and `ray.init` a failure: an unreachable address must stop before it (Ray
+    itself retries such an address for minutes)."""
+    import ray
+
+    def init(*_, **__):
+        raise AssertionError("ray.init was reached with an unreachable address")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+
+
+def _closed_loopback_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_an_unreachable_ray_address_is_one_line_naming_it(ray_must_not_start, tmp_path, capsys, monkeypatch) -> None:
+    address = f"127.0.0.1:{_closed_loopback_port()}"  # nothing listens there: refused at once
+    args = ["nav-eval", "--model", "oracle", "--out", str(tmp_path / "a"), "--executor", "ray"]
+    assert segmin_main([*args, "--ray-address", address]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"Ray cluster {address} (--ray-address): cannot connect" in err[0], err
+    monkeypatch.setenv("RAY_ADDRESS", f"ray://{address}")  # Ray Client form, from the environment
+    assert segmin_main(args) == 2
+    assert f"Ray cluster ray://{address} (RAY_ADDRESS): cannot connect" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
+
+
+def test_a_ray_address_that_never_answers_times_out_in_the_time_given(ray_must_not_start) -> None:
+    with socket.socket() as server:  # a full accept queue: the kernel drops further connections unanswered
+        server.bind(("127.0.0.1", 0))
+        server.listen(0)
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        with socket.create_connection(server.getsockname(), timeout=1.0):
+            start = time.monotonic()
+            with pytest.raises(ConnectionError, match=rf"^Ray cluster {address} \(--ray-address\): .*within 0.3 s"):
+                connect_ray(address, timeout_s=0.3)
+            assert time.monotonic() - start < 3.0
 
 
 def test_bench_executor_times_both_executors(ray_instance, capsys) -> None:

@@ -57,6 +57,9 @@ def test_reward_is_progress_and_the_end_flags() -> None:
     assert terminated and info["reason"] in ("collision", "left_row")
     with pytest.raises(ValueError, match="unknown"):
         env.reset(options={"speed": 1})
+    for bad in ([1, 2], "pose", [("pose", (0.5, 0.0, 0.0))]):
+        with pytest.raises(TypeError, match=r"^reset options must be a dict such as \{'pose'"):
+            env.reset(options=bad)
 
 
 def _old_loop(world: FakeWorld, config, method: str, seed: int):

@@ -9,6 +9,7 @@ import types
 import numpy as np
 import pytest
 
+from segmin.common.config import ConfigError
 from segmin.data.canopy_region import canopy_region
 from segmin.nav_eval.runtime.mask_closing import close_mask
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
@@ -49,9 +50,12 @@ def test_the_perception_config_decides_and_checks_the_radius() -> None:
     wrapped = with_closing(oracle, Perception(mask_closing=4))
     assert isinstance(wrapped, ClosedMasks) and wrapped.radius == 4 and not wrapped.reads_colour
     assert load_nav_config(overrides=["perception.mask_closing=2"]).perception.mask_closing == 2
-    for bad in (-1, 1.5, True):
+    for bad in (-1, 1.5, True, 113):
         with pytest.raises(ValueError, match="perception.mask_closing"):
             Perception(mask_closing=bad)
+    # Bounded when the config loads: 1000000 passed the check and every run then ran out of memory.
+    with pytest.raises(ConfigError, match=r"perception\.mask_closing must be an integer from 0 to 112 px, got 1000000"):
+        load_nav_config(overrides=["perception.mask_closing=1000000"])
 
 
 def _navigator(mask_closing: int) -> Navigator:
@@ -90,9 +94,10 @@ def test_the_navigator_closes_each_mask_before_the_fusion_as_the_simulator_does(
         by_simulator = closed_before.step(canopy_region(mask, 4), depth)
         assert (by_navigator.v, by_navigator.omega) == (by_simulator.v, by_simulator.omega)
         np.testing.assert_array_equal(closing.fused_mask(), closed_before.fused_mask())
-    for bad in (-1, 2.0, False):
-        with pytest.raises(ValueError, match="^mask_closing must be an integer >= 0 px"):
+    for bad in (-1, 2.0, False, 100000):
+        with pytest.raises(ValueError, match="^mask_closing must be an integer from 0 to 112 px"):
             NavigatorConfig(method="segmind", depth_threshold=5.0, mask_closing=bad)
+    assert NavigatorConfig(method="segmind", depth_threshold=5.0, mask_closing=112).mask_closing == 112
 
 
 @pytest.mark.parametrize("scale", [2, 3])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -145,3 +146,82 @@ def test_the_pipeline_never_caches_a_nav_stage_with_errored_runs(tmp_path, monke
             lambda folder, fresh: stages.nav_stage(config, "oracle", ["straight_vineyard"], folder, print),
         )
     assert not StageCache(tmp_path).record("nav-eval/oracle").finished
+
+
+def _driven(job):
+    """A finished run of `job` with a two-point path, as a worker returns it (no simulation)."""
+    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.sim.track import Trajectory
+
+    path = Trajectory.from_rows([(0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 1.0), (1.0, 0.5, 0.01, 0.0, 0.5, 0.0, 1.0)])
+    return RunResult(job.field, job.method, job.run, job.seed, "oracle", True, "goal", mae=0.01, trajectory=path)
+
+
+def test_a_nav_eval_killed_between_runs_resumes_with_its_finished_runs(tmp_path, capsys, monkeypatch):
+    from segmin.nav_eval.evaluation import evaluate
+
+    out = tmp_path / "out"
+    command = ["nav-eval", "--model", "oracle", "--out", str(out), *FAST[:4], "--runs", "3", *FAST[6:]]
+    ran: list[int] = []
+
+    def killed_at_run_1(self, job):
+        if job.run == 1:
+            raise KeyboardInterrupt  # the process killed while the second run drives
+        ran.append(job.run)
+        return _driven(job)
+
+    monkeypatch.setattr(evaluate.Worker, "run", killed_at_run_1)
+    assert main(command) == 130
+    assert ran == [0] and len(json.loads((out / "results.json").read_text())["rows"]) == 1
+    monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: ran.append(job.run) or _driven(job))
+    capsys.readouterr()
+    assert main(command) == 0
+    assert ran == [0, 1, 2] and "resuming, 1 of 3 runs finished before, 2 to do" in capsys.readouterr().out
+    assert [row["run"] for row in json.loads((out / "results.json").read_text())["rows"]] == [0, 1, 2]
+    assert len(json.loads((out / "trajectories.json").read_text())) == 3  # the kept run's path too
+    assert main(command) == 0 and ran == [0, 1, 2]  # finished: nothing to redo
+    assert main([*command, "--force"]) == 0 and ran == [0, 1, 2, 0, 1, 2]  # --force starts over
+    # Another evaluation's results are not overwritten (its seed differs) without --force.
+    assert main([*command, "--seed", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "already holds nav-eval results" in err and "its seed differs" in err and "\n" not in err
+
+
+@pytest.mark.parametrize("obstacle", ["file", "symlink", "bags_file", "read_only"])
+def test_what_is_in_the_way_of_a_bag_is_named_before_any_run(tmp_path, capsys, monkeypatch, obstacle):
+    from segmin.common import outputs
+    from segmin.nav_eval.evaluation import evaluate
+
+    out = tmp_path / "out"
+    bags, bag = out / "bags", out / "bags" / "straight_vineyard_segmin"
+    bags.parent.mkdir()
+    if obstacle == "bags_file":
+        bags.write_text("not a folder")
+    else:
+        bags.mkdir()
+    if obstacle == "file":
+        bag.write_text("not a bag")
+    elif obstacle == "symlink":
+        (tmp_path / "elsewhere").mkdir()
+        bag.symlink_to(tmp_path / "elsewhere")
+    elif obstacle == "read_only":  # the tests run as root, whom chmod does not stop: the OS's refusal
+        mkstemp = outputs.tempfile.mkstemp
+
+        def refused(*args, **kwargs):
+            if Path(kwargs.get("dir", "")) == bags:
+                raise PermissionError(13, "Permission denied")
+            return mkstemp(*args, **kwargs)
+
+        monkeypatch.setattr(outputs.tempfile, "mkstemp", refused)
+    ran: list[int] = []
+    monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: ran.append(job.run) or _driven(job))
+    assert main(["nav-eval", "--model", "oracle", "--out", str(out), "--bag", *FAST]) == 2
+    err = capsys.readouterr().err.strip()
+    expected = {
+        "file": f"{bag}: a file where a run's bag goes",
+        "symlink": f"{bag}: a symbolic link where a run's bag goes",
+        "bags_file": f"bag folder {bags} is a file, not a folder",
+        "read_only": f"bag folder {bags}: not writable (Permission denied)",
+    }[obstacle]
+    assert expected in err and "\n" not in err
+    assert ran == [] and not (out / "results.json").exists()

@@ -5,17 +5,19 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from segmin.data.synth.spec import TEST_FIELDS
 from segmin.nav_eval.evaluation.evaluate import Job, Worker, run_evaluation, run_seed
+from segmin.nav_eval.evaluation.metrics import compute_metrics
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.runtime.follower import RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig
 from segmin.nav_eval.sim.config import load_nav_config
-from segmin.nav_eval.sim.factories import FieldContext, make_simulator
+from segmin.nav_eval.sim.factories import FieldContext, make_follower, make_simulator
 from segmin.nav_eval.sim.oracle import OracleSegmenter
 
 TINY = ["perception.width=64", "perception.height=64", "run.length_m=2.0", "run.time_limit_s=12"]
@@ -36,6 +38,44 @@ def test_short_oracle_run_per_field_has_finite_metrics(worker, field: str) -> No
         assert math.isfinite(getattr(result, key)), (key, result)
     assert result.distance > 0.5 and result.v_avg > 0.05 and result.success
     assert result.mae < 0.5
+
+
+WORLDS = Path(__file__).resolve().parents[1] / "configs" / "worlds"
+# SegCorridor as the sloped rows want it: the skid-steer robot, centre_hold with the slope feedforward.
+SLOPED = ["robot.model=skid_steer", "corridor.controller=centre_hold", "corridor.hold_slope_drift=0.5"]
+
+
+@pytest.mark.parametrize(("world", "cross_slope"), [("slope_vineyard_s8.yaml", -0.08), ("slope_pear_s8.yaml", 0.08)])
+def test_a_short_run_through_a_sloped_s_curve_world(world: str, cross_slope: float) -> None:
+    """The sloped S-curve worlds load as fields (by their file), the robot rolls with their cross slope
+    (REP 103: left side up is a positive roll), SegCorridor gets that roll from the IMU, and it
+    follows the bend of the first 3 m."""
+    config = load_nav_config(overrides=[*TINY, "run.length_m=3.0", *SLOPED])
+    ctx = FieldContext(str(WORLDS / world), config)  # built and closed here: the worker's cache stays as it is
+    try:
+        simulator = make_simulator(ctx, config)
+        follower = make_follower("segcorridor", config.depth_threshold(ctx.spec.name, ctx.spec.family), config)
+        rolls: list[float] = []
+        command = follower.navigator.command
+
+        def seen(fused, depth_m, attitude=None, rgb=None):
+            rolls.append(attitude[0])
+            return command(fused, depth_m, attitude, rgb)
+
+        follower.navigator.command = seen
+        episode = run_episode(simulator, follower, OracleSegmenter(), seed=run_seed(0, world, 0))
+    finally:
+        ctx.close()
+    assert episode.reason == "success", episode.reason
+    # The cross slope's roll, give or take the ground's roughness (0.04 rad under these runs).
+    assert 0.5 < np.median(rolls) / math.atan(cross_slope) < 2.0
+    line = simulator.centreline
+    driven = line[(line[:, 0] >= episode.trajectory.x[0]) & (line[:, 0] <= episode.trajectory.x[-1])]
+    assert np.ptp(driven[:, 1]) > 0.15  # the row bends within the run
+    metrics = compute_metrics(
+        episode.trajectory, line, success=True, clearance_time=episode.clearance_time, collisions=0
+    )
+    assert metrics["mae"] < 0.15
 
 
 class _Fixed(Navigator):

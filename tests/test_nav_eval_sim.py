@@ -55,7 +55,8 @@ class FakeWorld:
 
 
 class FakeRenderer:
-    """Pinhole camera 0.2 m ahead of the robot; each vine a 0.5 m wide, 1.5 m tall box of leaves."""
+    """Pinhole camera 0.2 m ahead of the robot; each vine a 0.5 m wide, 1.5 m tall box of leaves, on
+    flat ground under a sky (which returns no depth)."""
 
     def __init__(self, world: FakeWorld, size: int = 48, hfov_deg: float = 69.0) -> None:
         self.world, self.size = world, size
@@ -70,6 +71,10 @@ class FakeRenderer:
         n = self.size
         cx, cy = x + 0.2 * math.cos(yaw), y + 0.2 * math.sin(yaw)
         depth = np.full((n, n), np.inf, dtype=np.float32)
+        # Flat ground below the horizon (the level camera 0.4 m up), as a depth camera sees it;
+        # no return from the sky.
+        below = np.arange(n) + 0.5 - n / 2
+        depth[below > 0] = (0.4 * self.f / below[below > 0])[:, None]
         mask = np.zeros((n, n), dtype=bool)
         r = self.world.canopy_half_width
         for px, py, _ in self.world.plant_circles:
@@ -93,7 +98,9 @@ class FakeRenderer:
         ground = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
         if noisy_depth and rng is not None:
             ground = ground + rng.normal(0, 0.01, ground.shape).astype(np.float32) * (ground > 0)
-        rgb = np.zeros((n, n, 3), dtype=np.uint8)
+        rgb = np.empty((n, n, 3), dtype=np.uint8)
+        rgb[below > 0] = (110, 85, 60)  # brown ground under a pale sky: no camera sees black there
+        rgb[below <= 0] = (135, 150, 200)
         rgb[mask] = (40, 160, 40)
         return Frame(rgb if colour else None, ground, mask, (cx, cy, yaw))
 

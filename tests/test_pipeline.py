@@ -90,6 +90,10 @@ def test_every_report_artefact_is_written(run_dir: Path, capsys: pytest.CaptureF
         assert f"| {family} | " in real and f"real-eval/{family}/contact_sheet.png" in real
         results = json.loads((run_dir / "real-eval" / family / "results.json").read_text())
         assert len(results["rows"]) == 8 and results["kind"] == "onnx"
+        # where each mask would steer, beside IoU: one table row per family with the set's figures
+        steering = results["summary"]
+        assert 0 <= steering["target_error_median_px"] <= steering["target_error_worst_px"] <= 224
+        assert f"| {family} | {steering['target_error_median_px']:.1f} | " in real
     # micro's vineyards family averages its weights (swa.pt) and exports that; the trees family best.pt
     training = report[report.index("## 2. Training") : report.index("## 3. Export")]
     assert "| exported | its val IoU |" in training

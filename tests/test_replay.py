@@ -133,6 +133,17 @@ def test_mask_closing_reaches_the_replayed_navigator(sequence, model, tmp_path, 
     assert targets == ({23.5} if mask_closing else {37.5})
 
 
+def test_a_mask_closing_beyond_the_frame_is_refused_naming_the_flag(sequence, model, tmp_path, capsys) -> None:
+    """100000 ran out of memory at the first frame; a disc wider than the 224 px reference frame closes nothing more."""
+    rgb_dir, _, _ = sequence
+    argv = ["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmin"]
+    argv += ["--depth-threshold", "5", "--mask-closing", "100000", "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["segmin: error: --mask-closing must be an integer from 0 to 112 px, got 100000"]
+    assert not (tmp_path / "out").exists()
+
+
 def test_without_depth_segmin_runs_on_the_mask_and_segmind_is_refused(sequence, model, tmp_path, capsys) -> None:
     rgb_dir, _, _ = sequence
     assert (
@@ -255,6 +266,15 @@ def test_non_finite_npy_depth_is_no_reading_and_counted(sequence, model, tmp_pat
     result = _run(model, rgb, depth, fps=30, out=tmp_path / "out")
     assert any("1 depth frame(s) had non-finite pixels" in n for n in result.notes)
     assert all(np.isfinite(r[1]) and np.isfinite(r[2]) for r in result.commands)
+
+
+def test_a_black_stretch_of_a_recording_stops_the_runtime_and_is_noted(sequence, model, tmp_path) -> None:
+    rgb, _ = _copy(sequence, tmp_path)
+    for i in range(8, FRAMES):  # a covered lens from 0.27 s on
+        cv2.imwrite(str(rgb / f"{i:04d}.png"), np.zeros((48, 48, 3), np.uint8))
+    result = _run(model, rgb, None, fps=30, out=tmp_path / "out")  # SegMin on the images alone
+    assert [valid for *_, valid in result.commands] == [True, True, False, False]
+    assert "sensor faults stopped the robot (commands by reason: image_black 2)" in result.notes
 
 
 # ----------------------------------------------------------------------------- frame order and names

@@ -20,7 +20,7 @@ from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 from segmin.app.cli import main
 from segmin.nav_eval.replay.bags import bag_frames
 from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth
-from segmin.nav_eval.replay.run import read_commands_csv, replay
+from segmin.nav_eval.replay.run import FrameSource, read_commands_csv, replay
 from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
 from segmin.nav_eval.sim.row_env import RowEnv
 
@@ -132,10 +132,9 @@ def test_depth_is_paired_by_stamp_within_the_slop_and_strays_are_counted(frames,
     )
     _same_commands(result.commands, folder_commands)
     assert any("1 depth frame(s)" in note for note in result.notes), result.notes
-    # With a slop below the offset nothing pairs: no frame reaches the runtime.
-    tight = bag_frames(bag, RGB, DEPTH, slop=0.001)
-    assert list(tight.frames) == []
-    assert any(f"{FRAMES} colour frame(s)" in note for note in tight.notes())
+    # With a slop below the offset nothing pairs: the replay stops naming --slop and the gap (below).
+    with pytest.raises(ValueError, match=r"within --slop 0.001 s: their nearest stamps are 0.003 s apart"):
+        list(bag_frames(bag, RGB, DEPTH, slop=0.001).frames)
 
 
 def test_the_command_line_replays_a_bag_with_the_onnx_model(frames, exported, tmp_path, capsys) -> None:
@@ -200,6 +199,82 @@ def test_bad_messages_in_a_bag_stop_with_one_line_naming_the_topic(frames, expor
     assert "depth is 48x24, rgb is 48x48" in line
 
 
+def _bag_argv(model: str, bag, out) -> list[str]:
+    """`segmin replay` of `bag` into `out` (SegMinD unless --method follows)."""
+    return ["replay", "--model", model, "--depth-threshold", "5", "--out", str(out), "--bag", str(bag)]
+
+
+def test_a_bag_that_pairs_nothing_stops_naming_slop_and_writes_nothing(frames, exported, tmp_path, capsys) -> None:
+    """It exited 0, saying it wrote an overlay video that did not exist."""
+    bag = write_bag(tmp_path / "bag", _messages(frames[:8], "rgb8", "16UC1", depth_offset=0.05), "mcap")
+    base = _bag_argv(str(exported[0]), bag, tmp_path / "o")
+    line = _error([*base, "--rgb-topic", RGB, "--depth-topic", DEPTH, "--slop", "0.01"], capsys)
+    assert f"no colour frame of {RGB} has a depth frame of {DEPTH} within --slop 0.01 s" in line
+    assert "their nearest stamps are 0.0166667 s apart" in line  # 0.05 s late: nearest the next colour frame
+    line = _error([*base, "--rgb-topic", RGB, "--depth-topic", RGB, "--method", "segmin"], capsys)
+    assert f"--rgb-topic and --depth-topic are both {RGB}" in line
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("storage", ["mcap", "ros1"])
+def test_a_topic_without_messages_is_refused_before_any_output(frames, tmp_path, capsys, storage) -> None:
+    store = ROS1 if storage == "ros1" else None
+    bag = write_bag(tmp_path / "bag", _messages(frames[:3], "rgb8", None, store), storage, empty=(DEPTH,))
+    base = _bag_argv("m.onnx", bag, tmp_path / "o")
+    line = _error([*base, "--rgb-topic", RGB, "--depth-topic", DEPTH], capsys)
+    assert f"--depth-topic {DEPTH} has no messages; the bag has: " in line and f"{DEPTH} (" in line
+    bag = write_bag(tmp_path / "colourless", [], storage, empty=(RGB,))
+    line = _error([*base[:-1], str(bag), "--rgb-topic", RGB, "--method", "segmin"], capsys)
+    assert f"--rgb-topic {RGB} has no messages" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_millimetres_in_32fc1_are_refused_at_the_message_as_from_folders(frames, exported, tmp_path, capsys) -> None:
+    messages = _messages(frames[:4], "rgb8", "32FC1")
+    _, t, late = messages[5]  # frame 2's depth, sent in millimetres
+    late.data = frames[2][1].astype(np.float32).view(np.uint8).reshape(-1).copy()
+    bag = write_bag(tmp_path / "bag", messages, "mcap")
+    base = _bag_argv(str(exported[0]), bag, tmp_path / "o")
+    line = _error([*base, "--rgb-topic", RGB, "--depth-topic", DEPTH], capsys)
+    assert f"{DEPTH}: 32FC1: float depth must be metres, but its values range from" in line
+    assert f"({DEPTH} message 2 (stamp {t:.9f} s))" in line
+    assert not (tmp_path / "o").exists()
+
+
+class CountingSegmenter(GreenSegmenter):
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        return super().segment(rgb)
+
+
+def test_a_colour_frame_of_another_size_stops_at_that_frame(frames, tmp_path) -> None:
+    """Frame 6 is a command tick (5 Hz of 30 Hz frames): its panel went into the video, and the run
+    failed only at its end, naming video panel sizes."""
+    messages = _messages(frames, "rgb8", None)
+    odd = cv2.resize(frames[6][0], (40, 40))
+    messages[6] = (RGB, messages[6][1], image_message(odd, messages[6][1], "rgb8"))
+    bag = write_bag(tmp_path / "bag", messages, "mcap")
+    segmenter = CountingSegmenter()
+    match = rf"^--bag .*: {RGB} message 6 \(stamp 0.200000000 s\) is 40x40, the colour frames before it are 48x48$"
+    with pytest.raises(ValueError, match=match):
+        replay(
+            "model.onnx", None, tmp_path / "out", method="segmin", depth_threshold=5.0,
+            source=bag_frames(bag, RGB), segmenter=segmenter,
+        )  # fmt: skip
+    assert 0 < segmenter.calls < 6 and not (tmp_path / "out").exists()
+
+
+def test_a_source_that_yields_no_frame_writes_nothing(tmp_path) -> None:
+    empty = FrameSource(count=0, frames=iter([]), has_depth=False)
+    with pytest.raises(ValueError, match=r"^no frame of the 0 reached the runtime: nothing written$"):
+        replay("model.onnx", None, tmp_path / "out", method="segmin", depth_threshold=5.0, source=empty,
+               segmenter=GreenSegmenter())  # fmt: skip
+    assert not (tmp_path / "out").exists()
+
+
 def test_without_rosbags_the_extra_is_named(frames, tmp_path, capsys, monkeypatch) -> None:
     bag = write_bag(tmp_path / "bag", _messages(frames[:2], "rgb8", None), "mcap")
     monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)
@@ -218,6 +293,16 @@ def test_raw_colour_honours_a_padded_row_stride(frames, encoding) -> None:
     assert message.step > rgb.shape[1] * len(encoding.rstrip("8"))
     decoded = decode_colour(message, RGB)
     assert decoded.dtype == np.uint8 and np.array_equal(decoded, rgb)
+
+
+@pytest.mark.parametrize("encoding", ["bgr8", "bgra8"])
+def test_blue_first_colour_is_swapped_to_rgb(encoding) -> None:
+    """The scene's pixels have red == blue, which a missing swap would pass; these do not."""
+    channels = len(encoding) - 1
+    blue_first = np.array([[[200, 100, 10, 255][:channels], [1, 2, 3, 4][:channels]]], np.uint8)  # B, G, R(, A)
+    message = image_message(np.zeros((1, 2, 3), np.uint8), 0.0, encoding)
+    message.data, message.step = blue_first.reshape(-1).copy(), 2 * channels
+    assert decode_colour(message, RGB).tolist() == [[[10, 100, 200], [3, 2, 1]]]
 
 
 def test_unpadded_raw_and_jpeg_messages_decode_as_rosbags_image_does(frames) -> None:
@@ -303,6 +388,15 @@ def test_the_pairer_takes_the_nearest_partner_and_drops_the_rest() -> None:
         pairer.add_depth(0.150, "d3")
     pairer.finish()
     assert pairer.dropped_depth == 2
+
+
+@pytest.mark.parametrize(("slop", "gap"), [(0.0, 0.0), (0.25, 0.25)])
+def test_a_gap_of_exactly_the_slop_pairs(slop, gap) -> None:
+    """The tolerance is inclusive: slop 0 pairs equal stamps (segmin's own bags), and a gap of exactly slop pairs."""
+    pairer = StampPairer(slop)
+    assert pairer.add_colour(1.0, "c") == []
+    assert [(c.item, d.item) for c, d in pairer.add_depth(1.0 + gap, "d")] == [("c", "d")]
+    assert pairer.dropped_colour == pairer.dropped_depth == 0
 
 
 def test_a_live_pairer_bounds_what_waits() -> None:

@@ -56,7 +56,7 @@ def test_parameter_names_follow_the_runtime_configs() -> None:
         ({"command_hz": 3}, "parameter segment_hz: segment_hz (20) must be a multiple of command_hz (3)"),
         ({"depth_topic": ""}, "parameter depth_topic: segmind needs depth"),
         ({"slop_s": 0.6}, "parameter slop_s: slop_s must be"),
-        ({"mask_closing": -2}, "parameter mask_closing: mask_closing must be an integer >= 0 px"),
+        ({"mask_closing": -2}, "parameter mask_closing: mask_closing must be an integer from 0 to 112 px"),
         ({"command_priority": 99}, "parameter command_priority: command_priority must be 0 (normal scheduling)"),
     ],
 )
@@ -67,11 +67,14 @@ def test_bad_parameters_are_named(values, message) -> None:
 
 def test_parameter_files_the_way_ros_writes_them(tmp_path) -> None:
     path = tmp_path / "p.yaml"
-    path.write_text("/**:\n  ros__parameters:\n    v_max: 1\n    model: m.onnx\n    use_sim_time: true\n")
+    path.write_text(
+        "/**:\n  ros__parameters:\n    v_max: 1\n    model: m.onnx\n    use_sim_time: true\n    omega_gain: 5e-3\n"
+    )
     name, values = load_params_file(path)
     assert name == "segmin_row_follower"
     params = node_params(values, base=tmp_path)
     assert params.navigator.v_max == 1.0 and params.node.model == str(tmp_path / "m.onnx")
+    assert params.navigator.omega_gain == 5e-3  # a float, as rclpy's parser reads it
     for text in (
         "v_max: 1\n",
         "a:\n  ros__parameters: {}\nb:\n  ros__parameters: {}\n",
@@ -166,6 +169,23 @@ def test_the_watchdog_holds_the_command_then_stops_a_stalled_camera(run) -> None
     assert core.stop_reason(last + 0.7).startswith("frame_timeout")
 
 
+@pytest.mark.parametrize("node_ahead", [0.3, -0.3])
+def test_the_frame_timeout_runs_on_the_image_stamps_not_the_node_clock(run, node_ahead) -> None:
+    """The node clock (`now`) and the images' time base (`stamp_now`) differ by a transport delay
+    or a camera clock offset; only the stamps say how old the newest frame is."""
+    frames, _ = run
+    core, out = _core()
+    for t, colour, depth in frames[:13]:
+        core.on_colour(colour, t + node_ahead)
+        core.on_depth(depth, t + node_ahead)
+    last = frames[12][0]
+    in_force = out.sent[-1]
+    core.tick(last + 0.35 + node_ahead, last + 0.35)  # 0.35 s of stamp time: the command in force
+    assert out.sent[-1].command == in_force.command and out.sent[-1].stamp == in_force.stamp
+    core.tick(last + 0.7 + node_ahead, last + 0.7)  # 0.7 s: past frame_timeout_s (0.5 s)
+    assert out.sent[-1].command.v == 0.0 and out.sent[-1].reason == "frame_timeout: no paired frame for 0.70 s"
+
+
 def test_bad_frames_stop_the_robot_at_once_log_once_and_the_runtime_goes_on(run) -> None:
     frames, _ = run
     core, out = _core()
@@ -199,6 +219,19 @@ def test_bad_frames_stop_the_robot_at_once_log_once_and_the_runtime_goes_on(run)
     bad.header.stamp.sec += 100
     core.on_colour(bad, t + LOG_EVERY_S)  # the colour topic's warnings come again after LOG_EVERY_S
     assert len(out.logged) == logged + 1
+
+
+def test_millimetres_sent_as_32fc1_stop_the_robot_naming_the_topic(run) -> None:
+    """Read as metres, every plant would be 1000 times too far: the row would look open."""
+    frames, _ = run
+    core, out = _core()
+    t, colour, _ = frames[0]
+    depth = depth_message(np.zeros((48, 48), np.uint16), t, "32FC1")
+    depth.data = np.full((48, 48), 3000.0, np.float32).view(np.uint8).reshape(-1).copy()
+    core.on_colour(colour, t)
+    core.on_depth(depth, t)
+    assert core.frames == 0 and core.rejected == 1 and out.sent[-1].command.v == 0.0
+    assert out.sent[-1].reason.startswith(f"{topics.DEPTH}: 32FC1: float depth must be metres")
 
 
 def test_a_depth_frame_without_a_colour_partner_is_logged_and_counted(run) -> None:
@@ -260,6 +293,21 @@ def test_the_timer_locks_onto_the_command_deadlines_and_then_only_slews() -> Non
     phase.observe(0.2 * len(leads) + 0.07, 0.2 * len(leads) + 0.07, 0.2 * len(leads) + 0.077)  # a new grid
     moved = phase.next_tick(tick)
     assert moved - tick == pytest.approx(0.2 + 0.07 - 0.2 * round(0.07 / 0.2), abs=0.02) and moved > tick + 0.1
+
+
+def test_a_relock_never_gives_a_period_of_half_the_nominal_one_or_less() -> None:
+    """Wherever the free-running timer stands on the runtime's grid, the jump onto it is more than
+    half a period (a tick exactly halfway between two grid ticks rounds to the nearer one behind)."""
+    period = 0.25
+    gaps = []
+    for k in range(80):  # the timer's phase in steps of 1/40 period, over two periods
+        phase = CommandPhase(period)
+        for i in range(10):
+            phase.observe(period * i, period * i, period * i + 0.007)
+        previous = period * 9 + phase.offset() + k * period / 40
+        gaps.append(phase.next_tick(previous) - previous)
+    assert min(gaps) > 0.5 * period + 1e-9 and max(gaps) <= 1.5 * period + 1e-9
+    assert gaps[60] == pytest.approx(1.5 * period)  # exactly halfway, rounded behind: one period further
 
 
 def test_without_a_depth_topic_colour_drives_alone(run) -> None:
@@ -453,6 +501,38 @@ def test_a_stale_imu_is_ignored_with_a_log_line_and_the_robot_drives_on(corridor
     assert stale and "stale" in stale[0] and "imu_max_age_s=0.1" in stale[0]
 
 
+def test_the_imu_attitude_on_a_slope_reaches_the_navigator(corridor_run) -> None:
+    """The recorded run is on level ground; here every IMU message says the robot is rolled and
+    pitched, and each command of SegCorridor must be computed with that attitude."""
+    from segmin.nav_eval.sim.bag_recorder import base_pose, quaternion
+    from segmin.nav_eval.sim.robot import RobotState, imu_attitude
+
+    messages, _ = corridor_run
+    state = RobotState(x=0.0, y=0.0, yaw=0.0, pitch=0.1, roll=-0.08)
+    x, y, z, w = quaternion(base_pose(state)[:3, :3])
+    tilted = [
+        (topic, t, dataclasses.replace(m, orientation=dataclasses.replace(m.orientation, x=x, y=y, z=z, w=w)))
+        if topic == topics.IMU
+        else (topic, t, m)
+        for topic, t, m in messages
+    ]
+    core, out = _core(method="segcorridor", camera_info_topic=topics.COLOUR_INFO, imu_topic=topics.IMU)
+    _feed(core, tilted[:1])  # the CameraInfo starts the runtime
+    navigator = core.follower.navigator
+    seen: list = []
+    command = navigator.command
+
+    def spy(fused, depth_m, attitude=None, rgb=None):
+        seen.append(attitude)
+        return command(fused, depth_m, attitude, rgb)
+
+    navigator.command = spy
+    _feed(core, tilted[1:])
+    assert core.follower.navigator is navigator and len(seen) > 5 and out.logged[1:] == []
+    assert all(a == pytest.approx(imu_attitude(state), abs=1e-9) for a in seen)
+    assert min(abs(a) for a in imu_attitude(state)) > 0.05
+
+
 def test_command_timing_reports_the_nodes_latency_and_period_jitter() -> None:
     from segmin.nav_eval.ros2.timing import CommandTiming
 
@@ -476,3 +556,86 @@ def test_command_timing_reports_the_nodes_latency_and_period_jitter() -> None:
     assert summary["command period median ms"] == "200.00" and summary["command periods timed"] == "4"
     assert float(summary["command period jitter p99 ms"]) == pytest.approx(4.0, abs=0.1)
     assert CommandTiming().summary(5)["command period jitter p99 ms"] == "-"
+
+
+# ---- sensor faults: the runtime's stops, in the log and the diagnostics ---------------------
+
+
+def _feed_pairs(core: FollowerCore, frames: list, clock_offset: float = 0.0, depth_of=None) -> None:
+    for t, colour, depth in frames:
+        core.on_colour(colour, t + clock_offset)
+        core.on_depth(depth if depth_of is None else depth_of(t, colour), t + clock_offset)
+
+
+@pytest.mark.parametrize(("encoding", "blind"), [("32FC1", np.nan), ("16UC1", 0)])
+def test_a_blind_depth_camera_stops_the_robot_with_one_log_line_and_names_it_in_the_diagnostics(
+    run, encoding, blind
+) -> None:
+    frames, _ = run
+    core, out = _core()
+    _feed_pairs(core, frames[:13])
+    assert out.sent[-1].command.valid and out.sent[-1].command.v > 0
+    driving = len(out.sent)
+    _feed_pairs(
+        core, frames[13:25], depth_of=lambda t, c: depth_message(np.full((c.height, c.width), blind), t, encoding)
+    )
+    stops = out.sent[driving:]
+    assert stops and all(not o.command.valid and o.reason == "depth_invalid" for o in stops)
+    assert _stamp_s(stops[0].stamp) - frames[13][0] <= 0.2 + 1e-9
+    assert len(out.logged) == 1 and out.logged[0].startswith("robot stopped, sensor fault depth_invalid: 0% of the")
+    t = frames[24][0]
+    status = core.status(t)
+    assert status["sensor fault"] == "depth_invalid" and status["stopped because"].startswith("depth_invalid: 0% of")
+    core.tick(t + 0.3, t + 0.3)  # the watchdog names it too
+    assert not out.sent[-1].command.valid and out.sent[-1].reason.startswith("depth_invalid")
+    _feed_pairs(core, frames[25:40])
+    assert out.sent[-1].command.valid and out.sent[-1].command.v > 0
+    assert out.logged[1:] == ["sensor fault depth_invalid cleared: the runtime drives again"]
+    assert core.status(frames[39][0])["sensor fault"] == "-"
+
+
+def test_a_fault_that_comes_and_goes_is_logged_once_per_reason_within_log_every_s(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    for k, (t, colour, depth) in enumerate(frames[:37]):  # ends on a command (1.2 s) after good frames
+        image = colour
+        if k % 8 in (5, 6):  # a black image now and then
+            image = image_message(np.zeros((colour.height, colour.width, 3), np.uint8), t, "rgb8")
+            image.header = colour.header
+        core.on_colour(image, t)
+        core.on_depth(depth, t)
+        if k == 5:  # between two commands (0.167 s): the stop goes out at once
+            assert not out.sent[-1].command.valid and out.sent[-1].reason == "image_black"
+    assert out.sent[-1].command.valid
+    assert [line.split(":")[0] for line in out.logged] == [
+        "robot stopped, sensor fault image_black",
+        "sensor fault image_black cleared",
+    ]
+
+
+def test_frames_on_another_clock_stop_the_robot_naming_how_far_and_use_sim_time(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    offset = 1796571822.0  # a bag's own stamps against the node's wall clock
+    _feed_pairs(core, frames[:13], clock_offset=offset)
+    assert out.sent and all(not o.command.valid and o.reason == "clock_offset" for o in out.sent)
+    assert len(out.logged) == 1
+    assert "1796571822.000 s behind the follower's clock" in out.logged[0] and "use_sim_time" in out.logged[0]
+    now = frames[12][0] + offset
+    assert core.stop_reason(now).startswith("clock_offset: frame stamps are 1796571822.000 s behind")
+    core.tick(now + 0.3, now + 0.3)
+    assert out.sent[-1].reason.startswith("clock_offset")
+
+
+def test_a_second_kind_of_bad_input_on_a_topic_gets_its_own_log_line(run) -> None:
+    frames, _ = run
+    core, out = _core()
+    t = frames[0][0]
+    bad = image_message(np.zeros((48, 48, 3), np.uint8), t, "rgb8")
+    bad.encoding = "yuv422"
+    core.on_colour(bad, t)
+    core.on_colour(frames[1][1], t + 0.01)
+    core.on_depth(depth_message(np.zeros((24, 48), np.uint16), frames[1][0], "16UC1"), t + 0.01)
+    core.on_colour(bad, t + 0.02)  # the first kind again within LOG_EVERY_S: no new line
+    assert len(out.logged) == 2
+    assert "'yuv422'" in out.logged[0] and "depth is 48x24" in out.logged[1]

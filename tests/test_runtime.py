@@ -33,7 +33,7 @@ class FrameIndexSegmenter:
 
 
 def _rgb(i: int) -> np.ndarray:
-    rgb = np.zeros((H, W, 3), dtype=np.uint8)
+    rgb = np.full((H, W, 3), 128, dtype=np.uint8)  # grey: a black image is a sensor fault
     rgb[0, 0, 0] = i
     return rgb
 

@@ -99,6 +99,15 @@ def test_an_all_background_model(tmp_path: Path) -> None:
         write_results(summary, sheet, tmp_path / "out")
 
 
+def test_a_probability_exactly_at_the_threshold_is_vegetation() -> None:
+    """The mask is `probability >= threshold`, as the robot's segmenter has it."""
+    levels = np.array([[0.25, 0.5, 0.5 - 2**-20, 0.75]], np.float32)
+    predictor = Predictor(Path("fake.onnx"), "onnx", (1, 4), 0.5, lambda batch: levels)
+    probs, mask = predictor.predict(np.zeros((1, 4, 3), np.uint8))  # the model's size: no resizing
+    assert np.array_equal(probs, levels)
+    assert mask.tolist() == [[False, True, False, True]]
+
+
 def test_the_real_photos_ship_with_the_package() -> None:
     root = shipped_real_data()
     frames = find_frames(root)
@@ -174,7 +183,7 @@ def test_truth_closing_scores_against_the_canopy_region(tmp_path: Path) -> None:
     assert "truth closed with a 2 px disc" in closed.summary_lines()[0]
     saved = json.loads(Path(write_results(closed, None, tmp_path / "out")["json"]).read_text())
     assert saved["truth_closing"] == 2
-    with pytest.raises(ValueError, match="truth closing radius must be an integer >= 0"):
+    with pytest.raises(ValueError, match="truth closing radius must be an integer from 0 to 112 px"):
         evaluate(fake_predictor((16, 16)), find_frames(data), data, truth_closing=-1)
 
 
@@ -274,7 +283,13 @@ def test_bad_models_fail_with_one_line(tmp_path: Path, capsys) -> None:
     assert "evaluation data folder not found" in one_error_line(capsys)
     out = str(tmp_path / "out")
     assert main(["eval-seg", "--model", str(garbage), "--data", str(data), "--out", out, "--truth-closing", "-2"]) == 2
-    assert "--truth-closing must be an integer >= 0 px, got -2" in one_error_line(capsys)
+    assert "--truth-closing must be an integer from 0 to 112 px, got -2" in one_error_line(capsys)
+    # A typo'd radius is refused before the model loads, not out of memory minutes later.
+    assert (
+        main(["eval-seg", "--model", str(garbage), "--data", str(data), "--out", out, "--truth-closing", "100000"]) == 2
+    )
+    assert "--truth-closing must be an integer from 0 to 112 px, got 100000" in one_error_line(capsys)
+    assert not (tmp_path / "out").exists()
     # training takes only multiples of 32 (train.config), so eval-seg refuses any other side, naming --size
     for size in ("33", "16"):
         out = str(tmp_path / "out")

@@ -160,6 +160,82 @@ def test_release_never_replaces_a_model_without_force(pipeline_run, registry, ca
     assert "not a segmin pipeline run folder" in capsys.readouterr().err
 
 
+def _add_trees(run: Path, onnx_bytes: bytes) -> None:
+    """A second exported family in the run, its ONNX file holding `onnx_bytes`."""
+    cache = StageCache(run)
+    _record(cache, "train/trees", {"epochs": 1, "image_size": 64, "kept": "last", "kept_val_iou": 0.5})
+    onnx = run / "export" / "trees" / "trees.onnx"
+    onnx.parent.mkdir(parents=True)
+    onnx.write_bytes(onnx_bytes)
+    _record(cache, "export/trees", {"onnx": str(onnx), "input_size": [64, 64]})
+
+
+def _with_input_size(path: Path, size: str) -> bytes:
+    import onnx
+
+    model = onnx.load(str(path))
+    next(p for p in model.metadata_props if p.key == "input_size").value = size
+    return model.SerializeToString()
+
+
+def test_a_release_that_fails_on_any_family_writes_nothing(pipeline_run, registry, capsys) -> None:
+    """Every family's files are checked before the first is written: a bad second family used to
+    leave the first already replaced (the shipped model gone, although the release failed)."""
+    registry.mkdir()
+    for name in ("vineyards.onnx", "vineyards.md", "vineyards.card.json", "vineyards.real.jpg"):
+        (registry / name).write_bytes(b"shipped " + name.encode())
+    exported = (pipeline_run / "export" / "vineyards" / "vineyards.onnx").read_bytes()
+    trees = pipeline_run / "export" / "trees" / "trees.onnx"
+    _add_trees(pipeline_run, exported[: len(exported) // 2])
+    for broken, problem in (
+        (exported[: len(exported) // 2], "not a readable ONNX model"),
+        (
+            _with_input_size(pipeline_run / "export" / "vineyards" / "vineyards.onnx", "abc"),
+            "metadata input_size='abc'",
+        ),
+    ):
+        trees.write_bytes(broken)
+        assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert f"{trees}: " in err and problem in err and "\n" not in err
+        assert sorted(p.name for p in registry.iterdir()) == [
+            "vineyards.card.json",
+            "vineyards.md",
+            "vineyards.onnx",
+            "vineyards.real.jpg",
+        ]
+        assert (registry / "vineyards.onnx").read_bytes() == b"shipped vineyards.onnx"
+    # A release killed while writing leaves its temporaries; the next release removes them.
+    (registry / ".vineyards.onnx.k1ll3d.tmp").write_bytes(b"half a model")
+    (registry / ".trees.card.json.k1ll3d.tmp").write_bytes(b"half a card")
+    trees.write_bytes(exported)
+    assert segmin_main(["models", "release", "--run", str(pipeline_run), "--force"]) == 0
+    assert sorted(p.name for p in registry.iterdir() if p.name.startswith(".")) == []
+    assert (registry / "vineyards.onnx").read_bytes() != b"shipped vineyards.onnx" and (
+        registry / "trees.onnx"
+    ).is_file()
+
+
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        ({"real_photos": "good"}, 'field real_photos: expected a JSON object or null, got "good"'),
+        ({"synthetic_val_iou": "0.7"}, "field synthetic_val_iou: expected a number or null"),
+        ({"latency": {"median": [2.5]}}, "field latency.median: expected a number or null"),
+        ({"closed_loop": [{"runs": "2", "successes": 1}]}, "field closed_loop[0].runs: expected a whole number"),
+        ({"closed_loop": ["all"]}, "field closed_loop[0]: expected a JSON object"),
+    ],
+)
+def test_models_list_names_the_card_and_the_field_of_a_wrong_type(pipeline_run, registry, capsys, edit, field) -> None:
+    assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 0
+    card_path = registry / "vineyards.card.json"
+    card_path.write_text(json.dumps(json.loads(card_path.read_text()) | edit))
+    capsys.readouterr()
+    assert segmin_main(["models", "list"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{card_path}: not a model card ({field}" in err and "\n" not in err
+
+
 def test_a_name_without_a_file_and_an_unknown_name_are_one_clear_line(registry, tmp_path, capsys) -> None:
     with pytest.raises(ValueError, match="model trees: a shipped model name, but this install has no trees.onnx yet"):
         OnnxSegmenter("trees")

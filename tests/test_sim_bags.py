@@ -162,6 +162,70 @@ def test_quaternions_of_rotations() -> None:
     assert abs(flip[0]) == pytest.approx(1.0)
 
 
+def _rotation(q) -> np.ndarray:
+    """3 x 3 rotation of a geometry_msgs Quaternion (the textbook formula, independent of the recorder's)."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@pytest.fixture(scope="module")
+def sloped_bag(tmp_path_factory):
+    """(bag messages, robot state, camera) of one frame recorded on ground pitched and rolled."""
+    from types import SimpleNamespace
+
+    from segmin.nav_eval.sim.robot import RobotState
+
+    camera = nav_camera(_config())
+    state = RobotState(x=1.0, y=-0.5, yaw=0.7, pitch=0.12, roll=-0.09)
+    simulator = SimpleNamespace(robot=SimpleNamespace(state=state))
+    frame = SimpleNamespace(rgb=np.zeros((48, 48, 3), np.uint8), depth=np.ones((48, 48), np.float32))
+    bag = tmp_path_factory.mktemp("sloped") / "run"
+    with RunRecorder(bag, camera, seed=0) as recorder:
+        recorder.frame(simulator, 0.0, frame)
+    return _read(bag), state, camera
+
+
+def test_the_recorded_camera_transform_projects_pixels_as_the_runtime_does(sloped_bag) -> None:
+    """base_link -> camera_link -> optical frame from /tf_static, applied to pixels with planar
+    depth, lands where the runtime's camera model puts them (tilted up by tilt_deg)."""
+    from segmin.nav_eval.runtime.camera import CameraGeometry
+
+    messages, _, camera = sloped_bag
+    static = {s.child_frame_id: s.transform for s in messages[topics.TF_STATIC][0][1].transforms}
+    mount, optical = static[topics.CAMERA_FRAME], static[topics.OPTICAL_FRAME]
+    geometry = CameraGeometry.from_camera(camera)
+    rows, cols, z = np.array([0.0, 23.0, 47.0, 10.0]), np.array([0.0, 24.0, 47.0, 40.0]), np.array([1.0, 2.0, 3.0, 5.0])
+    in_optical = np.stack([z * (cols - geometry.cx) / geometry.fx, z * (rows - geometry.cy) / geometry.fy, z])
+    offset = np.array([[mount.translation.x], [mount.translation.y], [mount.translation.z]])
+    in_base = _rotation(mount.rotation) @ _rotation(optical.rotation) @ in_optical + offset
+    assert in_base == pytest.approx(np.stack(geometry.robot_frame(rows, cols, z)), abs=1e-9)
+    forward = _rotation(mount.rotation) @ _rotation(optical.rotation) @ np.array([0.0, 0.0, 1.0])
+    assert math.degrees(math.asin(forward[2])) == pytest.approx(camera.tilt_deg)  # looks up, as rendered
+
+
+def test_the_recorded_imu_reads_gravity_in_the_body_frame(sloped_bag) -> None:
+    """At rest an accelerometer reads +g along the level frame's up axis, expressed in its body axes:
+    g (-sin pitch, sin roll cos pitch, cos roll cos pitch) for the recorded (REP 103) attitude."""
+    from segmin.nav_eval.ros2.sensors import attitude_from_imu
+    from segmin.nav_eval.sim.robot import imu_attitude
+
+    messages, state, _ = sloped_bag
+    imu = messages[topics.IMU][0][1]
+    roll, pitch = attitude_from_imu(imu, topics.IMU)
+    assert (roll, pitch) == pytest.approx(imu_attitude(state), abs=1e-12) and min(abs(roll), abs(pitch)) > 0.05
+    g = 9.80665
+    expected = (-g * math.sin(pitch), g * math.sin(roll) * math.cos(pitch), g * math.cos(roll) * math.cos(pitch))
+    acceleration = imu.linear_acceleration
+    assert (acceleration.x, acceleration.y, acceleration.z) == pytest.approx(expected, abs=1e-9)
+    assert acceleration.x > 0.5 and acceleration.y < -0.5  # nose up the slope, left side low
+
+
 def test_nav_eval_writes_a_bag_per_field_and_method(tmp_path, capsys) -> None:
     out = tmp_path / "eval"
     argv = ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--methods", "segmin", "--runs", "2"]

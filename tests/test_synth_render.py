@@ -155,6 +155,32 @@ def test_field_sampled_noise_is_reproducible_and_white_from_frame_to_frame():
     assert np.all(np.isfinite(errors))
 
 
+def test_the_noise_window_lies_anywhere_in_the_field():
+    """field_window reads the fields at a row and a column offset drawn each on its own: the window
+    is the fields' block at its corner, and over frames the corners spread over the whole field,
+    off its diagonal (a column offset reusing the row offset would keep them on it)."""
+    from segmin.data.synth.noise_field import FIELD_SIDE, field_window, noise_fields
+
+    normal, uniform = noise_fields(FIELD_SIDE)
+    rng = np.random.default_rng(1)
+    rows, columns = 40, 48
+    corners = []
+    for _ in range(20):
+        window_normal, window_uniform = field_window(rng, (rows, columns))
+        found = [
+            (r, c)
+            for r, c in np.argwhere(normal == window_normal[0, 0])  # a float32 value may repeat in the field
+            if np.array_equal(normal[r : r + rows, c : c + columns], window_normal)
+        ]
+        assert len(found) == 1
+        r, c = found[0]
+        assert np.array_equal(window_uniform, uniform[r : r + rows, c : c + columns])
+        corners.append((r, c))
+    top, left = np.array(corners).T
+    assert np.count_nonzero(top == left) <= 1
+    assert np.ptp(top) > FIELD_SIDE / 2 and np.ptp(left) > FIELD_SIDE / 2
+
+
 def test_depth_noise_sampling_is_checked():
     with pytest.raises(ValueError, match="depth_noise_sampling"):
         CameraModel(depth_noise_sampling="texture")

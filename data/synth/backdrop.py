@@ -176,3 +176,101 @@ def backdrop_meshes(spec, layout, terrain, rng: np.random.Generator, textures) -
         tint = (green * 0.8, green, green * rng.uniform(0.8, 1.1), 1.0)
         parts.append(("backdrop", hills_mesh(rng, centre, radius, terrain), textures.ground[0], tint))
     return parts
+
+
+def row_end_line(
+    rng: np.random.Generator, a: np.ndarray, b: np.ndarray, height: float, terrain, pieces: int
+) -> list[Mesh]:
+    """A dense, dark hedge or tree line from a to b (xy) that closes the end of the rows, in `pieces`
+    meshes along it (culling and TinyRenderer's bounding boxes stay small).
+
+    Real rows end in lines of trees or tall hedges that fill the view right across the vanishing
+    point, dark because the camera sees their shaded side: a solid leafy wall (nothing shows
+    through it, unlike `hedge_mesh`) up to about three quarters of the height, leaves over both of
+    its faces, under crowns of uneven heights, so the skyline is ragged like trees of different ages.
+    """
+    length = float(np.linalg.norm(b - a))
+    along = (b - a) / max(length, 1e-9)
+    facing = np.array([along[1], -along[0], 0.0])
+    n_crowns = max(2, int(length / rng.uniform(2.5, 5.0)))
+    crown_t = np.sort(rng.uniform(0, 1, n_crowns))
+    crown_h = height * rng.uniform(0.6, 1.2, n_crowns)
+    crown_r = 0.5 * length / n_crowns + rng.uniform(0.8, 1.6, n_crowns)
+    t = np.linspace(0, 1, max(2, int(length) + 1))  # wall stations every metre or so
+    xy = a[None, :] + (b - a)[None, :] * t[:, None]
+    ground = np.asarray(terrain.height(xy[:, 0], xy[:, 1]), float)
+    top = ground + 0.75 * np.interp(t, crown_t, crown_h) * rng.uniform(0.9, 1.05, len(t))
+    meshes = []
+    for k in range(pieces):
+        t0, t1 = k / pieces, (k + 1) / pieces
+        st = np.nonzero((t >= t0 - 1e-9) & (t <= t1 + 1e-9))[0]
+        st = np.arange(max(st[0] - 1, 0), min(st[-1] + 1, len(t) - 1) + 1)  # overlap the neighbours
+        parts = [_wall(xy[st], ground[st], top[st], facing)]
+        pts, out = [], []
+        for tc, h, r in zip(crown_t, crown_h, crown_r):
+            if not t0 <= tc < t1:
+                continue
+            p = a + (b - a) * tc
+            radii = np.array([r, rng.uniform(0.8, 1.6), 0.35 * h])
+            n = int(np.clip(ellipsoid_area(radii) / 0.12, 40, 600))  # about covered by 0.55 m leaves
+            centre = np.array([p[0], p[1], float(terrain.height(p[0], p[1])) + 0.65 * h])
+            local, outward = ellipsoid_shell_points(centre, radii, n, rng, depth=0.2)
+            pts.append(local)
+            out.append(outward)
+        # Leaves over both faces of the wall, so it is not flat.
+        n_face = int(1.2 * (t1 - t0) * length * float(np.mean(top[st] - ground[st])))
+        tf = rng.uniform(t0, t1, n_face)
+        fxy = a[None, :] + (b - a)[None, :] * tf[:, None]
+        fz = np.asarray(terrain.height(fxy[:, 0], fxy[:, 1]), float)
+        fz = fz + rng.uniform(0.05, 1.0, n_face) * (np.interp(tf, t, top) - fz)
+        side = np.where(rng.uniform(size=n_face) < 0.5, -1.0, 1.0)[:, None] * facing[None, :]
+        pts.append(np.column_stack([fxy, fz]) + side * rng.uniform(0.05, 0.3, (n_face, 1)))
+        out.append(side + np.array([0.0, 0.0, 0.3]))
+        pts_a, out_a = np.concatenate(pts), np.concatenate(out)
+        sizes = 0.55 * rng.uniform(0.7, 1.4, len(pts_a))
+        parts.append(leaves(pts_a, sizes, rng, facing=out_a, up_bias=0.0))
+        meshes.append(Mesh.concat(parts))
+    return meshes
+
+
+def _wall(xy: np.ndarray, ground: np.ndarray, top: np.ndarray, facing: np.ndarray) -> Mesh:
+    """A double-sided vertical strip from below the ground to `top` through the stations `xy`,
+    textured with the atlas' leaves: the opaque core of a row-end line."""
+    lower = np.column_stack([xy, ground - 0.3])
+    upper = np.column_stack([xy, top])
+    quads = np.stack([lower[:-1], lower[1:], upper[1:], upper[:-1]], axis=1)  # n, 4, 3
+    n = len(quads)
+    verts = quads.reshape(-1, 3)
+    uvs = np.tile([[0.55, 0.05], [0.95, 0.05], [0.95, 0.95], [0.55, 0.95]], (n, 1))
+    front = (np.arange(n)[:, None] * 4 + np.array([0, 1, 2, 0, 2, 3])[None, :]).reshape(-1)
+    back = (np.arange(n)[:, None] * 4 + np.array([0, 2, 1, 0, 3, 2])[None, :] + 4 * n).reshape(-1)
+    normals = np.tile(facing, (4 * n, 1))
+    return Mesh(
+        np.concatenate([verts, verts]),
+        np.concatenate([normals, -normals]),
+        np.concatenate([uvs, uvs]),
+        np.concatenate([front, back]).astype(np.int64),
+    )
+
+
+def row_end_meshes(spec, layout, terrain, rng: np.random.Generator) -> list[tuple[Mesh, float]]:
+    """(mesh, brightness) of the lines that close the rows' ends (`backdrop.row_end_*`): each end
+    (beyond the last plants, then before the entrance) draws its own line, across the whole field
+    and well beyond its sides, square to the rows there."""
+    bd = spec.backdrop
+    parts: list[tuple[Mesh, float]] = []
+    half = 0.5 * (layout.offsets[-1] - layout.offsets[0]) + spec.rows.spacing
+    for end in (1, 0):  # the far end first: forward frames look at it
+        if rng.uniform() >= bd.row_end_probability:
+            continue
+        distance = rng.uniform(*bd.row_end_distance)
+        xy, tangent = layout.at(np.array([layout.length if end else 0.0]))
+        out = tangent[0] if end else -tangent[0]  # straight on out of the rows
+        centre = xy[0] + out * distance
+        reach = half + rng.uniform(15.0, 30.0)  # wide enough to fill a 120 degree view
+        across = np.array([-out[1], out[0]]) * reach
+        height = rng.uniform(*bd.row_end_height)
+        brightness = rng.uniform(*bd.row_end_brightness)
+        for mesh in row_end_line(rng, centre - across, centre + across, height, terrain, pieces=6):
+            parts.append((mesh, brightness))
+    return parts

@@ -183,8 +183,13 @@ def leaves(
     )
 
 
-def blades(bases: np.ndarray, heights: np.ndarray, rng: np.random.Generator, per_tuft: int = 3) -> Mesh:
-    """Grass tufts: `per_tuft` thin leaning blades (double-sided triangles) per base point."""
+def blades(
+    bases: np.ndarray, heights: np.ndarray, rng: np.random.Generator, per_tuft: int = 3, lift: float = 0.0
+) -> Mesh:
+    """Grass tufts: `per_tuft` thin leaning blades (double-sided triangles) per base point.
+
+    `lift` tilts the shading normals towards the sky: a blade's own normal is horizontal, so the
+    sun lights a tuft from the side only; lush young grass seen from above is lit like a lawn."""
     n = len(bases) * per_tuft
     if n == 0:
         return Mesh()
@@ -204,11 +209,15 @@ def blades(bases: np.ndarray, heights: np.ndarray, rng: np.random.Generator, per
     uvs = np.repeat(uv, 3, axis=0) + np.tile([[0, 0], [0.02, 0], [0.01, 0.05]], (n, 1))
     verts = tri.reshape(-1, 3)
     norms = np.repeat(normal, 3, axis=0)
+    back_norms = -norms
+    if lift:  # both faces towards the sky
+        up = np.array([0.0, 0.0, lift])
+        norms, back_norms = (_unit(v + up) for v in (norms, back_norms))
     front = np.arange(3 * n)
     back = (3 * n + np.arange(3 * n).reshape(n, 3)[:, ::-1]).reshape(-1)
     return Mesh(
         np.concatenate([verts, verts]),
-        np.concatenate([norms, -norms]),
+        np.concatenate([norms, back_norms]),
         np.concatenate([uvs, uvs]),
         np.concatenate([front, back]).astype(np.int64),
     )

@@ -4,7 +4,8 @@ pybullet's TinyRenderer has no culling of its own: every frame we hide (alpha 0)
 outside the view frustum or beyond `render.cull_distance`, and show far chunks at their coarse
 level of detail. Shadows double a frame's cost, so they are drawn on a share of frames only
 (`render.shadow_probability`); light direction, colour and ambient/diffuse terms, overcast or
-back-lit skies and distance haze are randomised from the world's `sky` section. Backdrop chunks
+back-lit skies, a low sun behind the camera, glare (`glare.py`) and distance haze are randomised
+from the world's `sky` section. Backdrop chunks
 skip the distance cut. Where nothing was hit, a sky (gradient plus clouds) is composited and
 depth is 0 (no return).
 
@@ -23,6 +24,7 @@ import numpy as np
 import pybullet as p
 
 from segmin.data.synth.camera import CameraModel
+from segmin.data.synth.glare import apply_glare, sun_pixel
 from segmin.data.synth.world import World
 
 
@@ -101,6 +103,8 @@ def _fixed_look() -> dict:
         "shadow": False,
         "horizon": np.array([0.80, 0.85, 0.90]),
         "zenith": np.array([0.35, 0.55, 0.85]),
+        "low_sun": "",
+        "glare": 0.0,
         "light": {
             "lightDirection": [0.4, 0.3, 1.0],
             "lightColor": [1.0, 1.0, 1.0],
@@ -226,6 +230,11 @@ class Renderer:
             elif c.kind == "backdrop_tree":  # any leaf texture, often darker than the crop
                 texture = tex.plant[int(rng.integers(len(tex.plant)))]
                 tint = rng.uniform(0.45, 1.0) * (1 + rng.uniform(-0.1, 0.1, 3))
+            elif c.kind == "backdrop_dark":  # a line closing the row: any leaf texture, in its own shade
+                texture = tex.plant[int(rng.integers(len(tex.plant)))]
+                tint = np.asarray(c.tint[:3]) * rng.uniform(0.85, 1.1) * (1 + rng.uniform(-0.08, 0.08, 3))
+            elif c.kind == "lush":  # bright grass between the rows keeps its own texture
+                texture, tint = c.texture, np.full(3, rng.uniform(0.85, 1.0)) * (1 + rng.uniform(-0.05, 0.05, 3))
             elif c.kind == "backdrop":  # buildings and hills keep their own tint
                 texture, tint = c.texture, np.asarray(c.tint[:3]) * rng.uniform(0.8, 1.1)
             elif c.kind == "ground":
@@ -298,16 +307,28 @@ class Renderer:
             horizon = np.clip(np.full(3, min(grey * 1.05, 1.0)) + rng.uniform(-0.02, 0.02, 3), 0, 1)
             cover, warm = 0.0, warm * 0.3
             ambient, diffuse, specular = rng.uniform(0.6, 0.85), rng.uniform(0.1, 0.3), 0.0
-        elif sky.backlight_probability > 0 and rng.uniform() < sky.backlight_probability:
+        low_sun = ""
+        if not overcast and sky.backlight_probability > 0 and rng.uniform() < sky.backlight_probability:
             az = heading + rng.normal(0, 0.4)  # sun ahead, low: plants seen from their dark side
             el = math.radians(rng.uniform(8, 30))
             horizon = np.clip(horizon + 0.12, 0, 1)
+            low_sun = "ahead"
         haze = rng.uniform(*sky.haze) if sky.haze[1] > 0 else 0.0
         shadow = (
             not overcast
             and self.world.spec.render.shadow_probability > 0
             and rng.uniform() < self.world.spec.render.shadow_probability
         )
+        # Drawn after everything above, and only when asked for: other worlds keep their frames.
+        behind = sky.low_sun_behind_probability
+        if not (overcast or low_sun) and behind > 0 and rng.uniform() < behind:  # sun behind, low: hard, warm
+            az, el = heading + math.pi + rng.normal(0, 0.5), math.radians(rng.uniform(5, 25))
+            warm = rng.uniform(0.06, 0.15)
+            ambient, diffuse = rng.uniform(0.3, 0.45), rng.uniform(0.65, 0.9)
+            low_sun = "behind"
+        glare = 0.0
+        if low_sun and sky.glare_probability > 0 and rng.uniform() < sky.glare_probability:
+            glare = rng.uniform(*sky.glare_strength)
         light = {
             "lightDirection": [math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)],
             "lightColor": [float(np.clip(1 + warm, 0, 1)), 1.0 - abs(warm) * 0.3, float(np.clip(1 - warm, 0, 1))],
@@ -324,6 +345,8 @@ class Renderer:
             "horizon": horizon,
             "zenith": zenith,
             "light": light,
+            "low_sun": low_sun,
+            "glare": glare,
         }
 
     def _sky(self, pose: np.ndarray, rng: np.random.Generator | None, look: dict) -> np.ndarray:
@@ -405,7 +428,13 @@ class Renderer:
             camera_pose=pose,
             robot_pose=(float(x), float(y), float(yaw)),
             body_ids=ids,
-            stats={**stats, "shadow": bool(look["shadow"]), "overcast": bool(look["overcast"])},
+            stats={
+                **stats,
+                "shadow": bool(look["shadow"]),
+                "overcast": bool(look["overcast"]),
+                "low_sun": look["low_sun"],
+                "glare": float(look["glare"]),
+            },
         )
 
     def _colour(
@@ -417,7 +446,8 @@ class Renderer:
         ids: np.ndarray,
         depth: np.ndarray,
     ) -> np.ndarray:
-        """The rasterised image finished: sky where nothing was hit, haze, then exposure."""
+        """The rasterised image finished: sky where nothing was hit, haze, exposure, then glare (what
+        saturates stays saturated whatever the exposure)."""
         hit = ids >= 0
         if not hit.all():
             np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
@@ -429,6 +459,9 @@ class Renderer:
             )
         if rng is not None:
             rgb = self._expose(rgb, rng)
+        if look["glare"] > 0 and rng is not None:  # colour only: mask and depth keep the geometry
+            sun = sun_pixel(pose, look["light"]["lightDirection"], self.camera) if look["low_sun"] == "ahead" else None
+            rgb = apply_glare(rgb, ~hit, sun, look["glare"], rng)
         return rgb
 
     def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +19,18 @@ from typing import Literal
 from segmin.common.angles import wrap_angle
 from segmin.common.config import apply_overrides, from_dict, read_yaml
 from segmin.common.shipped import resolve_config
+
+log = logging.getLogger(__name__)
+
+# Shipped worlds renamed for what they hold (they were named for the experiment that made them):
+# the old names load the new worlds, with a warning, for one release.
+RENAMED_WORLDS: dict[str, str] = {
+    "train_vineyard_a_levers": "train_vineyard_under_nets",
+    "train_vineyard_b_levers": "train_vineyard_winter_dormant",
+    "train_pergola_a_levers": "train_pergola_under_net",
+    "train_pear_a_levers": "train_pear_under_nets",
+    "train_apple_wall_a_levers": "train_apple_wall_under_nets",
+}
 
 TEST_FIELDS: tuple[str, ...] = (
     "straight_vineyard",
@@ -46,6 +59,13 @@ MIN_GAP_WIDTH = 0.63
 MAX_POLYLINE_FOLD = 0.1
 # How far an anti-hail net's ridge (over a row line) stays above the tallest plant.
 NET_CLEARANCE = 0.2
+# Upper bounds of amounts that grow a world's triangle count (and memory) without limit: a field of
+# 25 m rows holds millions of triangles at these, far past anything a real row shows. Anti-hail nets
+# hang 3-7 m up on their posts; 15 m clears the tallest orchard trees a world builds.
+MAX_NET_HEIGHT = 15.0
+MAX_TUFTS_PER_M2 = 200.0  # grass tufts per square metre: a closed sward
+MAX_ROW_WEEDS_PER_M = 50.0  # weed tufts per metre of row: one every 2 cm
+MAX_BACKDROP_COUNT = {"trees": 200, "forest_edges": 8, "hedges": 8, "buildings": 20}
 
 
 def _check_range(name: str, value: Range, *, low: float | None = 0.0, strict: bool = False) -> None:
@@ -234,6 +254,10 @@ class NetsSpec:
         for name in ("probability", "field_probability", "row_probability", "drape_probability"):
             _check_fraction(f"structures.nets.{name}", getattr(self, name))
         _check_range("structures.nets.height", self.height, strict=True)
+        if self.height[1] > MAX_NET_HEIGHT:
+            raise ValueError(
+                f"structures.nets.height: {list(self.height)} m; anti-hail nets hang at most {MAX_NET_HEIGHT} m up"
+            )
         _check_range("structures.nets.sag", self.sag)
         if self.sag[1] >= 0.5 * self.height[0]:
             raise ValueError(
@@ -304,6 +328,8 @@ class TerrainSpec:
     row_weeds: float = 0.0  # tall weed tufts per metre of row, at the row base (not vegetation)
     row_weed_height: Range = (0.4, 0.9)  # up into the canopy band (m)
     row_weed_reach: float = 0.4  # how far from the row line they grow (m)
+    gap_grass: float = 0.0  # lush grass and weed tufts per square metre on the strip between the rows (not vegetation)
+    gap_grass_height: Range = (0.12, 0.45)  # tuft height (m)
 
     def __post_init__(self) -> None:
         if self.roughness < 0:
@@ -313,10 +339,18 @@ class TerrainSpec:
         if self.margin < 0:
             raise ValueError(f"terrain.margin: must be >= 0, got {self.margin}")
         _check_positive("terrain.texture_scale", self.texture_scale)
-        if self.grass_tufts < 0:
-            raise ValueError(f"terrain.grass_tufts: must be >= 0, got {self.grass_tufts}")
-        if self.row_weeds < 0:
-            raise ValueError(f"terrain.row_weeds: must be >= 0, got {self.row_weeds}")
+        for name in ("grass_tufts", "gap_grass"):
+            if not 0 <= getattr(self, name) <= MAX_TUFTS_PER_M2:
+                raise ValueError(
+                    f"terrain.{name}: tufts per square metre within [0, {MAX_TUFTS_PER_M2:g}], got {getattr(self, name)}"
+                )
+        if not 0 <= self.row_weeds <= MAX_ROW_WEEDS_PER_M:
+            raise ValueError(
+                f"terrain.row_weeds: tufts per metre of row within [0, {MAX_ROW_WEEDS_PER_M:g}], got {self.row_weeds}"
+            )
+        _check_range("terrain.gap_grass_height", self.gap_grass_height, strict=True)
+        if self.gap_grass_height[1] > 1.0:
+            raise ValueError(f"terrain.gap_grass_height: tufts up to 1 m, got {list(self.gap_grass_height)}")
         _check_range("terrain.row_weed_height", self.row_weed_height, strict=True)
         if self.row_weed_height[1] > 1.5:
             raise ValueError(f"terrain.row_weed_height: weeds up to 1.5 m, got {list(self.row_weed_height)}")
@@ -398,10 +432,23 @@ class SkySpec:
     sun_elevation: Range = (20.0, 80.0)  # degrees above the horizon
     backlight_probability: float = 0.0  # low sun in front of the camera (dark, rim-lit plants)
     haze: Range = (0.0, 0.0)  # distance haze: fraction of the horizon colour at 50 m
+    low_sun_behind_probability: float = 0.0  # low sun behind the camera: warm, hard, frontal light
+    glare_probability: float = 0.0  # share of low-sun frames with a blown-out sky, bloom and (sun ahead) lens flare
+    glare_strength: Range = (0.4, 1.0)  # how strong the glare is, 1 = sky white, canopy edges washed out
 
     def __post_init__(self) -> None:
         _check_fraction("sky.overcast_probability", self.overcast_probability)
         _check_fraction("sky.backlight_probability", self.backlight_probability)
+        _check_fraction("sky.low_sun_behind_probability", self.low_sun_behind_probability)
+        _check_fraction("sky.glare_probability", self.glare_probability)
+        _check_range("sky.glare_strength", self.glare_strength)
+        if self.glare_strength[1] > 1:
+            raise ValueError(f"sky.glare_strength: values within [0, 1], got {list(self.glare_strength)}")
+        if self.glare_probability > 0 and self.backlight_probability + self.low_sun_behind_probability == 0:
+            raise ValueError(
+                "sky.glare_probability: glare comes with a low sun; set sky.backlight_probability or "
+                "sky.low_sun_behind_probability above 0"
+            )
         _check_range("sky.cloud_cover", self.cloud_cover)
         _check_range("sky.haze", self.haze)
         _check_range("sky.sun_elevation", self.sun_elevation, strict=True)
@@ -424,6 +471,7 @@ class CaptureSpec:
     mount_height: Range = (0.4, 0.4)  # camera height above the ground (m)
     tilt_deg: Range = (15.0, 15.0)  # upward tilt
     vignetting: Range = (0.0, 0.0)  # corner darkening (fraction of brightness lost)
+    blank_frames: float = 0.0  # share of frames all black, all white or one colour: empty mask, no depth
 
     def __post_init__(self) -> None:
         _check_range("capture.hfov_deg", self.hfov_deg, low=10.0)
@@ -436,6 +484,8 @@ class CaptureSpec:
         _check_range("capture.vignetting", self.vignetting)
         if self.vignetting[1] > 0.8:
             raise ValueError(f"capture.vignetting: within [0, 0.8], got {list(self.vignetting)}")
+        if not 0 <= self.blank_frames <= 0.5:
+            raise ValueError(f"capture.blank_frames: a share within [0, 0.5], got {self.blank_frames}")
 
 
 @dataclass
@@ -456,15 +506,28 @@ class BackdropSpec:
     buildings: int = 0
     building_height: Range = (3.0, 8.0)
     hills: float = 0.0  # probability of a ridge of hills on the horizon
+    row_end_probability: float = 0.0  # chance each end of the rows is closed by a dense, dark hedge or tree line
+    row_end_distance: Range = (1.5, 6.0)  # from the row ends to the line (m)
+    row_end_height: Range = (2.5, 9.0)  # top of the line: a hedge (2-4 m) to a line of trees
+    row_end_brightness: Range = (0.2, 0.55)  # its leaves' share of the crop's light: dark, in its own shade
 
     def __post_init__(self) -> None:
-        for name in ("trees", "forest_edges", "hedges", "buildings"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"backdrop.{name}: must be >= 0, got {getattr(self, name)}")
-        for name in ("tree_height", "hedge_height", "building_height"):
+        for name, most in MAX_BACKDROP_COUNT.items():
+            if not 0 <= getattr(self, name) <= most:
+                raise ValueError(f"backdrop.{name}: within [0, {most}], got {getattr(self, name)}")
+        for name in ("tree_height", "hedge_height", "building_height", "row_end_height"):
             _check_range(f"backdrop.{name}", getattr(self, name), strict=True)
         _check_range("backdrop.tree_distance", self.tree_distance)
         _check_fraction("backdrop.hills", self.hills)
+        _check_fraction("backdrop.row_end_probability", self.row_end_probability)
+        _check_range("backdrop.row_end_distance", self.row_end_distance, low=0.5)
+        if self.row_end_distance[1] > 40:
+            raise ValueError(f"backdrop.row_end_distance: within [0.5, 40] m, got {list(self.row_end_distance)}")
+        if self.row_end_height[1] > 30:
+            raise ValueError(f"backdrop.row_end_height: at most 30 m, got {list(self.row_end_height)}")
+        _check_range("backdrop.row_end_brightness", self.row_end_brightness, strict=True)
+        if self.row_end_brightness[1] > 1:
+            raise ValueError(f"backdrop.row_end_brightness: within (0, 1], got {list(self.row_end_brightness)}")
 
 
 @dataclass
@@ -561,6 +624,10 @@ class WorldSpec:
 
 def load_world_spec(name_or_path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> WorldSpec:
     """Load and validate a world spec (a shipped name or a YAML path); errors name the file and the field."""
+    new_name = RENAMED_WORLDS.get(str(name_or_path))
+    if new_name is not None:
+        log.warning("world %s is now called %s; the old name goes in the next release", name_or_path, new_name)
+        name_or_path = new_name
     path = resolve_config("worlds", name_or_path)
     raw = apply_overrides(read_yaml(path), list(overrides))
     return from_dict(WorldSpec, raw, where=str(path))
@@ -582,10 +649,12 @@ def pergola_reach(spec: WorldSpec) -> tuple[float, float]:
 
 __all__ = [
     "GROUND_STYLE_NAMES",
+    "MAX_NET_HEIGHT",
     "MAX_POLYLINE_FOLD",
     "MIN_GAP_WIDTH",
     "NET_COLOUR_NAMES",
     "POST_STYLE_NAMES",
+    "RENAMED_WORLDS",
     "TEST_FIELDS",
     "AppearanceSpec",
     "BackdropSpec",

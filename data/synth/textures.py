@@ -183,6 +183,20 @@ def grass_texture(rng: np.random.Generator, appearance) -> np.ndarray:
     return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
 
+def lush_grass_texture(rng: np.random.Generator) -> np.ndarray:
+    """Young grass and broad-leaved weeds in spring or after rain: bright, saturated greens with
+    lighter and darker streaks and a few flowers, as close to the crop's leaves as grass gets."""
+    size = SIZE
+    green = _hsv(rng.uniform(72, 108), rng.uniform(0.55, 0.85), rng.uniform(0.6, 0.9))
+    light = _hsv(rng.uniform(60, 85), rng.uniform(0.45, 0.7), rng.uniform(0.8, 1.0))
+    mix = np.clip(_noise(rng, size, (4, 8, 16)) - 0.35, 0, 1)[..., None]
+    streaks = cv2.resize(rng.uniform(0.7, 1.2, size=(6, size)).astype(np.float32), (size, size))[..., None]
+    img = (green[None, None] * (1 - mix) + light[None, None] * mix) * streaks
+    flowers = _noise(rng, size, (32, 64)) > rng.uniform(0.9, 0.97)
+    img[flowers] = _hsv(rng.choice([50.0, 55.0, 0.0]), rng.uniform(0.0, 0.9), 0.95)
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
 def structure_texture(rng: np.random.Generator) -> np.ndarray:
     size = SIZE
     base = _hsv(rng.uniform(25, 40), rng.uniform(0.05, 0.25), rng.uniform(0.45, 0.7))
@@ -238,6 +252,7 @@ class TextureSet:
         # Mean colour of each ground texture (0..1), used to paint ground beyond the tiles.
         self.ground_mean = [images[f"ground{i}"].reshape(-1, 3).mean(axis=0) / 255.0 * 0.8 for i in range(n)]
         self._plain: int | None = None
+        self._lush: int | None = None
 
     def plain(self) -> int:
         """The near-white texture of nets and posts, loaded the first time a world needs it (worlds
@@ -247,3 +262,12 @@ class TextureSet:
             self._plain = load_textures(self.client_id, {"plain": img})["plain"]
             self.images[self._plain] = img
         return self._plain
+
+    def lush(self, rng: np.random.Generator) -> int:
+        """The lush grass texture of the strips between the rows, loaded the first time a world
+        needs it (drawn from `rng`, the caller's stream); other worlds keep their texture ids."""
+        if self._lush is None:
+            img = lush_grass_texture(rng)
+            self._lush = load_textures(self.client_id, {"lush": img})["lush"]
+            self.images[self._lush] = img
+        return self._lush

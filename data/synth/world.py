@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pybullet as p
 
-from segmin.data.synth.backdrop import backdrop_meshes
+from segmin.data.synth.backdrop import backdrop_meshes, row_end_meshes
 from segmin.data.synth.mesh import Mesh, blades, cylinders, grid_surface
 from segmin.data.synth.nets import NetShade, net_meshes, net_shade, plan_nets
 from segmin.data.synth.plants import LOD_FACTORS, Plant, make_plant
@@ -219,7 +219,9 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     """Build `spec` into the (DIRECT) pybullet client `client_id`; `seed` overrides `spec.seed`.
 
     Each part draws from a random stream of its own (terrain, plants, structures, textures,
-    ground, backdrop, nets, row weeds), so a change to one part of a spec leaves the others as they were.
+    ground, backdrop, nets, row weeds, row ends, gap grass), so a change to one part of a spec leaves
+    the others as they were. Parts added later come last: a world without them keeps its bodies, and
+    so its frames, byte for byte.
     """
     seed = spec.seed if seed is None else int(seed)
     rng_terrain, rng_plants, rng_struct, rng_tex, rng_ground = (np.random.default_rng([seed, k]) for k in range(5))
@@ -237,6 +239,8 @@ def build_world(spec: WorldSpec, client_id: int, seed: int | None = None) -> Wor
     _backdrop(spec, layout, terrain, np.random.default_rng([seed, 5]), client_id, textures, chunks, tris)
     shade = _nets(spec, layout, terrain, np.random.default_rng([seed, 6]), client_id, textures, chunks, tris)
     _row_weeds(spec, layout, terrain, np.random.default_rng([seed, 7]), client_id, textures, chunks, tris)
+    _row_ends(spec, layout, terrain, np.random.default_rng([seed, 8]), client_id, textures, chunks, tris)
+    _gap_grass(spec, layout, terrain, np.random.default_rng([seed, 9]), client_id, textures, chunks, tris)
 
     centre_offsets, half_widths = _gap_geometry(spec, layout.offsets)
     s_line = np.arange(0.0, spec.rows.length + 1e-9, CENTRELINE_STEP)
@@ -476,6 +480,51 @@ def _row_weeds(spec, layout, terrain, rng, client, textures, chunks, tris) -> No
             ch.triangles.append(0)
             chunks.append(ch)
             tris["weeds"] = [a + m.n_triangles for a, m in zip(tris["weeds"], (fine, coarse))]
+
+
+def _row_ends(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
+    """Dense, dark hedges or tree lines closing the rows' ends (`backdrop.row_end_*`): scenery,
+    never vegetation in the mask, right where the navigator looks for the row's vanishing point."""
+    if spec.backdrop.row_end_probability <= 0:
+        return
+    parts = row_end_meshes(spec, layout, terrain, rng)
+    if parts:
+        tris["row_ends"] = [0]
+    for mesh, brightness in parts:
+        chunks.append(_chunk(client, [mesh], "backdrop_dark", textures.plant[0], (brightness,) * 3 + (1.0,)))
+        tris["row_ends"][0] += mesh.n_triangles
+
+
+def _gap_grass(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:
+    """Lush, bright grass and weeds on the strips the robot drives (`terrain.gap_grass`), from
+    before the entrance to past the row ends: at the camera's feet, never vegetation in the mask.
+    Patchy like real swards (each piece of strip draws its own density); drawn to the second
+    level-of-detail distance."""
+    ts = spec.terrain
+    if ts.gap_grass <= 0:
+        return
+    tris["gap_grass"] = [0, 0]
+    texture = textures.lush(rng)
+    chunk_len = spec.render.chunk_length
+    half = 0.45 * spec.rows.spacing
+    starts = np.arange(-3.0, spec.rows.length + 3.0, chunk_len)
+    for g in range(len(layout.offsets) - 1):
+        middle = 0.5 * (layout.offsets[g] + layout.offsets[g + 1])
+        for s0 in starts:
+            n = rng.poisson(ts.gap_grass * chunk_len * 2 * half * rng.uniform(0.4, 1.6))
+            if not n:
+                continue
+            s = rng.uniform(s0, s0 + chunk_len, n)
+            xy, _ = layout.at(s, middle + rng.uniform(-half, half, n))
+            bases = np.column_stack([xy, terrain.height(xy[:, 0], xy[:, 1]) - 0.01])
+            heights = rng.uniform(*ts.gap_grass_height, n)
+            fine = blades(bases, heights, rng, per_tuft=8, lift=2.0)
+            coarse = blades(bases[: max(1, n // 3)], heights[: max(1, n // 3)], rng, per_tuft=5, lift=2.0)
+            ch = _chunk(client, [fine, coarse], "lush", texture)
+            ch.bodies.append(-1)  # beyond the second level-of-detail distance: not drawn
+            ch.triangles.append(0)
+            chunks.append(ch)
+            tris["gap_grass"] = [a + m.n_triangles for a, m in zip(tris["gap_grass"], (fine, coarse))]
 
 
 def _ground(spec, layout, terrain, rng, client, textures, chunks, tris) -> None:

@@ -36,7 +36,7 @@ from segmin.common.atomic import write_bytes, write_json
 from segmin.common.config import to_dict
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
-from segmin.common.outputs import check_output_dir, make_dirs
+from segmin.common.outputs import check_writable, make_dirs
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.nets import shade_under_nets
 from segmin.data.synth.spec import WorldSpec
@@ -124,18 +124,6 @@ def frame_paths(out: Path, domain: str, frame: int, per_subset: int) -> dict[str
 
 def frame_done(paths: dict[str, Path]) -> bool:
     return all(p.is_file() for p in paths.values())
-
-
-def check_writable(out: Path) -> None:
-    """Fail before any rendering when `out` cannot be created or written."""
-    out = check_output_dir(out, "--out")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".segmin_probe_", dir=out)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise ValueError(f"--out {out}: not writable ({exc.strerror or exc})") from exc
 
 
 # --------------------------------------------------------------------------------- planning
@@ -287,6 +275,9 @@ class FrameRenderer:
 
     def render(self, frame: int):
         plan = plan_frame(self.world, self.job_seed, frame, self.appearance_every)
+        blank = blank_frame(self.world, frame_camera(self.camera, plan), plan, self.job_seed)
+        if blank is not None:
+            return blank
         if plan.block != self._block:
             self.renderer.randomize_appearance(np.random.default_rng([self.job_seed, 4, plan.block]))
             self._block = plan.block
@@ -312,6 +303,43 @@ class FrameRenderer:
         import pybullet as p
 
         p.disconnect(self.client)
+
+
+def is_blank(spec: WorldSpec, job_seed: int, frame: int) -> bool:
+    """Whether frame `frame` is a blank frame (`capture.blank_frames`): a draw of its own stream,
+    so the other frames keep their bytes."""
+    share = spec.capture.blank_frames
+    return share > 0 and bool(np.random.default_rng([job_seed, 5, frame]).uniform() < share)
+
+
+def blank_frame(world, camera: CameraModel, plan: FramePlan, job_seed: int):
+    """The frame a covered, dazzled or failing camera delivers, or None for a rendered frame.
+
+    All black (lens cap, night), all white (saturated) or one colour (a leaf or a glove on the
+    lens), with faint sensor noise; the mask is empty (a model must paint nothing on such a frame)
+    and depth is 0 (no return)."""
+    if not is_blank(world.spec, job_seed, plan.frame):
+        return None
+    from segmin.data.synth.render import RenderedFrame, camera_pose
+
+    rng = np.random.default_rng([job_seed, 6, plan.frame])
+    kind = int(rng.integers(3))
+    if kind == 0:
+        colour = rng.uniform(0, 14, 3)
+    elif kind == 1:
+        colour = rng.uniform(240, 255, 3)
+    else:
+        colour = rng.uniform(0, 255) * (1 + rng.uniform(-0.3, 0.3, 3))
+    shape = (camera.height, camera.width)
+    rgb = colour[None, None, :] + rng.normal(0, rng.uniform(0, 2.5), (*shape, 3))
+    return RenderedFrame(
+        rgb=np.clip(np.round(rgb), 0, 255).astype(np.uint8),
+        depth=np.zeros(shape, np.float32),
+        mask=np.zeros(shape, bool),
+        camera_pose=camera_pose(world, camera, *plan.robot_pose, pose_offset=plan.pose_offset),
+        robot_pose=plan.robot_pose,
+        stats={"blank": ("black", "white", "colour")[kind]},
+    )
 
 
 class RenderWorker:
@@ -407,6 +435,8 @@ def _frame_meta(job: RenderJob, world, frame: int, sub: Path) -> dict:
             "tilt_deg": round(cam.tilt_deg, 6),
         }
     )
+    if is_blank(job.spec, job.dataset_seed, frame):
+        extra["blank"] = True
     return {
         "gap": plan.gap,
         "s": round(plan.s, 6),

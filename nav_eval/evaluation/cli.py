@@ -24,7 +24,9 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         help="closed-loop navigation in the simulated test fields (Table 3 metrics, plots)",
         description="Drive a simulated Jackal through the row gaps of the test fields with SegMin, SegMinD "
         "and/or SegZeros, guided by an exported ONNX model or the simulator's exact mask ('oracle'). Writes "
-        "results.csv, results.json, report.md, trajectory and histogram figures (and MP4 videos with --video).",
+        "results.csv, results.json, report.md, trajectory and histogram figures (and MP4 videos with --video). "
+        "Resumable: finished runs are kept under OUT/runs, and the same call again does only the missing ones "
+        "(--force redoes them all).",
     )
     parser.add_argument(
         "--model",
@@ -37,9 +39,14 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
     parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
     parser.add_argument(
-        "--out", type=Path, required=True, help="output folder (refused if it holds results, unless --force)"
+        "--out",
+        type=Path,
+        required=True,
+        help="output folder (reused to resume the same evaluation; refused if it holds another's results, unless --force)",
     )
-    parser.add_argument("--force", action="store_true", help="overwrite the results of an earlier nav-eval in --out")
+    parser.add_argument(
+        "--force", action="store_true", help="start over: redo every run and overwrite the results in --out"
+    )
     parser.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
     add_executor_options(parser)
     parser.add_argument(
@@ -60,16 +67,14 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def _nav_eval(args: argparse.Namespace) -> int:
-    from segmin.common.outputs import check_results_absent
     from segmin.nav_eval.evaluation.evaluate import run_evaluation
-    from segmin.nav_eval.evaluation.report import RESULT_FILES, table3_markdown
+    from segmin.nav_eval.evaluation.report import table3_markdown
     from segmin.nav_eval.sim.config import load_nav_config
 
     config = load_nav_config(args.config, overrides_of(args))
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     executor = executor_of(args)
-    check_results_absent(args.out, RESULT_FILES, args.force, "nav-eval")
     if args.bag:
         import rosbags.rosbag2  # noqa: F401  (a missing [ros] extra is named now, not in every run)
     results = run_evaluation(
@@ -86,6 +91,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         plots=not args.no_plots,
         executor=executor,
+        resume=not args.force,
     )
     print(table3_markdown(results), end="")
     failed = [r for r in results if r.reason == "error"]

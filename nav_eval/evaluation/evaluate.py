@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import json
 import math
 import os
 import time
@@ -31,6 +32,7 @@ from segmin.common.config import from_dict, to_dict
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics
+from segmin.nav_eval.evaluation.run_store import RUNS_FOLDER, digest, model_identity, store_run, stored_runs
 from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
 from segmin.nav_eval.runtime.shipped_models import resolve_model
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
@@ -42,6 +44,7 @@ from segmin.nav_eval.sim.factories import (
     make_segmenter,
     make_simulator,
 )
+from segmin.nav_eval.sim.faults import fault_metrics
 from segmin.nav_eval.sim.mask_closing import with_closing
 from segmin.nav_eval.sim.mask_dropout import with_dropout
 from segmin.nav_eval.sim.protocols import FrameSegmenter
@@ -77,6 +80,10 @@ class RunResult:
     start_x: float = math.nan
     start_y: float = math.nan
     start_yaw: float = math.nan
+    # The configured sensor faults' worst (sim.faults.fault_metrics): NaN without faults.
+    fault_stop_s: float = math.nan
+    fault_blind_m: float = math.nan
+    fault_resume_s: float = math.nan
     # The navigator's per-run statistics (`statistics()`, e.g. SegCorridor's mode shares), by column
     # name: a row has every method's columns (methods.STATISTIC_COLUMNS), NaN where its navigator
     # reported none.
@@ -108,6 +115,14 @@ class RunResult:
             if k in STATISTIC_COLUMNS and v is not None and not (isinstance(v, float) and math.isnan(v))
         }
         return cls(**{k: v for k, v in row.items() if k in names}, statistics=statistics)
+
+    @classmethod
+    def from_stored(cls, entry: dict[str, Any]) -> RunResult:
+        """A run kept by `run_store.store_run`, with its trajectory when it was kept."""
+        result = cls.from_row(entry["result"])
+        if entry.get("trajectory") is not None:
+            result.trajectory = Trajectory(**{k: np.asarray(v, dtype=float) for k, v in entry["trajectory"].items()})
+        return result
 
 
 @dataclasses.dataclass
@@ -290,6 +305,8 @@ class Worker:
             )
             for key in METRIC_KEYS:
                 setattr(result, key, metrics[key])
+            for key, value in fault_metrics(config.faults, episode.trajectory, episode.driving).items():
+                setattr(result, key, value)
             result.success, result.reason = episode.success, episode.reason
             result.goal_m = episode.goal_m
             result.sim_time = float(episode.trajectory.t[-1])
@@ -352,11 +369,15 @@ def run_evaluation(
     progress: bool = True,
     plots: bool = True,
     executor: Executor = LOCAL,
+    resume: bool = False,
 ) -> list[RunResult]:
     """Evaluate `model` ('oracle', an .onnx path or a shipped model name) on fields x methods x runs.
 
-    With `out_dir`, writes results.csv/json (rewritten atomically after every finished run, so
-    an interrupted evaluation keeps what it did), trajectories.json, report.md and the figures.
+    With `out_dir`, writes results.csv/json (rewritten atomically after every finished run),
+    trajectories.json, report.md and the figures, and keeps every finished run in out/runs
+    (`run_store`). `resume` (with `out_dir`): an earlier call of this same evaluation that was stopped keeps its
+    finished runs and only the missing ones are done (as `segmin robustness` resumes); an
+    `out_dir` holding another evaluation's results is refused. Without it every run is done.
     workers <= 1 runs in this process; more uses spawned processes, or `executor`'s (Ray actors)
     whatever the number. `video` / `bag`: run 0 of
     each field and method as a video in out/videos, as a rosbag2 (MCAP) in out/bags.
@@ -391,22 +412,95 @@ def run_evaluation(
         "workers": workers,
         "config": to_dict(config),
     }
-    results: list[RunResult] = []
+    keys = _run_keys(jobs, str(model), meta["config"]) if out is not None else {}
+    finished: dict[str, RunResult] = {}
+    if out is not None and resume:
+        _check_same_evaluation(out, meta)
+        finished = stored_runs(out / RUNS_FOLDER, keys.values(), RunResult.from_stored)
+    todo = [job for job in jobs if keys.get(id(job)) not in finished]
+    _check_bag_paths(todo)
+    if finished:
+        print(f"{out}: resuming, {len(finished)} of {len(jobs)} runs finished before, {len(todo)} to do")
+    results: list[RunResult] = list(finished.values())
 
     def done(job: Job, result: RunResult) -> None:
         results.append(result)
         if out is not None:
             from segmin.nav_eval.evaluation.report import write_results
 
+            if result.reason != "error":  # a run that raised is done again by the next call
+                store_run(out / RUNS_FOLDER, keys[id(job)], result, trajectory=True)
             write_results(out, sorted(results, key=_order(jobs)), meta)
 
-    execute_jobs(jobs, str(model), config, workers, done, progress=progress, executor=executor)
+    execute_jobs(todo, str(model), config, workers, done, progress=progress, executor=executor)
     results.sort(key=_order(jobs))
     if out is not None:
         from segmin.nav_eval.evaluation.report import write_report
 
         write_report(out, results, meta, field_list, config, plots=plots)
     return results
+
+
+def _run_keys(jobs: list[Job], model: str, config: dict[str, Any]) -> dict[int, str]:
+    """Each job's key in the run store (by `id(job)`): a hash of what its run depends on, the
+    world's content and the model file's included (an edited world or model is run again)."""
+    from segmin.data.synth.spec import load_world_spec
+
+    model_id = model_identity(model)
+    worlds = {job.field: to_dict(load_world_spec(job.field)) for job in jobs}
+    return {
+        id(job): digest(
+            {
+                "world": worlds[job.field],
+                "model": model_id,
+                "config": config,
+                "method": job.method,
+                "seed": job.seed,
+                "video": bool(job.video_path),
+                "bag": bool(job.bag_path),
+            }
+        )
+        for job in jobs
+    }
+
+
+def _check_same_evaluation(out: Path, meta: dict[str, Any]) -> None:
+    """`out` holds no nav-eval results, or this same evaluation's (stopped part-way, resumed):
+    another evaluation's results are not overwritten without --force."""
+    from segmin.nav_eval.evaluation.report import RESULT_FILES
+
+    existing = [name for name in RESULT_FILES if (out / name).exists()]
+    if not existing:
+        return
+    try:
+        earlier = json.loads((out / "results.json").read_text())
+    except (OSError, ValueError):
+        earlier = None
+    if not isinstance(earlier, dict):
+        why = "no readable results.json to resume from"
+    else:
+        differs = [k for k in meta if k != "workers" and _plain(earlier.get(k)) != _plain(meta[k])]
+        if not differs:
+            return
+        why = f"another evaluation: its {differs[0]} differs"
+    raise ValueError(
+        f"{out}: already holds nav-eval results ({', '.join(existing)}; {why}); use --force to overwrite them"
+    )
+
+
+def _plain(value: Any) -> str:
+    """`value` as results.json holds it (tuples as lists, NaN as NaN), to compare with what was read back."""
+    return json.dumps(value, sort_keys=True, default=str)
+
+
+def _check_bag_paths(jobs: list[Job]) -> None:
+    """What is in the way of a bag is named before the first run, not after every run."""
+    bags = [Path(job.bag_path) for job in jobs if job.bag_path]
+    if bags:
+        from segmin.nav_eval.sim.bag_recorder import check_bag_path
+
+        for path in bags:
+            check_bag_path(path)
 
 
 def execute_jobs(

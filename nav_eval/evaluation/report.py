@@ -21,6 +21,7 @@ import numpy as np
 from segmin.common.atomic import write_bytes, write_json, write_text
 from segmin.common.figures import format_mean_std
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, mean_std
+from segmin.nav_eval.sim.faults import FAULT_METRIC_KEYS
 
 # What one evaluation writes to its --out (the figures and videos beside them are named per field).
 RESULT_FILES: tuple[str, ...] = ("results.csv", "results.json", "trajectories.json", "report.md")
@@ -59,6 +60,7 @@ CSV_COLUMNS = (
     "start_x",
     "start_y",
     "start_yaw",
+    *FAULT_METRIC_KEYS,
     "error",
     "config",
 )
@@ -139,6 +141,36 @@ def table3_markdown(results: list[Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def faults_markdown(results: list[Any], faults: list[Any]) -> str:
+    """The injected faults (`config.faults`) and, per field and method, the worst of each fault
+    metric over the runs ("never": a run in which the runtime did not stop, or did not drive again)."""
+    injected = "; ".join(
+        f"{f.kind} {f.start_s:g}-{f.end_s:g} s"
+        + ("" if f.region == "all" else f", {f.region} half")
+        + (f", share {f.share:g}" if f.kind == "depth_dropout" else "")
+        for f in faults
+    )
+    lines = [
+        "## Sensor faults",
+        "",
+        f"Injected in every run: {injected}. Worst over the runs: seconds from a fault's start to the stop, "
+        "metres driven blind, seconds from its end to driving again.",
+        "",
+        "| field | method | stop s | blind m | resume s |",
+        "|---|---|---|---|---|",
+    ]
+    groups: dict[tuple[str, str], list[Any]] = {}
+    for r in results:
+        groups.setdefault((r.field, r.method), []).append(r)
+    for (field, method), rs in groups.items():
+        cells = []
+        for key in FAULT_METRIC_KEYS:
+            values = [float(getattr(r, key)) for r in rs]
+            cells.append("never" if any(math.isnan(v) for v in values) else f"{max(values):.2f}")
+        lines.append(f"| {field} | {method} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def write_report(
     out: str | Path, results: list[Any], meta: dict[str, Any], fields: list[str], config: Any, *, plots: bool = True
 ) -> None:
@@ -166,6 +198,8 @@ def write_report(
         "",
         table3_markdown(results),
     ]
+    if config.faults:
+        lines += [faults_markdown(results, config.faults)]
     if errors:
         lines += ["## Runs that raised", ""]
         lines += [

@@ -24,6 +24,7 @@ import numpy as np
 
 from segmin.nav_eval.replay.video import overlay
 from segmin.nav_eval.runtime.follower import RowFollower
+from segmin.nav_eval.sim.faults import FaultInjector, faults_read_colour
 from segmin.nav_eval.sim.protocols import FrameSegmenter
 from segmin.nav_eval.sim.row_env import RowEnv
 from segmin.nav_eval.sim.segmentation import BackgroundSegmenter
@@ -43,6 +44,8 @@ class Episode:
     goal_m: float
     commands: list[tuple[float, float, float, float | None]]  # t, v, omega, target column
     video: list[np.ndarray]
+    # (t, the command in force drives) at every runtime step: the fault metrics read it
+    driving: list[tuple[float, bool]] = dataclasses.field(default_factory=list)
 
 
 def run_episode(
@@ -72,15 +75,27 @@ def run_episode(
     commands: list[tuple[float, float, float, float | None]] = []
     frames_out: list[np.ndarray] = []
     ended = info["reason"] is not None
-    colour = video or recorder is not None or segmenter.reads_colour or follower.navigator.inputs.rgb
+    faults = simulator.config.faults
+    spoil = FaultInjector(faults, seed) if faults else None  # the configured sensor faults (sim.faults)
+    driving: list[tuple[float, bool]] = []
+    colour = (
+        video
+        or recorder is not None
+        or segmenter.reads_colour
+        or follower.navigator.inputs.rgb
+        or faults_read_colour(faults)
+    )
     render = True  # the first frame always serves deadline 0
     with BackgroundSegmenter(segmenter) as background:
         while not ended:
             t = simulator.t
-            if recorder is not None:
-                recorder.frame(simulator, t, simulator.frame() if render else None)
             if render:
                 frame = simulator.frame(colour)
+                if spoil is not None:
+                    frame = spoil(frame, t)
+            if recorder is not None:  # the frames as the robot got them, faults included
+                recorder.frame(simulator, t, frame if render else None)
+            if render:
                 out = follower.step(
                     frame.rgb,
                     frame.depth,
@@ -90,6 +105,7 @@ def run_episode(
                 )
             else:
                 out = follower.step(None, blank_depth, t, attitude=simulator.attitude if imu else None)
+            driving.append((t, out.command.valid))
             if out.fresh:
                 cmd = out.command
                 column = cmd.target_column
@@ -111,4 +127,5 @@ def run_episode(
         goal_m=simulator.goal_distance,
         commands=commands,
         video=frames_out,
+        driving=driving,
     )

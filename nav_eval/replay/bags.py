@@ -6,8 +6,13 @@ Colour comes from `--rgb-topic` (`Image` or `CompressedImage`), aligned depth fr
 `--slop` seconds by `replay.stamp_pairing`, exactly as the ROS 2 node does. The runtime's time
 is the colour frame's header stamp (not the time the recorder logged the message).
 
-A topic the bag lacks, or one of another message type, stops the replay before any output with
-one line listing the bag's topics. `rosbags` is imported only here, when `--bag` is used.
+A topic the bag lacks, holds no message or is of another message type, and one topic given as
+both colour and depth, stop the replay before any output with one line listing the bag's topics.
+A message that cannot be used (an encoding, 32FC1 depth in millimetres, a colour frame of
+another size than the first) stops it at that message, naming the topic, the message's index on
+it and its stamp; a bag whose colour and depth never pair within `--slop` stops it naming the
+nearest gap between their stamps. Nothing is written then. `rosbags` is imported only here,
+when `--bag` is used.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from segmin.nav_eval.replay.ros_images import decode_colour, decode_depth, stamp_seconds
+from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth, stamp_seconds
 from segmin.nav_eval.replay.run import FrameSource
 from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
 
@@ -45,8 +50,9 @@ def _topics_line(reader: Any) -> str:
     return ", ".join(f"{name} ({info.msgtype}, {info.msgcount})" for name, info in sorted(reader.topics.items()))
 
 
-def _connections(reader: Any, path: Path, topic: str, option: str) -> list[Any]:
-    """The bag's connections of an image topic (ValueError listing the topics when it is absent)."""
+def _message_count(reader: Any, path: Path, topic: str, option: str) -> int:
+    """The messages of an image topic (ValueError listing the topics when it is absent, holds
+    another type or no message: a replay of it would pair nothing and write nothing useful)."""
     info = reader.topics.get(topic)
     if info is None:
         raise ValueError(f"--bag {path}: no topic {topic!r} ({option}); the bag has: {_topics_line(reader)}")
@@ -55,7 +61,10 @@ def _connections(reader: Any, path: Path, topic: str, option: str) -> list[Any]:
             f"--bag {path}: {option} {topic} holds {info.msgtype}, not {' or '.join(IMAGE_TYPES)}; "
             f"the bag has: {_topics_line(reader)}"
         )
-    return [c for c in reader.connections if c.topic == topic]
+    count = sum(c.msgcount for c in reader.connections if c.topic == topic)
+    if count == 0:
+        raise ValueError(f"--bag {path}: {option} {topic} has no messages; the bag has: {_topics_line(reader)}")
+    return count
 
 
 def bag_frames(
@@ -65,11 +74,15 @@ def bag_frames(
     path = Path(path)
     if not slop >= 0:
         raise ValueError(f"--slop must be a number of seconds >= 0, got {slop!r}")
+    if depth_topic == rgb_topic:
+        raise ValueError(
+            f"--rgb-topic and --depth-topic are both {rgb_topic}: give the colour and the aligned depth topics"
+        )
     reader = open_bag(path)
     try:
-        count = sum(c.msgcount for c in _connections(reader, path, rgb_topic, "--rgb-topic"))
+        count = _message_count(reader, path, rgb_topic, "--rgb-topic")
         if depth_topic is not None:
-            _connections(reader, path, depth_topic, "--depth-topic")
+            _message_count(reader, path, depth_topic, "--depth-topic")
     finally:
         reader.close()
     pairer = StampPairer(slop, max_pending=1 << 30)  # offline: nothing is dropped for being late
@@ -90,32 +103,65 @@ def bag_frames(
     return FrameSource(count=count, frames=frames, has_depth=depth_topic is not None, notes=notes)
 
 
+def _size(image: np.ndarray) -> str:
+    return f"{image.shape[1]}x{image.shape[0]}"
+
+
+def _nearest_gap(colour: list[float], depth: list[float]) -> float:
+    """The smallest |colour stamp - depth stamp| (each list sorted and non-empty)."""
+    c, d = np.asarray(colour), np.asarray(depth)
+    after = np.searchsorted(d, c).clip(0, len(d) - 1)
+    before = (after - 1).clip(0, len(d) - 1)
+    return float(np.minimum(np.abs(d[after] - c), np.abs(d[before] - c)).min())
+
+
 def _read(
     path: Path, rgb_topic: str, depth_topic: str | None, pairer: StampPairer
 ) -> Iterator[tuple[str, float, np.ndarray, np.ndarray | None, bool]]:
+    """The frames, checked message by message: a bad one stops the replay there, naming it (no
+    output is written until every frame ran)."""
     reader = open_bag(path)
     try:
         wanted = [c for c in reader.connections if c.topic in (rgb_topic, depth_topic)]
-        index = 0
+        stamps: dict[str, list[float]] = {rgb_topic: [], str(depth_topic): []}
+        first: np.ndarray | None = None
+        paired = 0
         for connection, _, raw in reader.messages(connections=wanted):
             message = reader.deserialize(raw, connection.msgtype)
             t = stamp_seconds(message)
+            seen = stamps[connection.topic]
+            where = f"{connection.topic} message {len(seen)} (stamp {t:.9f} s)"
+            seen.append(t)
             try:
                 if connection.topic == rgb_topic:
-                    name = f"{rgb_topic}#{index}"
-                    index += 1
+                    name = f"{rgb_topic}#{len(seen) - 1}"
                     image = decode_colour(message, rgb_topic)
+                    first = image if first is None else first
+                    if image.shape[:2] != first.shape[:2]:  # the runtime and the video need one frame size
+                        raise ValueError(
+                            f"--bag {path}: {where} is {_size(image)}, the colour frames before it are {_size(first)}"
+                        )
                     if depth_topic is None:
                         yield name, t, image, None, False
                         continue
                     pairs = pairer.add_colour(t, (name, image))
                 else:
-                    pairs = pairer.add_depth(t, decode_depth(message, depth_topic))
+                    pairs = pairer.add_depth(t, decode_depth(message, connection.topic))
             except StampOrderError as exc:
                 raise ValueError(f"{connection.topic}: {exc}") from None
+            except ImageMessageError as exc:
+                raise ImageMessageError(f"{exc} ({where})") from None
             for colour, depth in pairs:
                 (name, image), (d, bad) = colour.item, depth.item
+                paired += 1
                 yield name, colour.t, image, d, bad
         pairer.finish()
+        colour_stamps, depth_stamps = stamps[rgb_topic], stamps[str(depth_topic)]
+        if depth_topic is not None and paired == 0 and colour_stamps and depth_stamps:
+            raise ValueError(
+                f"--bag {path}: no colour frame of {rgb_topic} has a depth frame of {depth_topic} within "
+                f"--slop {pairer.slop:g} s: their nearest stamps are {_nearest_gap(colour_stamps, depth_stamps):.6g} s "
+                "apart (raise --slop, or check that both topics are stamped by one clock)"
+            )
     finally:
         reader.close()

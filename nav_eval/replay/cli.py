@@ -82,9 +82,11 @@ def _bag_source(args: argparse.Namespace) -> FrameSource | None:
 
 
 def _replay(args: argparse.Namespace) -> int:
+    from segmin.data.canopy_region import check_closing_radius
     from segmin.nav_eval.replay.run import replay
     from segmin.nav_eval.runtime.follower import RuntimeConfig
 
+    check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
     result = replay(
         args.model,
         args.rgb,

@@ -7,7 +7,8 @@ runtime the same pixels. Messages are read by their fields only (`header.stamp.s
 imports either (this module is part of the bare robot install: numpy and OpenCV only).
 
 - colour: `Image` rgb8 / bgr8 / rgba8 / bgra8, or `CompressedImage` jpeg / png -> RGB uint8;
-- depth: `Image` 16UC1 (millimetres; mono16 alike) or 32FC1 (metres), `CompressedImage` png
+- depth: `Image` 16UC1 (millimetres; mono16 alike) or 32FC1 (metres: values above
+  `MAX_DEPTH_M` are refused as millimetres, as replay's folder reader refuses them), `CompressedImage` png
   (16-bit millimetres) or `compressedDepth` png (image_transport's: a 12-byte header, then a
   PNG of millimetres, or for 32FC1 of quantised inverse depth) -> float32 metres, 0 = no
   reading (REP 118's NaN / inf readings become 0, and the caller is told).
@@ -24,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from segmin.data.frames import DatasetError
+from segmin.data.readers import check_depth_metres
 from segmin.nav_eval.runtime.navigator import to_metres
 
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
@@ -115,6 +118,10 @@ def decode_depth(message: Any, topic: str) -> tuple[np.ndarray, bool]:
         return to_metres(_pixels(message, topic, 1, np.dtype(np.uint16))), False
     if encoding == "32FC1":
         depth = _pixels(message, topic, 1, np.dtype(np.float32))
+        try:  # millimetres sent as 32FC1 would put every plant 1000 times too far: an open row
+            check_depth_metres(depth, f"{topic}: 32FC1")
+        except DatasetError as exc:
+            raise ImageMessageError(str(exc)) from None
         bad = ~np.isfinite(depth)
         if bad.any():
             return np.where(bad, np.float32(0.0), depth), True

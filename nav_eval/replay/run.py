@@ -29,6 +29,7 @@ No torch, pybullet or matplotlib at import: this runs on the bare robot install.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +43,7 @@ from segmin.nav_eval.replay.sequence import RecordedSequence, read_sequence
 from segmin.nav_eval.replay.video import overlay, write_video
 from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
 from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.sensor_faults import REASONS
 
 
 @dataclass
@@ -133,6 +135,7 @@ def replay(
         result.notes.append(sequence.order)
     video: list[np.ndarray] = []
     non_finite, restarts = 0, 0
+    fault_stops: Counter[str] = Counter()  # commands stopped by a sensor fault, by reason
     for name, t, image, d, bad in sequence.frames:
         non_finite += bad
         try:
@@ -142,8 +145,12 @@ def replay(
         restarts += output.stopped == "frame_timeout"
         if output.fresh:
             cmd = output.command
+            if output.stopped in REASONS:
+                fault_stops[output.stopped] += 1
             result.commands.append((t, cmd.v, cmd.omega, cmd.target_column, cmd.valid))
             video.append(overlay_panel(image, output, depth_threshold))
+    if not result.commands:  # an empty table and no video are no replay: say so rather than "wrote"
+        raise ValueError(f"no frame of the {sequence.count} reached the runtime: nothing written")
     _write_outputs(out, result, video, follower.config.command_hz)
     if source is not None:
         result.notes.extend(source.notes())
@@ -151,6 +158,9 @@ def replay(
         result.notes.append(f"no depth: {method} ran on the mask alone (every vegetation pixel counts as near)")
     if non_finite:
         result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")
+    if fault_stops:
+        counts = ", ".join(f"{reason} {count}" for reason, count in fault_stops.items())
+        result.notes.append(f"sensor faults stopped the robot (commands by reason: {counts})")
     if restarts:
         result.notes.append(
             f"{restarts} gap(s) longer than {follower.config.frame_timeout_s} s between frames: "

@@ -16,8 +16,13 @@ are tested in the normal suite and the bench can drive it.
   so a command waits only a small margin; one whose tick is further than `HOLD_SHARE` of a period
   away (a slow step missed it, or the lock is not there yet) goes out at once, without pacing the
   timer.
+- Sensor faults (depth without readings, a black, white or frozen image, stamps far from the
+  node's clock: `runtime.sensor_faults`) are the runtime's: it stops the robot with the fault's
+  reason, and drives again when good frames return. The core passes the node's clock with each
+  frame, logs one line per change of fault (at most one per reason every LOG_EVERY_S) and names
+  the fault, with what was seen, in the diagnostics.
 - Any bad frame (an encoding the decoder refuses, mismatched sizes, a stamp out of order) is a
-  log line naming the topic (at most one per topic every LOG_EVERY_S), the frame is dropped,
+  log line naming the topic (at most one per kind of problem every LOG_EVERY_S), the frame is dropped,
   and while enabled a stop goes out at once and the watchdog keeps the robot stopped until the
   runtime gives a fresh command. The node stays up. Frames without a partner (a depth frame
   with no colour frame within `slop_s`) are logged and counted but stop nothing by themselves:
@@ -38,6 +43,7 @@ attributes under `_lock`, which is never held during inference.
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from collections import deque
@@ -58,8 +64,9 @@ from segmin.nav_eval.runtime.follower import STOP, FollowerOutput, RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator
 
 WATCHDOG_PERIODS = 1.5  # the watchdog speaks after this many command periods of silence
+NUMBERS = re.compile(r"\d+(?:\.\d+)?")  # left out of a warning's kind (stamps, sizes, counts)
 HOLD_SHARE = 0.5  # with publish_on_timer, a fresh command waits for its tick at most this share of a period
-LOG_EVERY_S = 5.0  # a topic's bad frames are logged at most this often (30 Hz of warnings helps no one)
+LOG_EVERY_S = 5.0  # each kind of bad frame or fault is logged at most this often (30 Hz of warnings helps no one)
 
 
 @dataclass(frozen=True)
@@ -99,7 +106,8 @@ class FollowerCore:
         self.next_tick: float | None = None  # node clock of the command thread's next tick (publish_on_timer)
         self.phase = CommandPhase(1.0 / params.runtime.command_hz)
         self._stamp: Any = None  # stamp of the image that gave the command in force
-        self._logged: dict[str, float] = {}  # topic -> node clock of its last warning
+        self._logged: dict[str, float] = {}  # kind of warning -> node clock of its last line
+        self._sensor_reason: str | None = None  # the runtime's sensor fault at the last frame
         self.frames = 0
         self.rejected = 0
         self._unpaired = 0
@@ -236,9 +244,11 @@ class FollowerCore:
         attitude = self._frame_attitude(t, now) if uses_attitude else None
         start = self._wall()
         try:
-            output = self.follower.step(rgb, depth, t, attitude=attitude)
+            output = self.follower.step(rgb, depth, t, attitude=attitude, now=now)
         except ValueError as exc:
             return self._reject(f"{self.params.node.colour_topic}: {exc}", now)
+        if self._note_sensor_fault(self.follower.sensor_fault, now) and not output.fresh:
+            self._send_stop(output.stopped, now)  # found between commands (an image, the clock): at once
         took = self._wall() - start
         self.step_s.append(took)
         self.frames += 1
@@ -285,18 +295,42 @@ class FollowerCore:
         """Stop the robot now (when enabled) and keep it stopped until the runtime gives a fresh command."""
         with self._lock:
             self.fault = why
+        self._send_stop(why, now)
+
+    def _warn(self, why: str, now: float, what: str) -> None:
+        """Log `what: why`, at most once per LOG_EVERY_S for each kind of problem: `why` with its
+        numbers left out (a second kind on the same topic gets its own line; stamps and sizes that
+        change from frame to frame do not make a new kind)."""
+        self._log_throttled(NUMBERS.sub("#", why), f"{what}: {why}", now)
+
+    def _log_throttled(self, kind: str, line: str, now: float) -> None:
+        if now - self._logged.get(kind, -float("inf")) >= LOG_EVERY_S:
+            self._logged[kind] = now
+            self.log(line)
+
+    def _note_sensor_fault(self, fault: tuple[str, str] | None, now: float) -> bool:
+        """One log line when the runtime's sensor fault changes (at most one per reason every
+        LOG_EVERY_S); True when a fault began with this frame."""
+        reason = None if fault is None else fault[0]
+        before, self._sensor_reason = self._sensor_reason, reason
+        if reason == before:
+            return False
+        if fault is not None:
+            self._log_throttled(f"sensor {reason}", f"robot stopped, sensor fault {reason}: {fault[1]}", now)
+        else:
+            self._log_throttled(
+                f"sensor {before} cleared", f"sensor fault {before} cleared: the runtime drives again", now
+            )
+        return fault is not None
+
+    def _send_stop(self, why: str | None, now: float) -> None:
+        """Publish a stop now (when enabled), outside the command schedule."""
+        with self._lock:
             send = self.enabled
             if send:
                 self._last_sent = now
         if send:
             self.publish(Outgoing(STOP, None, why))
-
-    def _warn(self, why: str, now: float, what: str) -> None:
-        """Log `what: why`, at most once per LOG_EVERY_S for each topic (`why` starts with it)."""
-        topic = why.split(":", maxsplit=1)[0]
-        if now - self._logged.get(topic, -float("inf")) >= LOG_EVERY_S:
-            self._logged[topic] = now
-            self.log(f"{what}: {why}")
 
     # ---- the watchdog and the switch -----------------------------------------------------------
     def tick(self, now: float, stamp_now: float) -> None:
@@ -348,8 +382,13 @@ class FollowerCore:
         last = self.follower.last_frame_t
         if last is None:
             return "no frame yet"
+        fault = self.follower.sensor_fault
+        if fault is not None and fault[0] == "clock_offset":  # frames come, on another clock
+            return f"{fault[0]}: {fault[1]}"
         if stamp_now - last > self.params.runtime.frame_timeout_s:
             return f"frame_timeout: no paired frame for {stamp_now - last:.2f} s"
+        if fault is not None:
+            return f"{fault[0]}: {fault[1]}"
         command = self.follower.command_at(stamp_now)
         if not command.valid:
             return (self.last_output.stopped if self.last_output else None) or "no target in the mask"
@@ -366,5 +405,12 @@ class FollowerCore:
             "step time median ms": f"{1e3 * np.median(steps):.1f}" if steps.size else "-",
             "step time max ms": f"{1e3 * steps.max():.1f}" if steps.size else "-",
             "enabled": str(self.enabled),
+            "sensor fault": self.sensor_fault or "-",
             "stopped because": self.stop_reason(stamp_now) or "-",
         }
+
+    @property
+    def sensor_fault(self) -> str | None:
+        """The reason of the runtime's sensor fault now (`runtime.sensor_faults.REASONS`), or None."""
+        fault = None if self.follower is None else self.follower.sensor_fault
+        return None if fault is None else fault[0]

@@ -319,7 +319,7 @@ class RowFollowerNode(Node):
         status = DiagnosticStatus(
             level=DiagnosticStatus.OK
             if why is None
-            else (DiagnosticStatus.ERROR if self.core.fault else DiagnosticStatus.WARN),
+            else (DiagnosticStatus.ERROR if self.core.fault or self.core.sensor_fault else DiagnosticStatus.WARN),
             name=f"{self.get_name()}: row following",
             message="driving" if why is None else f"stopped: {why}",
             values=[KeyValue(key=k, value=v) for k, v in values.items()],

@@ -1,7 +1,8 @@
 """The row-follower node's parameters: names, defaults, checks, and the ROS 2 parameter file.
 
-The navigator's and the runtime's parameters keep the names of `NavigatorConfig` and
-`RuntimeConfig` (taken from the dataclasses, so they cannot drift apart); the node adds its own
+The navigator's and the runtime's parameters keep the names of `NavigatorConfig`,
+`RuntimeConfig` and its sensor checks' `SensorChecks` (taken from the dataclasses, so they cannot
+drift apart; the checks are flat parameters, ROS has no nested ones); the node adds its own
 (`NodeSettings`: model, topics, pairing, outputs, `enabled`). A parameter file is the standard
 one ROS 2 reads:
 
@@ -26,12 +27,14 @@ from typing import Any
 
 import yaml
 
+from segmin.common.config import parse_yaml
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.follower import RuntimeConfig
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
+from segmin.nav_eval.runtime.sensor_faults import SensorChecks, check_depth_range
 from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
 
 NODE_NAME = "segmin_row_follower"
@@ -146,6 +149,20 @@ DESCRIPTIONS: dict[str, str] = {
     "command_hz": "command rate, divides segment_hz (paper: 5); the stop watchdog runs at this rate too",
     "max_mask_age_s": "a mask older than this at a command is not fused, s",
     "frame_timeout_s": "no paired frame for this long: the robot is stopped, s",
+    "min_valid_depth": "stop (depth_invalid) when under this share of the fused mask's vegetation pixels has a valid "
+    "depth reading (> 0, finite, <= max_depth_m); 0: off",
+    "min_valid_depth_side": "stop (depth_invalid_left / depth_invalid_right) when under this share has a valid "
+    "reading on one image half; 0: off",
+    "min_judged_pixels": "a share is judged only on at least this many sampled vegetation pixels",
+    "max_depth_m": "the depth sensor's range: a reading beyond it is invalid, m",
+    "black_level": "a pixel whose every channel is at most this is black (0-255)",
+    "white_level": "a pixel whose every channel is at least this is white (0-255)",
+    "blank_share": "stop (image_black / image_white) when at least this share of the sampled pixels is black "
+    "(white); 0: off",
+    "frozen_s": "stop (image_frozen) when the sampled pixels stay identical this long while driving, s",
+    "max_clock_offset_s": "stop (clock_offset) when a frame's stamp is further than this from the node's clock "
+    "(a bag's own times: play it with --clock and set use_sim_time), s",
+    "sample_pixels": "the sensor checks read a regular grid of about this many pixels",
     "model": "exported .onnx file (a relative path is read from the parameter file's folder) or a shipped "
     "model name (vineyards, trees)",
     "threads": "onnxruntime threads",
@@ -187,7 +204,7 @@ DESCRIPTIONS: dict[str, str] = {
     "camera_cx": "principal point x, px",
     "camera_cy": "principal point y, px",
     "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
-    "camera_tilt_deg": "SegCorridor: camera tilt down from horizontal, degrees",
+    "camera_tilt_deg": "SegCorridor: camera tilt up from horizontal, degrees",
     "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
     "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
     "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
@@ -203,7 +220,11 @@ GROUPS = (
     ("topics", ("colour_topic", "depth_topic", "cmd_vel_topic", "twist_stamped", "base_frame", "slop_s")),
     ("timing", ("publish_on_timer", "command_priority")),
     ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
-    ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig))),
+    ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig) if f.name != "checks")),
+    (
+        "sensor checks (SensorChecks): each fault stops the robot",
+        tuple(f.name for f in dataclasses.fields(SensorChecks)),
+    ),
     ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
     (
         "SegCorridor: camera, IMU and steering law",
@@ -216,7 +237,8 @@ GROUPS = (
 DEFAULTS: dict[str, Any] = {
     **{f.name: f.default for f in dataclasses.fields(NodeSettings)},
     **{f.name: f.default for f in dataclasses.fields(NavigatorConfig) if f.default is not dataclasses.MISSING},
-    **{f.name: f.default for f in dataclasses.fields(RuntimeConfig)},
+    **{f.name: f.default for f in dataclasses.fields(RuntimeConfig) if f.name != "checks"},
+    **{f.name: f.default for f in dataclasses.fields(SensorChecks)},
     "method": "segmind",
     "depth_threshold": 5.0,
     "controller": "pursuit",
@@ -280,6 +302,11 @@ def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
             raise ValueError(f"parameter {named}: {text}" if named else f"parameters: {exc}") from None
 
     node = build(NodeSettings)
+    merged["checks"] = build(SensorChecks)
+    try:
+        check_depth_range(merged["depth_threshold"], merged["checks"])
+    except ValueError as exc:
+        raise ValueError(f"parameter depth_threshold: {exc}") from None
     if merged["method"] == "segcorridor":
         return NodeParams(build(CorridorConfig), build(RuntimeConfig), node, _corridor_camera(node))
     params = NodeParams(build(NavigatorConfig), build(RuntimeConfig), node)
@@ -309,7 +336,8 @@ def _corridor_camera(node: NodeSettings) -> CameraGeometry | None:
 def as_values(params: NodeParams) -> dict[str, Any]:
     """The parameters as plain name -> value (what the node declares). SegCorridor's config lacks
     the paper's navigator-only parameters (mask_closing, smooth_window, omega_gain, zeros_*): they are the defaults."""
-    values = {**DEFAULTS, **dataclasses.asdict(params.node), **dataclasses.asdict(params.runtime)}
+    runtime = {k: v for k, v in dataclasses.asdict(params.runtime).items() if k != "checks"}
+    values = {**DEFAULTS, **dataclasses.asdict(params.node), **runtime, **dataclasses.asdict(params.runtime.checks)}
     values.update({k: v for k, v in dataclasses.asdict(params.navigator).items() if k in DEFAULTS})
     return values
 
@@ -318,7 +346,7 @@ def load_params_file(path: str | Path) -> tuple[str, dict[str, Any]]:
     """(node name, parameters) of a ROS 2 parameter file (`name: ros__parameters: {...}`; `/**` allowed)."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = parse_yaml(path.read_text())  # 1e-3 is a float, as rclpy's own parser reads it
     except yaml.YAMLError as exc:
         raise ValueError(f"{path}: not YAML ({' '.join(str(exc).split())})") from None
     shape = f"{path}: expected one node section, '{NODE_NAME}: ros__parameters: {{...}}'"

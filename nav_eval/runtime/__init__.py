@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from .navigator import Navigator, NavigatorConfig, target_column
     from .protocols import MaskNavigator, NavigatorInputs, Segmenter
     from .segmenter import OnnxSegmenter
+    from .sensor_faults import SensorChecks
 
 # Name -> defining module; loaded on first use so that importing one piece does not load the rest
 # (the segmenter pulls in onnxruntime, which a navigator-only user does not need).
@@ -41,6 +42,7 @@ _EXPORTS: dict[str, str] = {
     "RuntimeConfig": "follower",
     "FollowerOutput": "follower",
     "OnnxSegmenter": "segmenter",
+    "SensorChecks": "sensor_faults",
 }
 __all__ = [
     "CameraGeometry",
@@ -56,6 +58,7 @@ __all__ = [
     "RowFollower",
     "RuntimeConfig",
     "Segmenter",
+    "SensorChecks",
     "target_column",
 ]
 

@@ -28,6 +28,13 @@ Timing faults, all decided from timestamps:
   restarts the follower (timer re-anchored, masks and EMA cleared) and is reported with
   `stopped="frame_timeout"`.
 
+Sensor faults, decided per frame and per command (`sensor_faults`, limits in
+`RuntimeConfig.checks`): depth without readings where the navigator reads it, a black, white or
+frozen image, and frames stamped far from the follower's clock (`step(now=...)`) each stop the
+robot with a named reason (`FollowerOutput.stopped`, `RowFollower.faults`) as long as they hold;
+the masks keep being fused, so the first command after good frames return drives again (from
+rest: a stop restarts the EMA).
+
 The follower drives any `MaskNavigator` (nav_eval.runtime.protocols) and hands it what it
 declares in `inputs`, no more: depth may be None for a navigator that does not need it (SegMin,
 SegZeros: the mask alone is then used, every vegetation pixel counts as near), while SegMinD and
@@ -41,13 +48,14 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .control import Command, stop_command
 from .navigator import to_metres, validated_attitude, validated_rgb
 from .protocols import MaskNavigator, Segmenter
+from .sensor_faults import SensorChecks, SensorFaults, check_depth_range
 
 # Timestamps within this many seconds are the same instant (sim times are tick * dt in floats).
 TIME_EPS = 1e-6
@@ -55,12 +63,14 @@ TIME_EPS = 1e-6
 
 @dataclass(frozen=True)
 class RuntimeConfig:
-    """Rates and timing limits of the runtime (defaults: the paper's 20 Hz masks, 5 Hz commands)."""
+    """Rates and timing limits of the runtime (defaults: the paper's 20 Hz masks, 5 Hz commands),
+    and the limits of its sensor checks (`checks`, a `SensorChecks`)."""
 
     segment_hz: int = 20
     command_hz: int = 5
     max_mask_age_s: float = 0.5  # a mask older than this at a command is not fused
     frame_timeout_s: float = 0.5  # no frame for longer than this -> stop
+    checks: SensorChecks = field(default_factory=SensorChecks)
 
     def __post_init__(self) -> None:
         for name in ("segment_hz", "command_hz"):
@@ -76,6 +86,8 @@ class RuntimeConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number of seconds > 0, got {value!r}")
+        if not isinstance(self.checks, SensorChecks):
+            raise ValueError(f"checks must be a SensorChecks, got {self.checks!r}")
 
 
 @dataclass(frozen=True)
@@ -89,7 +101,9 @@ class FollowerOutput:
     segmented: int  # masks computed at this frame
     fused: np.ndarray | None  # fused mask of a fresh command (None otherwise)
     depth: np.ndarray | None  # depth (metres) of a fresh command
-    stopped: str | None = None  # "frame_timeout" / "stale_masks" when this frame stopped the robot
+    # "frame_timeout" / "stale_masks" when this frame stopped the robot; a sensor fault's reason
+    # (sensor_faults.REASONS) on every frame while it holds
+    stopped: str | None = None
 
 
 @dataclass
@@ -116,18 +130,22 @@ class RowFollower:
         self.segmenter = segmenter
         self.navigator = navigator
         self.config = config or RuntimeConfig()
+        check_depth_range(navigator.config.depth_threshold, self.config.checks)
         self._ratio = self.config.segment_hz // self.config.command_hz
+        self._sensors = SensorFaults(self.config.checks)
         self.reset()
 
     def reset(self) -> None:
         """Forget frames, masks and the EMA: the next frame starts the timers."""
         self.navigator.reset()
+        self._sensors.reset()
         self._t0: float | None = None
         self._next_k = 0
         self._last: _Frame | None = None
         self._command = STOP
         self._command_t: float | None = None
         self._newest_depth: np.ndarray | None = None
+        self._newest_depth_measured = False  # the newest depth is a frame's, not the stand-in for none
         self._newest_attitude: tuple[float, float] | None = None
         self._newest_rgb: np.ndarray | None = None
         self._waiting: list[tuple[_Frame, int]] = []  # (frame, deadline) whose mask future waits for a command
@@ -141,6 +159,7 @@ class RowFollower:
         *,
         mask: np.ndarray | Future[np.ndarray] | None = None,
         attitude: object = None,
+        now: float | None = None,
     ) -> FollowerOutput:
         """Take one camera frame at time `t` (seconds); return the command in force.
 
@@ -148,9 +167,11 @@ class RowFollower:
         future from a background segmenter); `rgb` may then be None (SegCorridor's trunk test then
         trusts the mask alone, without its colour check). `attitude` is the IMU's
         (roll, pitch) in radians at the frame (REP 103), for navigators that level the depth
-        points (SegCorridor); None: level ground assumed. Raises ValueError for a frame out of
-        time order, with mismatched sizes, without what the navigator declares it needs, or with
-        an invalid attitude.
+        points (SegCorridor); None: level ground assumed. `now` is the follower's clock when the
+        frame arrives (the node's): a stamp further from it than `checks.max_clock_offset_s` stops
+        the robot ("clock_offset"); None (the simulator, a replay): not checked. Raises ValueError
+        for a frame out of time order, with mismatched sizes, without what the navigator declares
+        it needs, or with an invalid attitude.
         """
         t = _check_time(t, self._last.t if self._last is not None else None)
         inputs = self.navigator.inputs
@@ -183,6 +204,12 @@ class RowFollower:
             self.reset()
         if self._t0 is None:
             self._t0 = t
+        command = self._command
+        moving = command.valid and (command.v != 0.0 or command.omega != 0.0)
+        self._sensors.on_frame(rgb, t, None if now is None else _seconds(now, "follower clock"), moving)
+        fault = self._sensors.reason
+        if fault is not None and command.valid:  # at once, not at the next command
+            self._command = self.navigator.stop()
         previous, self._last = self._last, frame
         return self._run_deadlines(frame, previous, stopped)
 
@@ -196,6 +223,17 @@ class RowFollower:
         if self._last is None or now - self._last.t > self.config.frame_timeout_s + TIME_EPS:
             return STOP
         return self._command
+
+    @property
+    def faults(self) -> dict[str, str]:
+        """The sensor faults that hold now: reason (`sensor_faults.REASONS`) -> what was seen."""
+        return dict(self._sensors.active)
+
+    @property
+    def sensor_fault(self) -> tuple[str, str] | None:
+        """(reason, what was seen) of the fault a stop names now (the first in REASONS order), or None."""
+        reason = self._sensors.reason
+        return None if reason is None else (reason, self._sensors.active[reason])
 
     @property
     def last_frame_t(self) -> float | None:
@@ -243,6 +281,8 @@ class RowFollower:
                 fused_out, depth_out, why = self._emit(deadline)
                 stopped = stopped or why
         self._next_k = max(self._next_k, due + 1)
+        if stopped is None and not self._command.valid:
+            stopped = self._sensors.reason  # a fault that holds: named on every frame until it clears
         return FollowerOutput(
             t=frame.t,
             command=self._command,
@@ -296,6 +336,7 @@ class RowFollower:
             depth_m = to_metres(source.depth)
         self.navigator.push_mask(mask, source.t)
         self._newest_depth = depth_m
+        self._newest_depth_measured = source.depth is not None
         self._newest_attitude = source.attitude
         self._newest_rgb = None if source.rgb is None else np.asarray(source.rgb)
         return computed
@@ -308,6 +349,11 @@ class RowFollower:
         if fused is None or self._newest_depth is None:
             self._command = self.navigator.stop()
             return None, None, "stale_masks"
+        self._sensors.on_command(fused, self._newest_depth if self._newest_depth_measured else None)
+        fault = self._sensors.reason
+        if fault is not None:
+            self._command = self.navigator.stop()
+            return fused, self._newest_depth, fault
         inputs = self.navigator.inputs
         self._command = self.navigator.command(
             fused,

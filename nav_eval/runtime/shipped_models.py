@@ -59,7 +59,40 @@ class ShippedModel:
             raise ValueError(f"{self.card_json}: not a readable model card ({exc})") from None
         if not isinstance(card, dict):
             raise ValueError(f"{self.card_json}: not a model card (expected a JSON object)")
+        problem = _wrong_field(card)
+        if problem is not None:
+            raise ValueError(f"{self.card_json}: not a model card ({problem})")
         return card
+
+
+# The card fields readers format (`headline`, the pipeline report) and the JSON type each must
+# have: a card edited by hand with a wrong type would otherwise be a traceback there.
+_NUMBER, _OBJECT, _LIST, _COUNT = (int, float), (dict,), (list,), (int,)
+_EXPECTED: dict[tuple[type, ...], str] = {
+    _NUMBER: "a number or null",
+    _OBJECT: "a JSON object or null",
+    _LIST: "a list or null",
+}
+_CARD_FIELDS = {"synthetic_val_iou": _NUMBER, "real_photos": _OBJECT, "latency": _OBJECT, "closed_loop": _LIST}
+_SECTION_FIELDS = {"real_photos": ("mean_iou", "pooled_iou", "precision", "recall"), "latency": ("median", "p95")}
+
+
+def _wrong_field(card: dict[str, Any]) -> str | None:
+    """The first card field of a wrong type, as "field NAME: expected ..., got ...", or None."""
+    checks: list[tuple[str, Any, tuple[type, ...]]] = [(name, card.get(name), t) for name, t in _CARD_FIELDS.items()]
+    for section, keys in _SECTION_FIELDS.items():
+        if isinstance(card.get(section), dict):
+            checks += [(f"{section}.{key}", card[section].get(key), _NUMBER) for key in keys]
+    loop = card.get("closed_loop")
+    for i, entry in enumerate(loop if isinstance(loop, list) else []):
+        if not isinstance(entry, dict):
+            return f"field closed_loop[{i}]: expected a JSON object, got {json.dumps(entry)}"
+        checks += [(f"closed_loop[{i}].{key}", entry.get(key), _COUNT) for key in ("runs", "successes")]
+    for name, value, types in checks:
+        if (value is None and types is not _COUNT) or (isinstance(value, types) and not isinstance(value, bool)):
+            continue
+        return f"field {name}: expected {_EXPECTED.get(types, 'a whole number')}, got {json.dumps(value)}"
+    return None
 
 
 def shipped_model(name: str) -> ShippedModel:

@@ -1,4 +1,4 @@
-"""`segmin eval-seg`: IoU / precision / recall of an ONNX file or checkpoint on labelled photos."""
+"""`segmin eval-seg`: IoU, precision, recall and steering figures of an ONNX file or checkpoint on labelled photos."""
 
 from __future__ import annotations
 
@@ -10,11 +10,13 @@ from pathlib import Path
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "eval-seg",
-        help="score a model (.onnx or checkpoint .pt) on labelled photos: IoU, precision, recall, contact sheet",
+        help="score a model (.onnx or checkpoint .pt) on labelled photos: IoU, precision, recall, steering, contact sheet",
         description=(
             "Segment every labelled image under --data (any layout the AgriSeg loader reads, e.g. a flat "
             "images/ + masks/ folder) and compare with the masks at their own resolution. Prints mean IoU over "
-            "images, and the pooled (all pixels of the set) IoU, precision, recall and pixel accuracy; writes results.csv, results.json and "
+            "images, and the pooled (all pixels of the set) IoU, precision, recall and pixel accuracy; where each mask would "
+            "steer (the SegMin target of the model's mask against the truth's, the truth's free corridor, a drivable "
+            "strip when strips/ labels one) and the share of uniform frames painted as crop; writes results.csv, results.json and "
             "contact_sheet.png (photo | errors: green found, red false crop, blue missed | ground truth). "
             "IoU of an image with empty truth and empty prediction is 1.0; precision is n/a on an image where "
             "nothing is predicted, recall where nothing is labelled (the pooled figures stay defined as long as "

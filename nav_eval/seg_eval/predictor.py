@@ -39,7 +39,7 @@ class Predictor:
         import cv2
 
         batch = resize_to_input(np.ascontiguousarray(rgb), self.input_size)[None]
-        probs = np.asarray(self.model_probabilities(batch), np.float32).reshape(self.input_size)
+        probs: np.ndarray = np.asarray(self.model_probabilities(batch), np.float32).reshape(self.input_size)
         height, width = rgb.shape[:2]
         if probs.shape != (height, width):
             probs = cv2.resize(probs, (width, height), interpolation=cv2.INTER_LINEAR)

@@ -4,8 +4,10 @@ Synthetic validation IoU says how well a model fits the rendered worlds; only la
 photos say whether it transfers. This module scores an exported ONNX file (what the robot runs)
 or a training checkpoint (`predictor`) on any set the AgriSeg loader reads (AgriSeg layouts, or
 a flat `images/` + `masks/` folder such as the shipped `data/real/vineyard_rows`), counting
-pixels per photo with `segmin.common.seg_metrics` (`summary` derives the figures), and picks the
-photos of the contact sheet (`sheet`) that shows where it fails; `results` writes the files.
+pixels per photo with `segmin.common.seg_metrics` (`summary` derives the figures), scores where
+each mask would steer (`steering`, with the set's drivable strips from `strips`) and what it
+paints on uniform frames (`blank_frames`), and picks the photos of the contact sheet (`sheet`)
+that shows where it fails; `results` writes the files.
 """
 
 from __future__ import annotations
@@ -18,8 +20,11 @@ import numpy as np
 from segmin.common.seg_metrics import confusion
 from segmin.data.agriseg_loader import DatasetError, Frame, find_frames, load_frame
 from segmin.data.canopy_region import canopy_region, check_closing_radius
+from segmin.nav_eval.seg_eval.blank_frames import blank_frame_shares
 from segmin.nav_eval.seg_eval.predictor import Predictor, load_predictor
 from segmin.nav_eval.seg_eval.sheet import SHEET_MAX_ROWS, contact_sheet, sheet_picks, sheet_row
+from segmin.nav_eval.seg_eval.steering import photo_steering
+from segmin.nav_eval.seg_eval.strips import find_strips, read_strip
 from segmin.nav_eval.seg_eval.summary import EvalSummary, ImageResult
 
 
@@ -61,6 +66,10 @@ def evaluate(
 ) -> tuple[EvalSummary, np.ndarray | None]:
     """Score every frame; returns the summary and a contact sheet of up to `sheet_rows` evenly spaced frames.
 
+    Each photo gets its IoU counts and its steering figures (`steering`: where the model's mask
+    would steer against where the truth's would, and the drivable strip when the set labels one);
+    the summary also holds the share the model paints of uniform frames (`blank_frames`).
+
     `truth_closing` > 0 scores against the canopy region (`data.canopy_region`, the truth closed
     with a disc of that radius) instead of the exact mask: on rendered frames of sparse leaves
     the exact mask calls every gap between leaves background, which a model trained on the
@@ -74,15 +83,17 @@ def evaluate(
         data=str(root),
         kind=predictor.kind,
         threshold=predictor.threshold,
-        input_size=tuple(predictor.input_size),
+        input_size=predictor.input_size,
         truth_closing=truth_closing,
-    )  # type: ignore[arg-type]
+    )
     flat = len({(f.domain, f.subset) for f in frames}) == 1
+    strips = find_strips(root, list(frames))  # before the model runs: a bad label fails fast
     picks = sheet_picks(len(frames), sheet_rows)
     rows: list[np.ndarray] = []
     for index, frame in enumerate(_progress(frames, progress, "eval-seg")):
         image, truth = load_frame(frame)
         truth = canopy_region(truth, truth_closing)
+        strip = read_strip(strips[frame.image_path], truth.shape) if frame.image_path in strips else None
         _, prediction = predictor.predict(image)
         result = ImageResult(
             name=frame_name(frame, flat),
@@ -91,10 +102,12 @@ def evaluate(
             width=int(image.shape[1]),
             height=int(image.shape[0]),
             counts=confusion(prediction, truth),
+            steering=photo_steering(prediction, truth.astype(bool), strip),
         )
         summary.images.append(result)
         if index in picks:
             rows.append(sheet_row(image, prediction, truth.astype(bool), result))
+    summary.blank_frames = blank_frame_shares(predictor)
     sheet = contact_sheet(rows, summary) if rows else None
     return summary, sheet
 

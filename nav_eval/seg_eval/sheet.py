@@ -1,7 +1,9 @@
 """eval-seg's contact sheet: where a model fails, one captioned row per photo under a legend.
 
 Each row is photo | prediction vs ground truth | ground truth: crop found green, false crop
-(predicted, not labelled) red, missed crop (labelled, not predicted) blue.
+(predicted, not labelled) red, missed crop (labelled, not predicted) blue. The middle panel also
+shows where each mask would steer (`steering`): the truth's target as a white line over a yellow
+band marking its free corridor at the bottom, the model's target as a magenta line.
 """
 
 from __future__ import annotations
@@ -12,12 +14,17 @@ import numpy as np
 
 from segmin.common.figures import format_figure
 from segmin.data.overlay import tint_mask
+from segmin.nav_eval.seg_eval.steering import STEERING_WIDTH, PhotoSteering
 from segmin.nav_eval.seg_eval.summary import EvalSummary, ImageResult
 
 # Contact-sheet colours (RGB): right crop, false crop, missed crop.
 TRUE_CROP = (0, 200, 0)
 FALSE_CROP = (230, 0, 0)
 MISSED_CROP = (0, 90, 255)
+# Steering marks (RGB): the truth's target and corridor, the model's target.
+TRUTH_TARGET = (255, 255, 255)
+CORRIDOR = (255, 220, 0)
+MODEL_TARGET = (255, 0, 255)
 SHEET_ROW_HEIGHT = 200
 SHEET_MAX_ROWS = 24
 
@@ -52,18 +59,35 @@ def sheet_row(
     panels = [image, error_overlay(image, prediction, truth), tint_mask(image, truth, TRUE_CROP, 0.5)]
     width = max(1, round(image.shape[1] * height / image.shape[0]))
     panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
+    if result.steering is not None:
+        draw_steering(panels[1], result.steering)
     row = np.concatenate([np.concatenate([p, np.full((height, 2, 3), 255, np.uint8)], axis=1) for p in panels], axis=1)[
         :, :-2
     ]
     caption = np.full((20, row.shape[1], 3), 40, np.uint8)
     c = result.counts
-    _label(
-        caption,
-        f"{result.name}   IoU {format_figure(c.iou)}   precision {format_figure(c.precision)}   recall {format_figure(c.recall)}",
-        (4, 14),
-        0.42,
-    )
+    text = f"{result.name}   IoU {format_figure(c.iou)}   precision {format_figure(c.precision)}   recall {format_figure(c.recall)}"
+    if result.steering is not None:
+        where = "in corridor" if result.steering.in_corridor else "OUTSIDE corridor"
+        text += f"   target error {result.steering.error_px:.1f} px, {where}"
+    _label(caption, text, (4, 14), 0.42)
     return np.concatenate([caption, row], axis=0)
+
+
+def draw_steering(panel: np.ndarray, steering: PhotoSteering) -> None:
+    """The truth's corridor (band at the bottom) and target (white) and the model's target (magenta), in place."""
+    import cv2
+
+    height, width = panel.shape[:2]
+
+    def x(column: float) -> int:
+        return int(round((column + 0.5) * width / STEERING_WIDTH))
+
+    band = max(3, height // 30)
+    start, stop = steering.corridor
+    cv2.rectangle(panel, (x(start - 0.5), height - band), (x(stop + 0.5) - 1, height - 1), CORRIDOR, -1)
+    cv2.line(panel, (x(steering.truth_target), 0), (x(steering.truth_target), height - 1), TRUTH_TARGET, 2)
+    cv2.line(panel, (x(steering.model_target), 0), (x(steering.model_target), height - 1), MODEL_TARGET, 2)
 
 
 def contact_sheet(rows: list[np.ndarray], summary: EvalSummary) -> np.ndarray:
@@ -72,7 +96,7 @@ def contact_sheet(rows: list[np.ndarray], summary: EvalSummary) -> np.ndarray:
 
     width = max(r.shape[1] for r in rows)
     rows = [np.pad(r, ((0, 2), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
-    header = np.full((78, width, 3), 40, np.uint8)
+    header = np.full((100, width, 3), 40, np.uint8)
     f = summary.figures()
     title = (
         f"{Path(summary.model).name} on {Path(summary.data).name}: {f['images']} images, mean IoU "
@@ -82,13 +106,22 @@ def contact_sheet(rows: list[np.ndarray], summary: EvalSummary) -> np.ndarray:
     panel = width // 3
     for k, name in enumerate(("photo", "prediction vs ground truth", "ground truth")):
         _label(header, name, (k * panel + 6, 42), 0.45)
-    x = 6
-    for colour, text in (
-        (TRUE_CROP, "crop, found"),
-        (FALSE_CROP, "false crop (predicted, not labelled)"),
-        (MISSED_CROP, "missed crop (labelled, not predicted)"),
-    ):
-        cv2.rectangle(header, (x, 56), (x + 14, 70), tuple(int(v) for v in colour), -1)
-        _label(header, text, (x + 20, 69), 0.42)
-        x += 30 + 8 * len(text)
+    legend = (
+        (
+            (TRUE_CROP, "crop, found"),
+            (FALSE_CROP, "false crop (predicted, not labelled)"),
+            (MISSED_CROP, "missed crop (labelled, not predicted)"),
+        ),
+        (
+            (TRUTH_TARGET, "truth's steering target"),
+            (CORRIDOR, "truth's free corridor"),
+            (MODEL_TARGET, "model's steering target"),
+        ),
+    )
+    for line, entries in enumerate(legend):
+        x, top = 6, 56 + 22 * line
+        for colour, text in entries:
+            cv2.rectangle(header, (x, top), (x + 14, top + 14), tuple(int(v) for v in colour), -1)
+            _label(header, text, (x + 20, top + 13), 0.42)
+            x += 30 + 8 * len(text)
     return np.concatenate([header, *rows], axis=0)

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.outputs import check_writable
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.sim.robot import RobotState, body_axes
 
@@ -52,6 +53,22 @@ TOPIC_TYPES = {
     topics.TF: "tf2_msgs/msg/TFMessage",
     topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
 }
+
+
+def partial_path(path: Path) -> Path:
+    """The folder a bag at `path` is written in until it is complete."""
+    return path.with_name(path.name + ".partial")
+
+
+def check_bag_path(path: Path) -> None:
+    """ValueError naming what is in the way of a bag at `path`, for a check before any run: its
+    folder not writable (read-only, a file there), or a file or symbolic link at `path` or at its
+    partial folder, which the recorder only replaces when it is a bag folder (found after the run)."""
+    check_writable(path.parent, "bag folder")
+    for where in (path, partial_path(path)):
+        if where.is_symlink() or (where.exists() and not where.is_dir()):
+            kind = "a symbolic link" if where.is_symlink() else "a file"
+            raise ValueError(f"{where}: {kind} where a run's bag goes (only a bag folder is replaced); remove it")
 
 
 def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
@@ -99,7 +116,7 @@ class RunRecorder:
 
         self.path = Path(path)
         # Written inside <path>.partial/ under the bag's own name (rosbag2 names its file after it).
-        self._partial = self.path.with_name(self.path.name + ".partial")
+        self._partial = partial_path(self.path)
         shutil.rmtree(self._partial, ignore_errors=True)
         self._partial.mkdir(parents=True)
         self._store = get_typestore(Stores.ROS2_HUMBLE)
@@ -286,11 +303,12 @@ class RunRecorder:
         )
 
     def _write_static(self, t: float) -> None:
-        """map -> odom (the start pose), base_link -> camera_link (the mount, tilted down) ->
-        optical frame, base_link -> imu_link (at the base)."""
+        """map -> odom (the start pose), base_link -> camera_link (the mount, tilted up by tilt_deg as
+        the renderer and the runtime's camera model tilt it) -> optical frame, base_link -> imu_link
+        (at the base)."""
         assert self._odom_origin is not None
         mount = np.eye(4)
-        tilt = math.radians(float(self.camera.tilt_deg))  # REP 103: positive pitch lowers the nose
+        tilt = -math.radians(float(self.camera.tilt_deg))  # REP 103 pitch lowers the nose; tilt_deg raises it
         mount[:3, :3] = [[math.cos(tilt), 0.0, math.sin(tilt)], [0.0, 1.0, 0.0], [-math.sin(tilt), 0.0, math.cos(tilt)]]
         mount[:3, 3] = (float(self.camera.mount_forward), 0.0, float(self.camera.mount_height))
         optical = self._transform(t, topics.CAMERA_FRAME, topics.OPTICAL_FRAME, np.eye(4))

@@ -9,10 +9,12 @@ its keys are checked against `NavigatorConfig` at load time.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any, Literal
 
 from segmin.data.canopy_region import check_closing_radius
+from segmin.nav_eval.runtime.sensor_faults import SensorChecks, check_depth_range
 from segmin.nav_eval.sim.robot import RobotConfig
 
 DEFAULT_CONFIG = "default"  # the shipped configs/nav/default.yaml
@@ -121,6 +123,54 @@ class RenderSettings:
     backend: Literal["tiny", "gl"] | None = None
 
 
+FAULT_KINDS = ("depth_dropout", "zero_depth", "frozen_frame", "black_frame")
+REGIONS = ("all", "left", "right")
+
+
+@dataclasses.dataclass
+class SimFault:
+    """One fault: `kind` (FAULT_KINDS) from `start_s` for `duration_s` seconds of the run."""
+
+    kind: str
+    start_s: float
+    duration_s: float
+    region: str = "all"  # depth faults: the whole image or one half
+    share: float = 1.0  # depth_dropout: share of the region's pixels that read NaN
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULT_KINDS:
+            raise ValueError(f"kind {self.kind!r} is not one of {', '.join(FAULT_KINDS)}")
+        if not (math.isfinite(self.start_s) and self.start_s >= 0):
+            raise ValueError(f"start_s must be a number of seconds >= 0, got {self.start_s!r}")
+        if not (math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise ValueError(f"duration_s must be a number of seconds > 0, got {self.duration_s!r}")
+        if self.region not in REGIONS:
+            raise ValueError(f"region {self.region!r} is not one of {', '.join(REGIONS)}")
+        if self.region != "all" and self.kind not in ("depth_dropout", "zero_depth"):
+            raise ValueError(f"region {self.region!r} applies to depth faults only, not {self.kind}")
+        if not 0.0 < self.share <= 1.0:
+            raise ValueError(f"share must be within (0, 1], got {self.share!r}")
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + self.duration_s
+
+    def active(self, t: float) -> bool:
+        """Whether a frame at run time `t` (seconds) is spoilt."""
+        return self.start_s <= t < self.end_s
+
+
+def check_faults(faults: list[SimFault]) -> None:
+    """Fault windows must not overlap: each fault's metrics need a window of its own."""
+    for i, fault in enumerate(faults):
+        for other in faults[i + 1 :]:
+            if fault.start_s < other.end_s and other.start_s < fault.end_s:
+                raise ValueError(
+                    f"faults: {fault.kind} at {fault.start_s:g}-{fault.end_s:g} s overlaps "
+                    f"{other.kind} at {other.start_s:g}-{other.end_s:g} s"
+                )
+
+
 @dataclasses.dataclass
 class NavEvalConfig:
     """The whole evaluation config."""
@@ -146,6 +196,10 @@ class NavEvalConfig:
     )
     navigator: dict[str, Any] = dataclasses.field(default_factory=dict)
     corridor: dict[str, Any] = dataclasses.field(default_factory=dict)  # SegCorridor (nav_eval.corridor)
+    # The runtime's sensor checks (nav_eval.runtime.sensor_faults): each fault stops the robot.
+    sensor_checks: SensorChecks = dataclasses.field(default_factory=SensorChecks)
+    # Sensor faults injected into every run (nav_eval.sim.faults), none by default.
+    faults: list[SimFault] = dataclasses.field(default_factory=list)
 
     def __post_init__(self) -> None:
         for table in (self.depth_thresholds, self.family_depth_thresholds):
@@ -154,6 +208,12 @@ class NavEvalConfig:
                     raise ValueError(f"depth threshold for {k!r} must be > 0, got {v!r}")
         for section in ("navigator", "corridor"):
             _check_section(section, getattr(self, section), self.perception.fuse_frames)
+        check_faults(self.faults)
+        for name, threshold in {**self.depth_thresholds, **self.family_depth_thresholds}.items():
+            try:
+                check_depth_range(threshold, self.sensor_checks)
+            except ValueError as exc:
+                raise ValueError(f"depth threshold for {name!r}: {exc} (sensor_checks.max_depth_m)") from None
 
     def depth_threshold(self, name: str, family: str) -> float:
         """The depth cut for a field: by name, else by crop family."""

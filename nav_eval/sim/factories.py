@@ -120,5 +120,5 @@ def make_follower(method: str, depth_threshold: float, config: NavEvalConfig) ->
     return RowFollower(
         None,
         make_navigator(method, depth_threshold, config),
-        RuntimeConfig(segment_hz=rates.segment_hz, command_hz=rates.command_hz),
+        RuntimeConfig(segment_hz=rates.segment_hz, command_hz=rates.command_hz, checks=config.sensor_checks),
     )

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import gymnasium
@@ -172,6 +172,8 @@ class RowFollowEnv(gymnasium.Env):
         self._refuse_if_closed("reset")
         super().reset(seed=seed)
         run_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
+        if options is not None and not isinstance(options, Mapping):  # dict([1, 2]) would fail naming nothing
+            raise TypeError(f"reset options must be a dict such as {{'pose': (x, y, yaw)}} or None, got {options!r}")
         options = dict(options or {})
         pose = options.pop("pose", None)
         if options:

@@ -2,10 +2,10 @@
 
 `run_sweep(spec, out)` plans and validates the sweep (`nav_eval.sweep_spec`), writes each world
 variant to `out/worlds/`, and runs the jobs on `nav_eval.evaluate`'s runner (the same workers as
-nav-eval; a job carries its variant's nav config). Each finished run is written at once,
-atomically, to `out/runs/<key>.json` (Python's JSON: NaN and Infinity as such), the key a hash of everything the run depends on (world,
-nav config, model file content, method, seed); a later call skips the runs whose file exists,
-so an interrupted sweep resumes where it stopped and a changed spec reruns only what changed.
+nav-eval; a job carries its variant's nav config). Each finished run is kept in
+`out/runs/<key>.json` (`nav_eval.evaluation.run_store`, as nav-eval keeps its own), the key a
+hash of everything the run depends on (world, nav config, model file content, method, seed): an
+interrupted sweep resumes where it stopped and a changed spec reruns only what changed.
 Variants that come out equal (a parameter's value that is the base's) share their runs. Runs
 that raised are not stored: they are reported and rerun next time.
 
@@ -16,22 +16,20 @@ across the values of a parameter), from the base field's name and the spec's see
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from segmin.common.atomic import write_json, write_text
+from segmin.common.atomic import write_text
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs, run_seed
-from segmin.nav_eval.runtime.shipped_models import resolve_model
+from segmin.nav_eval.evaluation.run_store import RUNS_FOLDER, digest, model_identity, store_run, stored_runs
 from segmin.nav_eval.sim.factories import make_segmenter
 from segmin.nav_eval.sweeps.report import summarise_sweep, write_sweep_outputs
-from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, digest, load_sweep, plan_sweep, variant_file_name
+from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, load_sweep, plan_sweep, variant_file_name
 
 
 @dataclasses.dataclass
@@ -43,13 +41,6 @@ class SweepOutcome:
     executed: int
     reused: int
     errored: list[RunResult]
-
-
-def model_identity(model: str) -> str:
-    """'oracle', or the exported file's content hash (a moved file keeps its runs, a new one does not)."""
-    if model == "oracle":
-        return model
-    return "onnx:" + hashlib.sha256(resolve_model(model).read_bytes()).hexdigest()[:16]
 
 
 def run_sweep(
@@ -80,7 +71,7 @@ def run_sweep(
     model_id = model_identity(spec.model)
     with writer_lock(out / ".sweep.lock", f"sweep {out}"):
         jobs, keys = _jobs(plan, out, model_id)
-        cached = {} if force else _load_cached(out / "runs", keys)
+        cached = {} if force else stored_runs(out / RUNS_FOLDER, jobs, RunResult.from_stored)
         todo = [job for key, job in jobs.items() if key not in cached]
         new: dict[str, RunResult] = {}
         errored: list[RunResult] = []
@@ -92,7 +83,7 @@ def run_sweep(
                 return
             key = key_of[id(job)]
             new[key] = result
-            write_json(out / "runs" / f"{key}.json", {"key": key, "result": result.row()})
+            store_run(out / RUNS_FOLDER, key, result)
 
         execute_jobs(
             todo, spec.model, plan.base_config, workers, done, progress=progress, desc="sweep runs", executor=executor
@@ -136,18 +127,3 @@ def _field(plan: SweepPlan, variant: Variant, out: Path, written: set[str]) -> s
         )
         written.add(str(path))
     return str(path)
-
-
-def _load_cached(folder: Path, keys: list[list[tuple[str, str]]]) -> dict[str, RunResult]:
-    """The stored results of this sweep's jobs (an unreadable file is run again)."""
-    cached = {}
-    for key in {key for pairs in keys for _, key in pairs}:
-        path = folder / f"{key}.json"
-        if not path.is_file():
-            continue
-        try:
-            row = json.loads(path.read_text())["result"]
-            cached[key] = RunResult.from_row(row)
-        except (OSError, ValueError, KeyError, TypeError):
-            continue
-    return cached

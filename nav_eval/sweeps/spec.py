@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import hashlib
-import json
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -27,6 +25,7 @@ from typing import Any, Literal
 
 from segmin.common.config import ConfigError, from_dict, read_yaml, to_dict
 from segmin.common.shipped import resolve_config
+from segmin.nav_eval.evaluation.run_store import digest
 from segmin.nav_eval.runtime.methods import METHODS
 
 
@@ -207,11 +206,6 @@ class SweepPlan:
     base_world: dict
     base_config: Any  # NavEvalConfig of every variant before its one change
     variants: list[Variant]
-
-
-def digest(obj: Any) -> str:
-    """A short stable hash of plain data (sorted-key JSON)."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def load_sweep(name_or_path: str | Path) -> tuple[SweepSpec, Path]:

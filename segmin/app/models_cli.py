@@ -11,7 +11,9 @@ registry as it was; files already there are replaced only with --force.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,31 +76,47 @@ def _release(args: argparse.Namespace) -> int:
     from segmin.nav_eval.runtime.shipped_models import models_dir
 
     root = args.to if args.to is not None else models_dir()
-    for name, (_, card, sheet) in release_run(args.run, root, families=args.families, force=args.force).items():
+    for name, release in release_run(args.run, root, families=args.families, force=args.force).items():
         onnx = root / f"{name}.onnx"
-        extra = f", {card['real_photos']['contact_sheet_file']}" if sheet is not None else ""
+        extra = f", {release.card['real_photos']['contact_sheet_file']}" if release.sheet is not None else ""
         print(f"released {name}: {onnx} ({onnx.stat().st_size / 1e6:.1f} MB) with {name}.md, {name}.card.json{extra}")
     return 0
 
 
-def release_run(
-    run: Path, root: Path, *, families: list[str] | None = None, force: bool = False
-) -> dict[str, tuple[Path, dict[str, Any], bytes | None]]:
+def release_run(run: Path, root: Path, *, families: list[str] | None = None, force: bool = False) -> dict[str, Any]:
     """Release the run's models into `root`: what `segmin models release` does, and the last
     stage of a pipeline profile with `release: true` (into the run's own release/ folder).
-    Returns what was released: {name: (exported ONNX, card, contact sheet bytes or None)}."""
+    Returns {name: what was released (its card and contact sheet)}."""
+    from segmin.common.lock import writer_lock
+    from segmin.common.outputs import make_dirs
+
     planned = _plan(run, families, root, force)
-    for name, (source, card, sheet) in planned.items():
-        _write_release(source, card, sheet, root, name)
+    make_dirs(root, "--to")
+    with writer_lock(root / ".release.lock", f"the model registry {root}"):
+        _remove_leftovers(root)
+        _write_release(planned, root)
     return planned
 
 
-def _plan(
-    run: Path, families: list[str] | None, root: Path, force: bool
-) -> dict[str, tuple[Path, dict[str, Any], bytes | None]]:
-    """{name: (exported ONNX, card, the real-photo contact sheet as JPEG bytes or None)} for every
-    family to release; every error comes before anything is written."""
-    from segmin.app.model_card import build_card
+@dataclass
+class _Release:
+    """One family's release, read and checked: the model with its card in the metadata, the card
+    (its figures, as Markdown and as JSON) and the real-photo contact sheet as JPEG bytes (None
+    when the run scored no photos)."""
+
+    model: Any  # onnx.ModelProto
+    card: dict[str, Any]
+    markdown: str
+    card_json: str
+    sheet: bytes | None
+
+
+def _plan(run: Path, families: list[str] | None, root: Path, force: bool) -> dict[str, _Release]:
+    """Every family to release, each model read and checked: every error comes before anything is
+    written (a release that failed on its second family used to have replaced the first)."""
+    from segmin.app.model_card import build_card, card_markdown
+    from segmin.export import metadata as md
+    from segmin.export.onnx import load_segmin_model, set_metadata
     from segmin.nav_eval.runtime.shipped_models import SHEET_SUFFIX, SHIPPED_NAMES
 
     if not (run / "render" / "stage.json").is_file():
@@ -118,7 +136,10 @@ def _plan(
         sheet = _contact_sheet(run, card)
         if sheet is not None:
             card["real_photos"]["contact_sheet_file"] = f"{name}{SHEET_SUFFIX}"
-        planned[name] = (run / "export" / name / f"{name}.onnx", card, sheet)
+        model = load_segmin_model(run / "export" / name / f"{name}.onnx")
+        markdown, card_json = card_markdown(card), json.dumps(card, indent=2, sort_keys=True)
+        set_metadata(model, {md.KEY_MODEL_CARD: markdown, md.KEY_MODEL_CARD_JSON: card_json})
+        planned[name] = _Release(model, card, markdown, card_json, sheet)
     return planned
 
 
@@ -142,44 +163,52 @@ def _contact_sheet(run: Path, card: dict[str, Any]) -> bytes | None:
     return jpeg.tobytes()
 
 
-def _write_release(source: Path, card: dict[str, Any], sheet: bytes | None, root: Path, name: str) -> None:
-    """The model with its card in the metadata, then the card files and the contact sheet (each
-    written atomically)."""
+def _remove_leftovers(root: Path) -> None:
+    """The temporary files a killed release left (`atomic_path` names them `.<file>.<random>.tmp`):
+    no later write would ever replace them. Called under the registry's lock, so none is live."""
+    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
+
+    for name in SHIPPED_NAMES:
+        for leftover in root.glob(f".{name}.*.tmp"):
+            leftover.unlink(missing_ok=True)
+
+
+def _write_release(planned: dict[str, _Release], root: Path) -> None:
+    """Every family's model, card files and contact sheet, all or nothing: each file goes to a
+    temporary beside its name, and the temporaries replace the registry's files only once every
+    one is written (an error on the way removes them all)."""
     import onnx
 
-    from segmin.app.model_card import card_markdown
-    from segmin.common.atomic import atomic_path, write_bytes, write_text
-    from segmin.common.outputs import make_dirs
-    from segmin.export import metadata as md
-    from segmin.export.onnx import set_metadata
+    from segmin.common.atomic import atomic_path
     from segmin.nav_eval.runtime.shipped_models import CARD_SUFFIX, SHEET_SUFFIX
 
-    markdown, card_json = card_markdown(card), json.dumps(card, indent=2, sort_keys=True)
-    model = onnx.load(str(source))
-    md.check_metadata({p.key: p.value for p in model.metadata_props}, str(source))
-    set_metadata(model, {md.KEY_MODEL_CARD: markdown, md.KEY_MODEL_CARD_JSON: card_json})
-    make_dirs(root, "--to")
-    with atomic_path(root / f"{name}.onnx") as tmp:
-        onnx.save(model, str(tmp))
-    write_text(root / f"{name}.md", markdown)
-    write_text(root / f"{name}{CARD_SUFFIX}", card_json + "\n")
-    sheet_path = root / f"{name}{SHEET_SUFFIX}"
-    if sheet is None:  # a replaced model's sheet would show another model's errors
-        sheet_path.unlink(missing_ok=True)
-    else:
-        write_bytes(sheet_path, sheet)
+    with contextlib.ExitStack() as stack:
+        for name, release in planned.items():
+            onnx.save(release.model, str(stack.enter_context(atomic_path(root / f"{name}.onnx"))))
+            files = {
+                f"{name}.md": release.markdown.encode(),
+                f"{name}{CARD_SUFFIX}": (release.card_json + "\n").encode(),
+            }
+            if release.sheet is not None:
+                files[f"{name}{SHEET_SUFFIX}"] = release.sheet
+            for file_name, data in files.items():
+                stack.enter_context(atomic_path(root / file_name)).write_bytes(data)
+    for name, release in planned.items():
+        if release.sheet is None:  # a replaced model's sheet would show another model's errors
+            (root / f"{name}{SHEET_SUFFIX}").unlink(missing_ok=True)
 
 
 def _to_torch(args: argparse.Namespace) -> int:
     import torch
 
     from segmin.common.atomic import atomic_path
-    from segmin.common.outputs import make_dirs
+    from segmin.common.outputs import check_output_file, make_dirs
     from segmin.export.to_torch import check_conversion, network_from_onnx
     from segmin.nav_eval.runtime.shipped_models import resolve_model
 
     if args.count < 1:
         raise ValueError(f"--count {args.count}: must be >= 1")
+    check_output_file(args.out, "--out")  # a folder there would fail only after the conversion
     if args.out.exists() and not args.force:
         raise ValueError(f"{args.out}: already exists (use --force to replace it)")
     source = resolve_model(args.model)

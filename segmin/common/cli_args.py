@@ -167,10 +167,12 @@ def add_executor_options(parser: argparse.ArgumentParser) -> None:
 
 def executor_of(args: argparse.Namespace) -> Executor:
     """The Executor that `add_executor_options`'s arguments name: a ValueError when they disagree,
-    the [cluster] advice now (not after the command's first steps) when Ray is chosen but missing."""
-    from segmin.common.executor import Executor, import_ray
+    the [cluster] advice, or a cluster address that does not answer, now (not after the command's
+    first steps) when Ray is chosen."""
+    from segmin.common.executor import Executor, check_ray_address, import_ray
 
     executor = Executor(args.executor, args.ray_address)
     if executor.kind == "ray":
         import_ray()
+        check_ray_address(executor.ray_address)
     return executor

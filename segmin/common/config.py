@@ -4,12 +4,17 @@ Every number a user may change lives in a YAML file under `configs/`. Loading is
 purpose: an unknown key is almost always a typo, and a typo silently ignored means a run with
 the wrong settings. Overrides from the command line use dotted `key=value` pairs whose values
 are parsed as YAML, so `train.epochs=5` and `augment.flip=false` have their natural types.
+
+Both are read with `ConfigLoader`: PyYAML follows YAML 1.1, where a float needs a dot, so the
+`1e-3` and `5e-1` everyone writes for a learning rate would be text; the loader reads them (and
+`1E+3`, `-2.5e-4`) as floats, as YAML 1.2 and JSON do. Integers stay integers.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -27,13 +32,35 @@ class ConfigError(ValueError):
     """A config file or override is invalid; the message names the file and the key."""
 
 
+class ConfigLoader(yaml.SafeLoader):
+    """`yaml.SafeLoader` that also reads the exponent floats YAML 1.1 misses (`1e-3`, `5e-1`, `1.5e3`).
+
+    YAML 1.1's float pattern needs a dot and a signed exponent, so PyYAML reads `1e-3` as the string '1e-3' and a
+    config's float field then refuses it. The extra pattern below is tried after the usual ones
+    (which still resolve ints, dotted floats, .inf and .nan), so only the dotless exponent form
+    changes; the SafeLoader itself is left alone for other users of PyYAML.
+    """
+
+
+ConfigLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def parse_yaml(text: str) -> Any:
+    """`text` parsed as a config value or file (`ConfigLoader`: exponent floats are floats)."""
+    return yaml.load(text, Loader=ConfigLoader)
+
+
 def read_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with errors that name the file."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: config file not found")
     try:
-        content = yaml.safe_load(path.read_text(encoding="utf-8"))
+        content = parse_yaml(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
     except UnicodeDecodeError as exc:  # a binary file: the bare codec error names no file
@@ -58,7 +85,7 @@ def apply_overrides(raw: dict[str, Any], overrides: list[str] | tuple[str, ...])
         if not parts:
             raise ConfigError(f"override {item!r}: empty key")
         try:
-            value = yaml.safe_load(text)
+            value = parse_yaml(text)
         except yaml.YAMLError as exc:
             raise ConfigError(f"override {item!r}: value is not valid YAML: {exc}") from exc
         node = result

@@ -10,7 +10,9 @@ progress bar) on its side of `done`; the executor only decides where `worker.run
 - `local`: `processes` processes of this machine (`segmin.common.processes`);
 - `ray`: as many Ray actors, each with one CPU and a worker of its own, on the cluster at
   `ray_address` (else `RAY_ADDRESS`, else a Ray instance started here for the run). Ray is
-  imported only then; without it the command says which extra installs it.
+  imported only then; without it the command says which extra installs it. A cluster address
+  that does not answer within `RAY_CONNECT_TIMEOUT_S` is one line naming it (Ray itself retries
+  for minutes, printing only its own retry lines).
 
 A job whose worker dies (or raises) becomes `failed(job, why)`, on either executor.
 """
@@ -18,6 +20,8 @@ A job whose worker dies (or raises) becomes `failed(job, why)`, on either execut
 from __future__ import annotations
 
 import dataclasses
+import os
+import socket
 from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
@@ -91,12 +95,55 @@ def import_ray() -> Any:
     return ray
 
 
-def connect_ray(address: str | None) -> bool:
+RAY_CONNECT_TIMEOUT_S = 5.0
+"""How long a Ray cluster's address has to accept a connection before the command stops, naming
+it: a cluster's head answers in milliseconds, and a wrong address should not cost minutes."""
+
+_NO_CLUSTER_ADDRESSES = ("", "auto", "local")  # a local instance (started, or found by Ray): nothing to probe
+
+
+def _host_and_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of `head:6379` or `ray://head:10001`; None for what Ray resolves itself."""
+    if address.strip().lower() in _NO_CLUSTER_ADDRESSES:
+        return None
+    host, _, port = address.strip().removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return None  # not host:port: Ray says what is wrong with it
+    return host.strip("[]"), int(port)
+
+
+def check_ray_address(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """ConnectionError naming the address when nothing accepts a connection there within
+    `timeout_s` (`address`, else `RAY_ADDRESS`, as Ray reads them); before `ray.init`, which
+    would retry an unreachable cluster for minutes."""
+    given = address if address is not None else os.environ.get("RAY_ADDRESS")
+    target = None if given is None else _host_and_port(given)
+    if target is None:
+        return
+    origin = "--ray-address" if address is not None else "RAY_ADDRESS"
+    try:
+        with socket.create_connection(target, timeout=timeout_s):
+            pass
+    except TimeoutError:
+        reason = f"no answer within {timeout_s:g} s"
+    except OSError as exc:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+    else:
+        return
+    raise ConnectionError(
+        f"Ray cluster {given} ({origin}): cannot connect ({reason}); check the address and that the cluster "
+        "runs (`ray status` on its head)"
+    )
+
+
+def connect_ray(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> bool:
     """Connect this process to Ray unless it already is: `address`, else `RAY_ADDRESS` (Ray reads
-    it), else a local instance. True when this call connected (so the caller disconnects)."""
+    it), else a local instance. True when this call connected (so the caller disconnects). A
+    cluster that does not answer within `timeout_s` is a ConnectionError naming its address."""
     ray = import_ray()
     if ray.is_initialized():
         return False
+    check_ray_address(address, timeout_s)
     ray.init(address=address, configure_logging=False, log_to_driver=True)
     return True
 

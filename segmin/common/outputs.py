@@ -9,6 +9,8 @@ instead of the OS's bare "File exists" / "Not a directory" (every atomic write g
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 
@@ -45,6 +47,21 @@ def make_dirs(path: str | Path, what: str = "") -> Path:
     except (FileExistsError, NotADirectoryError):
         check_output_dir(path, what)
         raise  # replaced by a file between the mkdir and the check: the OS's own error
+    return path
+
+
+def check_writable(path: str | Path, what: str = "--out") -> Path:
+    """`path` is a folder a file can be written into, made when missing; ValueError naming it
+    otherwise (read-only, or a file in the way). A probe file is written and removed: permission
+    bits alone do not tell (root, read-only mounts, ACLs)."""
+    path = check_output_dir(path, what)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".segmin_probe_", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ValueError(f"{_named(path, what)}: not writable ({exc.strerror or exc})") from exc
     return path
 
 

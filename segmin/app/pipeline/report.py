@@ -300,7 +300,7 @@ def _real_photos(
             f"| {family}: shipped model | {format_figure(cards[family].get('synthetic_val_iou'))} | {format_figure(real['mean_iou'])} | "
             f"{format_figure(real['pooled_iou'])} | {format_figure(real['precision'])} | {format_figure(real['recall'])} | n/a |"
         )
-    lines.append("")
+    lines += ["", *_steering_table(records)]
     if shipped_rows:
         lines += [
             "Rows marked *shipped model*: the models segmin ships under the family's name (`segmin models list`), "
@@ -323,6 +323,30 @@ def _real_photos(
         if sheet:
             lines += [f"![real photos, {family} model](real-eval/{family}/contact_sheet.png)", ""]
     return lines
+
+
+def _steering_table(records: dict[str, Any]) -> list[str]:
+    """Where each model's masks would steer on the photos against the truth's (eval-seg's steering figures)."""
+    lines = [
+        "Steering on the same photos: the SegMin target (no depth, 224 px of width) of each model mask against the "
+        "truth mask's; the free corridor is where the truth's histogram is clearly free (definitions: the metrics "
+        "reference of segmin's documentation, docs/reference/metrics.md). Uniform frames: the "
+        "largest share of an all-black, all-white or one-colour frame painted as crop (a shipped model stays under 1 %).",
+        "",
+        "| family | target error median (px) | mean (px) | worst (px) | outside the corridor | at the image edge | uniform frames painted |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for family, record in records.items():
+        o = record.outputs
+        if "target_error_median_px" not in o:
+            continue  # a stage cached before the steering figures existed
+        blank = o.get("blank_frames_worst")
+        lines.append(
+            f"| {family} | {o['target_error_median_px']:.1f} | {o['target_error_mean_px']:.1f} | "
+            f"{o['target_error_worst_px']:.1f} | {o['targets_outside_corridor']} of {o['images']} | "
+            f"{o['targets_at_edge']} | {'n/a' if blank is None else f'{blank:.2%}'} |"
+        )
+    return [*lines, ""]
 
 
 def count_frames(root: Path, domains: list[str]) -> int:

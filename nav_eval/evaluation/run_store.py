@@ -1,0 +1,59 @@
+"""Finished runs kept one file each, so an interrupted evaluation resumes where it stopped.
+
+`segmin robustness` and `segmin nav-eval` write each run the moment it finishes, atomically, to
+`OUT/runs/<key>.json` (Python's JSON: NaN and Infinity as such), the key a hash of everything
+the run depends on (world, nav config, model file content, method, seed, ...). A later call
+skips the jobs whose file it can read back: a killed evaluation loses at most the runs in
+progress, and a changed setting reruns only what it changes. Runs that raised are not stored:
+they are run again next time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any, TypeVar
+
+from segmin.common.atomic import write_json
+from segmin.nav_eval.runtime.shipped_models import resolve_model
+
+RUNS_FOLDER = "runs"
+T = TypeVar("T")
+
+
+def digest(obj: Any) -> str:
+    """A short stable hash of plain data (sorted-key JSON)."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def model_identity(model: str) -> str:
+    """'oracle', or the exported file's content hash (a moved file keeps its runs, a new one does not)."""
+    if model == "oracle":
+        return model
+    return "onnx:" + hashlib.sha256(resolve_model(model).read_bytes()).hexdigest()[:16]
+
+
+def store_run(folder: Path, key: str, result: Any, *, trajectory: bool = False) -> None:
+    """`result` (a `RunResult`) as `folder/<key>.json`; with `trajectory`, its path too (what a
+    resumed nav-eval's figures draw)."""
+    entry: dict[str, Any] = {"key": key, "result": result.row()}
+    if trajectory and result.trajectory is not None:
+        entry["trajectory"] = result.trajectory.to_dict()
+    write_json(folder / f"{key}.json", entry)
+
+
+def stored_runs(folder: Path, keys: Iterable[str], read: Callable[[dict[str, Any]], T]) -> dict[str, T]:
+    """`read(entry)` of each key's stored run in `folder` (`RunResult.from_stored`); a missing or
+    unreadable file is left out, so that run is done again."""
+    found = {}
+    for key in set(keys):
+        path = folder / f"{key}.json"
+        if not path.is_file():
+            continue
+        try:
+            found[key] = read(json.loads(path.read_text()))
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    return found
