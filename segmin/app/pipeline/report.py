@@ -155,9 +155,39 @@ def _training(cache: StageCache, trainings: dict[str, str], curves: Path) -> lis
         "(`best`), or with `swa_start_epoch` the average of the last epochs' weights (`swa`).",
         "",
     ]
+    lines += _held_out(cache, trainings)
     if curves.is_file():
         lines += ["![training curves](report/training_curves.png)", ""]
     return lines
+
+
+def _held_out(cache: StageCache, trainings: dict[str, str]) -> list[str]:
+    """Each stage's kept model on its held-out validation frames, scored as the real photos are."""
+    rows = []
+    for label, key in trainings.items():
+        record = cache.record(key)
+        held = (record.outputs or {}).get("held_out") if record else None
+        if held:
+            blank = held.get("blank_frames_worst")
+            rows.append(
+                f"| {label} | {held['images']} | {format_figure(held['pooled_iou'])} | {format_figure(held['mean_iou'])} | "
+                f"{held['target_error_median_px']:.1f} | {held['target_error_mean_px']:.1f} | "
+                f"{held['targets_outside_corridor']} | {held['targets_at_edge']} | "
+                f"{'n/a' if blank is None else f'{blank:.2%}'} |"
+            )
+    if not rows:
+        return []
+    return [
+        "Held-out validation frames (worlds no stage trains on, seeds of their own), scored as the real photos are: "
+        "IoU against the canopy region the model learns, the steering figures (target error in px at 224 px of width, "
+        "targets outside the truth's free corridor and at the image edge) and the worst uniform frame painted. "
+        "Changes of recipe are judged here, never on the real photos.",
+        "",
+        "| stage | frames | pooled IoU | mean IoU | target error median px | mean px | outside corridor | at edge | uniform frames |",
+        "|---|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
 
 
 def _export(cache: StageCache, families: list[str]) -> list[str]:

@@ -266,6 +266,7 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
     best_row = max(history, key=lambda r: r.get("val_iou", -1.0)) if history else {}
     # The exported model: best.pt, or swa.pt (weight average) whose validation is not an epoch row.
     kept_metrics = read_checkpoint(kept)["metrics"]
+    held_out = held_out_eval(train_config, kept, folder / "held-out", log)
     return {
         "checkpoint": str(kept),
         "epochs": len(history),
@@ -277,8 +278,33 @@ def train_stage(train_config, folder: Path, *, resume: bool, log) -> dict[str, A
         "image_size": train_config.image_size,
         "architecture": train_config.architecture,
         "seed": train_config.seed,
+        "held_out": held_out,
         "machine": machine_summary(),  # for the model card: training time means little without it
     }
+
+
+def held_out_eval(train_config, checkpoint: Path, folder: Path, log) -> dict[str, Any] | None:
+    """The kept checkpoint scored like the real photos on the stage's held-out validation frames.
+
+    IoU against the canopy region the model learns (`data.label_closing`), and the steering
+    figures: the rendered stand-in for the photos, on which a change of recipe is judged (the
+    photos are a test set). None when the stage validates on a split of its training worlds.
+    """
+    from segmin.data.agriseg_loader import find_frames
+    from segmin.nav_eval.seg_eval.predictor import load_predictor
+    from segmin.nav_eval.seg_eval.results import write_results
+    from segmin.nav_eval.seg_eval.score import evaluate
+    from segmin.nav_eval.seg_eval.summary import json_safe
+
+    data = train_config.data
+    if data.val_root is None or not data.val_domains:
+        return None
+    frames = [f for f in find_frames(data.val_root) if f.domain in data.val_domains]
+    log(f"held-out: {checkpoint.name} on {len(frames)} frames of {', '.join(data.val_domains)}")
+    predictor = load_predictor(checkpoint, size=train_config.image_size)
+    summary, sheet = evaluate(predictor, frames, data.val_root, truth_closing=data.label_closing)
+    write_results(summary, sheet, folder, force=True)  # the stage folder is the cache's own
+    return json_safe(summary.figures())
 
 
 def train_stage_logged(train_config, folder: Path, resume: bool) -> dict[str, Any]:
