@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -31,7 +30,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Log
 from rclpy.serialization import deserialize_message
-from ros2_driver import NODE, NS, Driver, read_bag, stop
+from ros2_driver import NODE, NS, Driver, read_bag, with_node
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
 
@@ -85,20 +84,11 @@ class FaultDriver(Driver):
 
 def main() -> int:
     spec, params, out = json.loads(Path(sys.argv[1]).read_text()), Path(sys.argv[2]), Path(sys.argv[3])
-    segmin = Path(sys.executable).with_name("segmin")
-    node = subprocess.Popen(
-        [str(segmin), "ros2", "follow", "--params", str(params)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
     rclpy.init()
     driver = FaultDriver()
-    result: dict = {}
-    try:
-        if not driver.enable.wait_for_service(timeout_sec=60):
-            raise RuntimeError("the node's ~/enable service never appeared")
-        driver.spin_for(0.5)
+    result: dict = {key: getattr(driver, key) for key in ("published", "commands", "diagnostics", "log")}
+
+    def phases(driver: FaultDriver) -> None:
         response = driver.call(driver.enable, SetBool.Request(data=True))
         result["enable_response"] = [response.success, response.message]
         for index, scenario in enumerate(spec):
@@ -106,14 +96,8 @@ def main() -> int:
             driver.play_scenario(
                 index, frames, scenario["bad_from_ns"], scenario["good_from_ns"], scenario["clock_lead_ns"]
             )
-        result["alive"] = node.poll() is None
-    finally:
-        for key in ("published", "commands", "diagnostics", "log"):
-            result[key] = getattr(driver, key)
-        driver.destroy_node()
-        rclpy.try_shutdown()
-        result["node_exit"], result["node_log"] = stop(node)
-        out.write_text(json.dumps(result))
+
+    with_node(params, out, driver, result, phases)
     return 0
 
 

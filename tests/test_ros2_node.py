@@ -94,13 +94,13 @@ def episode_bag(exported, tmp_path_factory) -> Path:
     return bag
 
 
-@pytest.fixture(scope="module")
-def drive(exported, episode_bag, tmp_path_factory) -> dict:
-    """The driver's record of one node run over a simulated bag."""
-    folder = tmp_path_factory.mktemp("ros2")
+def run_driver(script: str, source: Path, folder: Path, model: Path) -> dict:
+    """Run a driver (`tests/<script>`, in the ROS environment, confined) on `source` against the node
+    on its frame-by-frame parameters (the bag's clock, acknowledgements, commands sent at once);
+    returns what it wrote."""
     params = _params(
         folder / "params.yaml",
-        exported[0],
+        model,
         use_sim_time=True,
         publish_frame_acks=True,
         publish_on_timer=False,
@@ -108,12 +108,17 @@ def drive(exported, episode_bag, tmp_path_factory) -> dict:
     )
     env = ros_env()
     result = confined(
-        [str(env / "bin" / "python"), str(ROOT / "tests" / "ros2_driver.py"), str(episode_bag), str(params),
-         str(folder / "out.json")],
+        [str(env / "bin" / "python"), str(ROOT / "tests" / script), str(source), str(params), str(folder / "out.json")],
         timeout=240,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     return json.loads((folder / "out.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def drive(exported, episode_bag, tmp_path_factory) -> dict:
+    """The driver's record of one node run over a simulated bag."""
+    return run_driver("ros2_driver.py", episode_bag, tmp_path_factory.mktemp("ros2"), exported[0])
 
 
 def test_the_node_publishes_nothing_until_enabled(drive) -> None:
@@ -282,22 +287,7 @@ def faults(exported, episode_bag, tmp_path_factory) -> dict:
         for name, (encoding, fault, _, lead) in FAULTS.items()
     ]
     (folder / "spec.json").write_text(json.dumps(spec))
-    params = _params(
-        folder / "params.yaml",
-        exported[0],
-        use_sim_time=True,
-        publish_frame_acks=True,
-        publish_on_timer=False,
-        command_priority=10,
-    )
-    env = ros_env()
-    result = confined(
-        [str(env / "bin" / "python"), str(ROOT / "tests" / "ros2_fault_driver.py"), str(folder / "spec.json"),
-         str(params), str(folder / "out.json")],
-        timeout=240,
-    )  # fmt: skip
-    assert result.returncode == 0, result.stdout + result.stderr
-    out = json.loads((folder / "out.json").read_text())
+    out = run_driver("ros2_fault_driver.py", folder / "spec.json", folder, exported[0])
     assert out["enable_response"] == [True, "driving enabled"] and out["alive"], out["node_log"]
     return out
 
