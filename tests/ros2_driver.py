@@ -205,9 +205,9 @@ def stop(node: subprocess.Popen) -> tuple[int, str]:
     return code, node.stdout.read() if node.stdout else ""
 
 
-def main() -> int:
-    bag, params, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
-    frames, bag_commands = read_bag(bag)
+def with_node(params: Path, out: Path, driver: Driver, result: dict, phases) -> None:
+    """Start the node on `params`, wait for its services, run `phases(driver)`, then stop the node
+    and write `result` with what `driver` received and the node's exit code and log to `out`."""
     segmin = Path(sys.executable).with_name("segmin")
     node = subprocess.Popen(
         [str(segmin), "ros2", "follow", "--params", str(params)],
@@ -215,16 +215,11 @@ def main() -> int:
         stderr=subprocess.STDOUT,
         text=True,
     )
-    rclpy.init()
-    driver = Driver()
-    result: dict = {"bag_commands": bag_commands, "phases": {}}
     try:
         if not driver.enable.wait_for_service(timeout_sec=60):
             raise RuntimeError("the node's ~/enable service never appeared")
         driver.spin_for(0.5)
-        disabled_then_bag(driver, frames, result)
-        stall_and_bad_input(driver, frames, result)
-        disable(driver, frames, result)
+        phases(driver)
         result["alive"] = node.poll() is None
     finally:
         result["received"] = driver.received
@@ -232,6 +227,20 @@ def main() -> int:
         rclpy.try_shutdown()
         result["node_exit"], result["node_log"] = stop(node)
         out.write_text(json.dumps(result))
+
+
+def main() -> int:
+    bag, params, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+    frames, bag_commands = read_bag(bag)
+    rclpy.init()
+    result: dict = {"bag_commands": bag_commands, "phases": {}}
+
+    def phases(driver: Driver) -> None:
+        disabled_then_bag(driver, frames, result)
+        stall_and_bad_input(driver, frames, result)
+        disable(driver, frames, result)
+
+    with_node(params, out, Driver(), result, phases)
     return 0
 
 

@@ -11,6 +11,10 @@ A simulated run (stand-in world, the tiny exported model) is recorded as a bag; 
 by frame (each image waits for the node's acknowledgement of the one before, `publish_frame_acks`),
 and checks the enable service, the commands against the simulator's, the stop on a stalled camera,
 a frame of a wrong encoding and a bad parameter.
+
+Sensor faults (`tests/ros2_fault_driver.py`): the run's frames rebuilt into a bag per fault (good
+frames, the fault, good frames again), fed the same way with driving enabled; the stop, the drive
+again, the log line and /diagnostics are measured in bag time.
 """
 
 from __future__ import annotations
@@ -22,8 +26,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bag_helpers import depth_message, image_message, write_bag
 from test_sim_bags import _episode
 
+from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.params import defaults_yaml
 from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
@@ -81,11 +87,17 @@ def _params(path: Path, model: Path, **changes: object) -> Path:
 
 
 @pytest.fixture(scope="module")
-def drive(exported, tmp_path_factory) -> dict:
-    """The driver's record of one node run over a simulated bag."""
-    folder = tmp_path_factory.mktemp("ros2")
-    model = exported[0]
-    _episode(OnnxSegmenter(model, threads=1), bag=folder / "run")
+def episode_bag(exported, tmp_path_factory) -> Path:
+    """A simulated run (stand-in world, the tiny exported model) recorded as a bag."""
+    bag = tmp_path_factory.mktemp("ros2_episode") / "run"
+    _episode(OnnxSegmenter(exported[0], threads=1), bag=bag)
+    return bag
+
+
+def run_driver(script: str, source: Path, folder: Path, model: Path) -> dict:
+    """Run a driver (`tests/<script>`, in the ROS environment, confined) on `source` against the node
+    on its frame-by-frame parameters (the bag's clock, acknowledgements, commands sent at once);
+    returns what it wrote."""
     params = _params(
         folder / "params.yaml",
         model,
@@ -96,12 +108,17 @@ def drive(exported, tmp_path_factory) -> dict:
     )
     env = ros_env()
     result = confined(
-        [str(env / "bin" / "python"), str(ROOT / "tests" / "ros2_driver.py"), str(folder / "run"), str(params),
-         str(folder / "out.json")],
+        [str(env / "bin" / "python"), str(ROOT / "tests" / script), str(source), str(params), str(folder / "out.json")],
         timeout=240,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     return json.loads((folder / "out.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def drive(exported, episode_bag, tmp_path_factory) -> dict:
+    """The driver's record of one node run over a simulated bag."""
+    return run_driver("ros2_driver.py", episode_bag, tmp_path_factory.mktemp("ros2"), exported[0])
 
 
 def test_the_node_publishes_nothing_until_enabled(drive) -> None:
@@ -187,3 +204,153 @@ def test_a_bad_model_refuses_to_start_in_one_line(tmp_path) -> None:
     assert (
         len(lines) == 1 and lines[0].startswith("segmin: error: parameter model:") and "not a loadable ONNX" in lines[0]
     )
+
+
+# ---- sensor faults over DDS --------------------------------------------------------------------
+FPS = 30
+# Frames of each fault bag: good, fault, good again. The node's command grid restarts at the first
+# frame (the scenarios are apart by more than frame_timeout_s) and falls on every 6th frame (5 Hz
+# commands, 30 Hz camera): the fault and the good frames after it both begin one frame after a
+# command, the worst case, 5 frames (0.167 s) before the next command can see them.
+GOOD_FRAMES, FAULT_FRAMES = 31, 48  # 1.0 s, 1.6 s
+STOP_WITHIN_S, DRIVE_AGAIN_WITHIN_S, STEP_UNDER_MS = 0.2, 0.5, 100.0
+CLOCK_LEAD_S = 3.0
+
+
+def _nan_left_half(depth: np.ndarray) -> np.ndarray:
+    bad = depth.copy()
+    bad[:, : depth.shape[1] // 2] = np.nan
+    return bad
+
+
+# name: (depth encoding of the whole bag, the fault's depth (None: the depth stays good), the reason
+# the node must name, /clock ahead of the fault's stamps by this many seconds)
+FAULTS = {
+    "depth_all_nan": ("32FC1", lambda depth: np.full_like(depth, np.nan), "depth_invalid", 0.0),
+    "depth_left_half_nan": ("32FC1", _nan_left_half, "depth_invalid_left", 0.0),
+    "stamps_of_another_clock": ("32FC1", None, "clock_offset", CLOCK_LEAD_S),
+    "depth_all_zero_16UC1": ("16UC1", np.zeros_like, "depth_invalid", 0.0),
+}
+
+
+def _frames_of(bag: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(rgb, depth metres) of every colour frame of a recorded run that has its depth."""
+    from rosbags.highlevel import AnyReader
+
+    colour, depth = {}, {}
+    with AnyReader([bag]) as reader:
+        for connection, t, raw in reader.messages():
+            if connection.topic in (topics.COLOUR, topics.DEPTH):
+                image = reader.deserialize(raw, connection.msgtype)
+                shape = (
+                    (image.height, image.width, 3) if connection.topic == topics.COLOUR else (image.height, image.width)
+                )
+                dtype = np.uint8 if connection.topic == topics.COLOUR else np.float32
+                pixels = np.frombuffer(bytes(image.data), dtype).reshape(shape)
+                (colour if connection.topic == topics.COLOUR else depth)[t] = pixels
+    return [(colour[t], depth[t]) for t in sorted(colour) if t in depth]
+
+
+def _fault_bag(path: Path, frames: list, encoding: str, fault) -> Path:
+    """GOOD_FRAMES, FAULT_FRAMES with `fault` applied to the depth, GOOD_FRAMES: the run's frames
+    from its start (again from the start when it is shorter) at FPS, depth in `encoding`."""
+    messages = []
+    for i in range(2 * GOOD_FRAMES + FAULT_FRAMES):
+        rgb, depth = frames[i % len(frames)]
+        if fault is not None and GOOD_FRAMES <= i < GOOD_FRAMES + FAULT_FRAMES:
+            depth = fault(depth)
+        t = 1.0 + i / FPS
+        millimetres = depth * 1000.0 if encoding == "32FC1" else np.round(depth * 1000.0)
+        messages += [
+            (topics.COLOUR, t, image_message(rgb, t, "rgb8")),
+            (topics.DEPTH, t, depth_message(millimetres, t, encoding)),
+        ]
+    return write_bag(path, messages)
+
+
+def _bag_ns(i: int) -> int:
+    return round((1.0 + i / FPS) * 1e9)
+
+
+@pytest.fixture(scope="module")
+def faults(exported, episode_bag, tmp_path_factory) -> dict:
+    """The fault driver's record of one node run over a bag per fault, driving enabled."""
+    folder = tmp_path_factory.mktemp("ros2_faults")
+    frames = _frames_of(episode_bag)
+    spec = [
+        {
+            "bag": str(_fault_bag(folder / name, frames, encoding, fault)),
+            "bad_from_ns": _bag_ns(GOOD_FRAMES),
+            "good_from_ns": _bag_ns(GOOD_FRAMES + FAULT_FRAMES),
+            "clock_lead_ns": round(lead * 1e9),
+        }
+        for name, (encoding, fault, _, lead) in FAULTS.items()
+    ]
+    (folder / "spec.json").write_text(json.dumps(spec))
+    out = run_driver("ros2_fault_driver.py", folder / "spec.json", folder, exported[0])
+    assert out["enable_response"] == [True, "driving enabled"] and out["alive"], out["node_log"]
+    return out
+
+
+def _scenario(faults: dict, name: str, key: str) -> list:
+    index = list(FAULTS).index(name)
+    return [entry[1:] for entry in faults[key] if entry[0] == index]
+
+
+def _stopped_at(commands: list) -> int:
+    """Bag time (ns) of the first stop from the first bad frame on (each command is timed by the
+    newest frame published when it arrived: never earlier than the frame that gave it)."""
+    bad = _bag_ns(GOOD_FRAMES)
+    stops = [t for t, _, v, omega in commands if t >= bad and v == 0.0 and omega == 0.0]
+    assert stops, f"no stop after the first bad frame: {[c for c in commands if c[0] >= bad]}"
+    return stops[0]
+
+
+def stop_and_drive_again_s(commands: list) -> tuple[float, float]:
+    """Bag seconds from the first bad frame to the first stop after it, and from the first good
+    frame after the fault to the first command that moves."""
+    bad, good = _bag_ns(GOOD_FRAMES), _bag_ns(GOOD_FRAMES + FAULT_FRAMES)
+    before = [v for t, _, v, _ in commands if t < bad]
+    assert before and before[-1] > 0.0, f"the robot was not driving before the fault: {commands[:40]}"
+    stopped = _stopped_at(commands)
+    blind = [(t, v, omega) for t, _, v, omega in commands if stopped <= t < good and (v, omega) != (0.0, 0.0)]
+    assert not blind, f"commands that move while the fault holds: {blind}"
+    moving = [t for t, _, v, _ in commands if t >= good and v > 0.0]
+    assert moving, f"no command moves after the good frames return: {[c for c in commands if c[0] >= good]}"
+    return (stopped - bad) / 1e9, (moving[0] - good) / 1e9
+
+
+@pytest.mark.parametrize("name", list(FAULTS))
+def test_a_sensor_fault_stops_the_node_at_once_and_it_drives_again(faults, name) -> None:
+    stop_s, drive_s = stop_and_drive_again_s(_scenario(faults, name, "commands"))
+    assert stop_s <= STOP_WITHIN_S and drive_s <= DRIVE_AGAIN_WITHIN_S, (stop_s, drive_s)
+
+
+@pytest.mark.parametrize("name", list(FAULTS))
+def test_a_sensor_fault_is_one_log_line_naming_its_reason(faults, name) -> None:
+    reason = FAULTS[name][2]
+    lines = [msg for _, msg in _scenario(faults, name, "log") if msg.startswith("robot stopped, sensor fault")]
+    assert len(lines) == 1 and lines[0].startswith(f"robot stopped, sensor fault {reason}:"), lines
+    if reason == "clock_offset":  # how far off, and the parameter that fixes it
+        assert f"{CLOCK_LEAD_S:.3f} s behind" in lines[0] and "use_sim_time" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("name", list(FAULTS))
+def test_a_sensor_fault_is_named_on_diagnostics(faults, name) -> None:
+    """Every report (1 Hz) after the frame that stopped the robot and before the good frames names
+    the fault. (One sent as /clock jumped ahead, before the node took the frame of the other clock,
+    rightly says no frame came for 3 s.)"""
+    reason = FAULTS[name][2]
+    good = _bag_ns(GOOD_FRAMES + FAULT_FRAMES)
+    stopped = _stopped_at(_scenario(faults, name, "commands"))
+    during = [(message, values) for t, message, values in _scenario(faults, name, "diagnostics") if stopped < t < good]
+    assert during, "no /diagnostics while the fault held"
+    assert all(message.startswith(f"stopped: {reason}: ") for message, _ in during), during
+    assert all(values["sensor fault"] == reason for _, values in during), during
+
+
+def test_the_node_steps_each_frame_sensor_checks_included_in_under_0_1_s(faults) -> None:
+    """The runtime's work per frame (segmentation, the sensor checks, the command), as the node
+    times it: its slowest of the last 100 frames, read from /diagnostics at each report."""
+    slowest = [float(v["step time max ms"]) for _, _, _, v in faults["diagnostics"] if v["step time max ms"] != "-"]
+    assert slowest and max(slowest) < STEP_UNDER_MS, slowest
