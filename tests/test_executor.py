@@ -134,6 +134,15 @@ def test_an_unreachable_ray_address_is_one_line_naming_it(ray_must_not_start, tm
     assert not (tmp_path / "a").exists()
 
 
+def test_a_profile_s_unreachable_ray_address_names_its_config_key(ray_must_not_start) -> None:
+    from segmin.app.pipeline.config import load_pipeline_config
+
+    address = f"127.0.0.1:{_closed_loopback_port()}"
+    executor = load_pipeline_config("micro", ["executor=ray", f"ray_address={address}"]).fan_out()
+    with pytest.raises(ConnectionError, match=rf"^Ray cluster {address} \(ray_address\): cannot connect"):
+        executor.run([1], lambda: None, 1, lambda job, result: None, lambda job, error: None)
+
+
 def test_a_ray_address_that_never_answers_times_out_in_the_time_given(ray_must_not_start) -> None:
     with socket.socket() as server:  # a full accept queue: the kernel drops further connections unanswered
         server.bind(("127.0.0.1", 0))

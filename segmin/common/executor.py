@@ -41,6 +41,7 @@ class Executor:
 
     kind: str = "local"
     ray_address: str | None = None
+    address_source: str = "--ray-address"  # where the address came from, for the error that names it
 
     def __post_init__(self) -> None:
         if self.kind not in EXECUTORS:
@@ -64,7 +65,7 @@ class Executor:
         if self.kind == "local":
             run_in_processes(jobs, make_worker, processes, done, failed, start_method)
         else:
-            run_on_ray(jobs, make_worker, processes, done, failed, self.ray_address)
+            run_on_ray(jobs, make_worker, processes, done, failed, self.ray_address, self.address_source)
 
 
 LOCAL = Executor()
@@ -112,15 +113,18 @@ def _host_and_port(address: str) -> tuple[str, int] | None:
     return host.strip("[]"), int(port)
 
 
-def check_ray_address(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
-    """ConnectionError naming the address when nothing accepts a connection there within
-    `timeout_s` (`address`, else `RAY_ADDRESS`, as Ray reads them); before `ray.init`, which
-    would retry an unreachable cluster for minutes."""
+def check_ray_address(
+    address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S, source: str = "--ray-address"
+) -> None:
+    """ConnectionError naming the address and where it came from (`source`: the flag or config
+    key) when nothing accepts a connection there within `timeout_s` (`address`, else
+    `RAY_ADDRESS`, as Ray reads them); before `ray.init`, which would retry an unreachable cluster
+    for minutes."""
     given = address if address is not None else os.environ.get("RAY_ADDRESS")
     target = None if given is None else _host_and_port(given)
     if target is None:
         return
-    origin = "--ray-address" if address is not None else "RAY_ADDRESS"
+    origin = source if address is not None else "RAY_ADDRESS"
     try:
         with socket.create_connection(target, timeout=timeout_s):
             pass
@@ -136,14 +140,14 @@ def check_ray_address(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOU
     )
 
 
-def connect_ray(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> bool:
+def connect_ray(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S, source: str = "--ray-address") -> bool:
     """Connect this process to Ray unless it already is: `address`, else `RAY_ADDRESS` (Ray reads
     it), else a local instance. True when this call connected (so the caller disconnects). A
     cluster that does not answer within `timeout_s` is a ConnectionError naming its address."""
     ray = import_ray()
     if ray.is_initialized():
         return False
-    check_ray_address(address, timeout_s)
+    check_ray_address(address, timeout_s, source)
     ray.init(address=address, configure_logging=False, log_to_driver=True)
     return True
 
@@ -155,10 +159,11 @@ def run_on_ray(
     done: Callable[[J, R], None],
     failed: Callable[[J, str], R],
     address: str | None,
+    source: str = "--ray-address",
 ) -> None:
     """`run_in_processes` on Ray actors: each actor takes the next job as soon as it returns one."""
     ray = import_ray()
-    connected = connect_ray(address)
+    connected = connect_ray(address, source=source)
     host = ray.remote(num_cpus=1)(RayHost)
     pending = deque(jobs)
     started = [host.remote(make_worker) for _ in range(min(actors, len(pending)))]

@@ -288,7 +288,7 @@ class PipelineConfig:
 
     def fan_out(self) -> Executor:
         """The render and nav-eval stages' executor."""
-        return Executor(self.executor, self.ray_address)
+        return Executor(self.executor, self.ray_address, address_source="ray_address")
 
 
 def check_held_out(config: PipelineConfig) -> None:
