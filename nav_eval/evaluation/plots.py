@@ -65,14 +65,14 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
         if r.trajectory is None:
             continue
         colour = COLOURS.get(r.method, "k")
-        label = None if r.method in seen else f"{r.method}"
+        run_label = None if r.method in seen else f"{r.method}"  # one legend entry per method
         seen.add(r.method)
         width = 1.8 if r.run == 0 else 0.8
-        top.plot(r.trajectory.x, r.trajectory.y, color=colour, lw=width, label=label, zorder=4)
+        top.plot(r.trajectory.x, r.trajectory.y, color=colour, lw=width, label=run_label, zorder=4)
         if not r.success:
             top.plot(r.trajectory.x[-1], r.trajectory.y[-1], "x", color=colour, ms=9, mew=2, zorder=5)
         s, e, _ = project_onto_polyline(np.stack([r.trajectory.x, r.trajectory.y], 1), line)
-        lat.plot(s, e, color=colour, lw=width, label=label)
+        lat.plot(s, e, color=colour, lw=width, label=run_label)
     top.set_xlim(lo[0], hi[0])
     top.set_ylim(lo[1], hi[1])
     top.set_aspect("equal")
