@@ -14,6 +14,7 @@ chosen column, one frame per command.
 from __future__ import annotations
 
 import io
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,8 @@ from segmin.common.atomic import write_bytes
 from segmin.data.overlay import GREEN, tint_mask
 from segmin.nav_eval.replay.video import write_video  # noqa: F401  (kept importable from here)
 from segmin.nav_eval.sim.track import project_onto_polyline
+
+log = logging.getLogger(__name__)
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange", "segcorridor": "tab:green"}
 
@@ -129,7 +132,7 @@ def make_field_figures(out: Path, results: list[Any], fields: list[str], config:
         try:
             ctx = FieldContext(field, config)
         except Exception as exc:  # the field could not even be built: the rows already say so
-            print(f"nav-eval: no figures for {label}: {type(exc).__name__}: {exc}")
+            log.warning("nav-eval: no figures for %s: %s: %s", label, type(exc).__name__, exc)
             continue
         try:
             env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
@@ -140,7 +143,7 @@ def make_field_figures(out: Path, results: list[Any], fields: list[str], config:
             histogram_for_field(out / rel, label, ctx, env, config, segmenters, model)
             written.append(rel)
         except Exception as exc:  # a figure never sinks the evaluation
-            print(f"nav-eval: figures for {label} failed: {type(exc).__name__}: {exc}")
+            log.warning("nav-eval: figures for %s failed: %s: %s", label, type(exc).__name__, exc)
         finally:
             ctx.close()
     return written
