@@ -8,6 +8,7 @@ machine: a 2-core CPU, 224 x 224 input, 2 threads.
 
 from __future__ import annotations
 
+import functools
 import logging
 import tempfile
 import time
@@ -217,7 +218,7 @@ def _candidates(model, files: dict[str, Path], frame: np.ndarray, threads: int) 
     for name, path in files.items():
         session = make_session(path, threads=threads)
         feed = {session.get_inputs()[0].name: frame}
-        candidates[name] = lambda s=session, f=feed: s.run(None, f)
+        candidates[name] = functools.partial(session.run, None, feed)
     quiet = make_session(files[FP32], threads=threads, spin=False)
     candidates["onnxruntime fp32, no thread spinning"] = lambda: quiet.run(None, {quiet.get_inputs()[0].name: frame})
     return candidates

@@ -43,15 +43,11 @@ def register(commands, bench) -> None:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    import logging
-
     from segmin.common.outputs import check_output_file
 
     check_output_file(args.out, "--out")  # before the (slow) exporter imports
     from segmin.export.pipeline import ExportOptions, export_checkpoint
 
-    logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    logging.getLogger("segmin.export").setLevel(logging.INFO)  # our progress lines, not onnxscript's passes
     options = ExportOptions(
         checkpoint=args.checkpoint,
         out=args.out,

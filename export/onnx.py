@@ -41,6 +41,9 @@ DEFAULT_OPSET = {"dynamo": 18, "legacy": 17}
 class DeployWrapper(nn.Module):
     """uint8 RGB NHWC frames in, vegetation probability N x 1 x H x W out (float32)."""
 
+    scale: torch.Tensor  # buffers (registered below), declared so that their type is known
+    bias: torch.Tensor
+
     def __init__(self, model: nn.Module) -> None:
         super().__init__()
         self.model = model
@@ -193,7 +196,8 @@ def export_graph(
                 optimize=True,
                 verbose=False,
             )
-            program.save(str(path), external_data=False)
+            # torch types export()'s result for both exporters; the dynamo one always returns a program.
+            program.save(str(path), external_data=False)  # type: ignore[union-attr]
         else:
             torch.onnx.export(
                 wrapper,

@@ -132,7 +132,12 @@ def _measure_batchnorm_inputs(model: SegmentationNet, frames: np.ndarray, batch:
         mean = total / count
         var = (squares / count - mean * mean).clamp_min(0.0)
         scale = torch.sqrt(var + norm.eps)
-        norm.bias.copy_(norm.bias.double() + mean)  # the folded bias, plus the mean taken out
-        norm.weight.copy_(scale)
-        norm.running_mean.copy_(mean)
-        norm.running_var.copy_(var)
+        weight, bias, running_mean, running_var = norm.weight, norm.bias, norm.running_mean, norm.running_var
+        if weight is None or bias is None or running_mean is None or running_var is None:
+            raise ValueError(
+                f"{name}: a BatchNorm takes the measured statistics only with affine=True and track_running_stats=True"
+            )
+        bias.copy_(bias.double() + mean)  # the folded bias, plus the mean taken out
+        weight.copy_(scale)
+        running_mean.copy_(mean)
+        running_var.copy_(var)

@@ -60,7 +60,7 @@ def imagenet_weights_cached() -> bool:
     return imagenet_weights_path().is_file()
 
 
-def _lraspp(architecture: str) -> nn.Module:
+def _lraspp(architecture: str) -> LRASPP:
     """torchvision's LR-ASPP on the dilated MobileNetV3-Large, its high branch fed from the cut block.
 
     For the full network this is exactly what `lraspp_mobilenet_v3_large(num_classes=1)` builds

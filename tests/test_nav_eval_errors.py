@@ -157,7 +157,7 @@ def _driven(job):
     return RunResult(job.field, job.method, job.run, job.seed, "oracle", True, "goal", mae=0.01, trajectory=path)
 
 
-def test_a_nav_eval_killed_between_runs_resumes_with_its_finished_runs(tmp_path, capsys, monkeypatch):
+def test_a_nav_eval_killed_between_runs_resumes_with_its_finished_runs(tmp_path, capsys, caplog, monkeypatch):
     from segmin.nav_eval.evaluation import evaluate
 
     out = tmp_path / "out"
@@ -175,8 +175,9 @@ def test_a_nav_eval_killed_between_runs_resumes_with_its_finished_runs(tmp_path,
     assert ran == [0] and len(json.loads((out / "results.json").read_text())["rows"]) == 1
     monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: ran.append(job.run) or _driven(job))
     capsys.readouterr()
+    caplog.clear()
     assert main(command) == 0
-    assert ran == [0, 1, 2] and "resuming, 1 of 3 runs finished before, 2 to do" in capsys.readouterr().out
+    assert ran == [0, 1, 2] and "resuming, 1 of 3 runs finished before, 2 to do" in caplog.text
     assert [row["run"] for row in json.loads((out / "results.json").read_text())["rows"]] == [0, 1, 2]
     assert len(json.loads((out / "trajectories.json").read_text())) == 3  # the kept run's path too
     assert main(command) == 0 and ran == [0, 1, 2]  # finished: nothing to redo

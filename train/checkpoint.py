@@ -19,16 +19,17 @@ from segmin.models.checkpoint import model_info, read_checkpoint, save_checkpoin
 
 
 def rng_state() -> dict[str, Any]:
-    np_state = np.random.get_state()
+    # The dict form: numpy's stub types the default (legacy tuple) form as this dict.
+    np_state = np.random.get_state(legacy=False)
     py_state = random.getstate()
     return {
         "torch": torch.get_rng_state(),
         "cuda": list(torch.cuda.get_rng_state_all()) if torch.cuda.is_available() else [],
         "numpy": {
-            "keys": torch.from_numpy(np.asarray(np_state[1], dtype=np.int64)),
-            "pos": int(np_state[2]),
-            "has_gauss": int(np_state[3]),
-            "gauss": float(np_state[4]),
+            "keys": torch.from_numpy(np.asarray(np_state["state"]["key"], dtype=np.int64)),
+            "pos": int(np_state["state"]["pos"]),
+            "has_gauss": int(np_state["has_gauss"]),
+            "gauss": float(np_state["gauss"]),
         },
         "python": {
             "version": int(py_state[0]),

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from segmin.common.cli_args import CommandParser, add_overrides, overrides_of
+from segmin.common.console_log import show_progress
 
 
 def _add_train_arguments(parser: argparse.ArgumentParser) -> None:
@@ -111,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = CommandParser(prog="segmin.train.cli", description="segmin training (torchrun entry)")
     _add_train_arguments(parser)
     args = parser.parse_args(argv)
+    show_progress()
     return _train(args)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import torch
 import torch.distributed as dist
@@ -79,6 +80,14 @@ def all_reduce_sum(tensor: torch.Tensor) -> torch.Tensor:
     return tensor
 
 
+class SizedSampler(Protocol):
+    """A sampler that knows its length (torch's `Sampler` does not declare `__len__`)."""
+
+    def __iter__(self) -> Iterator[int]: ...
+
+    def __len__(self) -> int: ...
+
+
 class EpochSampler(Sampler):
     """Yields `(epoch, index)` so the dataset seeds each sample's augmentation from both.
 
@@ -86,7 +95,7 @@ class EpochSampler(Sampler):
     first indices of the epoch: `--resume` after an interrupt continues mid-epoch exactly.
     """
 
-    def __init__(self, base: Sampler, epoch: int = 0, skip: int = 0) -> None:
+    def __init__(self, base: SizedSampler, epoch: int = 0, skip: int = 0) -> None:
         self.base = base
         self.epoch = epoch
         self.skip = skip
@@ -102,7 +111,7 @@ class EpochSampler(Sampler):
                 yield (self.epoch, int(index))
 
     def __len__(self) -> int:
-        return max(0, len(self.base) - self.skip)  # type: ignore[arg-type]
+        return max(0, len(self.base) - self.skip)
 
 
 class ShardSampler(Sampler):

@@ -25,7 +25,6 @@ class StepGuard:
     def __init__(self) -> None:
         self._in_step = False
         self._pending = False
-        self._previous: object = None
         self._installed = False
 
     def __enter__(self) -> StepGuard:
@@ -33,13 +32,13 @@ class StepGuard:
             threading.current_thread() is threading.main_thread()
             and signal.getsignal(signal.SIGINT) is signal.default_int_handler
         ):
-            self._previous = signal.signal(signal.SIGINT, self._handle)
+            signal.signal(signal.SIGINT, self._handle)
             self._installed = True
         return self
 
     def __exit__(self, *exc: object) -> None:
         if self._installed:
-            signal.signal(signal.SIGINT, self._previous)  # type: ignore[arg-type]
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # the only handler __enter__ replaces
             self._installed = False
 
     def _handle(self, signum: int, frame: object) -> None:

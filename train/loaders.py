@@ -114,7 +114,7 @@ def build_loaders(config: TrainConfig, dist: DistInfo, train_frames: list[Frame]
         image_size=size,
         label_closing=closing,
     )
-    base = DistributedSampler(
+    base: DistributedSampler[int] = DistributedSampler(
         train_ds, num_replicas=dist.world_size, rank=dist.rank, shuffle=True, seed=config.seed, drop_last=False
     )
     sampler = EpochSampler(base)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
 import os
 import random
 import shutil
@@ -44,6 +45,9 @@ from segmin.train.loaders import Loaders, build_loaders, select_frames
 from segmin.train.logs import RunLogger
 from segmin.train.loop import StepContext, evaluate, train_one_epoch
 from segmin.train.state import TrainState, build_state, resume_state
+
+# Progress lines (resume, epochs, weight average, interruption): the command shows them.
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -177,7 +181,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
     if resume:
         resume_state(state, out_dir / "last.pt", dist, config.architecture)
         if dist.is_main:
-            print(f"resuming {out_dir / 'last.pt'}: epoch {state.epoch + 1}, step {state.step}")
+            log.info("resuming %s: epoch %d, step %d", out_dir / "last.pt", state.epoch + 1, state.step)
     logger = _open_run_folder(config, out_dir, train_frames, val_frames) if dist.is_main else None
     run = Run(
         config,
@@ -337,11 +341,10 @@ def _save_epoch(
     run.logger.epoch(state.history)
     run.logger.preview(state.epoch, samples, run.config.threshold)
     row = state.history[-1]
-    print(
+    log.info(
         f"epoch {state.epoch}/{run.config.epochs}: train loss {row['train_loss']:.4f}  val loss "
         f"{row['val_loss']:.4f}  IoU {row['val_iou']:.4f}  acc {row['val_pixel_acc']:.4f}  "
-        f"({row['seconds']:.0f} s){'  *best*' if improved else ''}",
-        flush=True,
+        f"({row['seconds']:.0f} s){'  *best*' if improved else ''}"
     )
 
 
@@ -361,9 +364,11 @@ def save_last(run: Run, state: TrainState) -> None:
 def _save_interrupted(run: Run, state: TrainState) -> None:
     """Rank 0, on Ctrl-C (always at a step boundary, see train.interrupt): last.pt, and how to go on."""
     save_last(run, state)
-    print(
-        f"\ninterrupted: saved {run.last_path} (epoch {state.epoch + 1}, step {state.step}); continue with --resume",
-        flush=True,
+    log.warning(
+        "\ninterrupted: saved %s (epoch %d, step %d); continue with --resume",
+        run.last_path,
+        state.epoch + 1,
+        state.step,
     )
 
 
@@ -391,11 +396,10 @@ def finish_weight_average(run: Run, averaged: AveragedModel) -> Path:
         write_training_checkpoint(
             path, model=averaged.module, info=run.info, epoch=run.config.epochs, metrics=metrics, config=run.config_dict
         )
-        print(
+        log.info(
             f"swa: average of epochs {run.config.swa_start_epoch}-{run.config.epochs} "
             f"({int(averaged.n_averaged)} epochs): val loss {val['loss']:.4f}  IoU {val['iou']:.4f}  "
-            f"acc {val['pixel_acc']:.4f}  -> {path}",
-            flush=True,
+            f"acc {val['pixel_acc']:.4f}  -> {path}"
         )
     barrier()
     return path

@@ -173,8 +173,8 @@ def backdrop_meshes(spec, layout, terrain, rng: np.random.Generator, textures) -
         centre = 0.5 * (lo + hi)
         radius = 0.5 * float(np.linalg.norm(hi - lo)) + rng.uniform(12.0, 20.0)
         green = rng.uniform(0.35, 0.6)
-        tint = (green * 0.8, green, green * rng.uniform(0.8, 1.1), 1.0)
-        parts.append(("backdrop", hills_mesh(rng, centre, radius, terrain), textures.ground[0], tint))
+        hill_tint = (green * 0.8, green, green * rng.uniform(0.8, 1.1), 1.0)
+        parts.append(("backdrop", hills_mesh(rng, centre, radius, terrain), textures.ground[0], hill_tint))
     return parts
 
 

@@ -140,7 +140,8 @@ def open_context():
     import moderngl  # the [sim] extra; a missing one is named by the command line
 
     try:
-        ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+        # moderngl's stub types each `**settings` value as a dict; the backend name is a string.
+        ctx = moderngl.create_context(standalone=True, backend="egl", require=330)  # type: ignore[arg-type]
     except Exception as err:  # moderngl raises plain Exceptions for a missing library or display
         raise OSError(
             "render.backend=gl found no headless OpenGL 3.3 through EGL (install Mesa's libegl1 and "
@@ -284,7 +285,7 @@ class GlRasteriser:
         """Planar depth and body ids as `shoot` gives them, without colour (module docstring)."""
         fbo = self._begin(self.ids_program, camera, pose, colour=False)
         ordered = self._front_to_back(pose, bodies)
-        if self.multi_draw and ordered:
+        if self.multi_draw and self.command_buffer is not None and ordered:
             commands = self.commands[: len(ordered)]
             commands[:, [2, 0]] = [self.ranges[b] for b in ordered]
             self.command_buffer.write(commands.tobytes())

@@ -362,11 +362,12 @@ class Renderer:
         if below.any():  # distant ground beyond the tiles, fading into haze at the horizon
             haze = np.clip(-elev[below] * 12, 0, 1)[:, None]
             sky[below] = horizon * (1 - haze) + self.far_ground * haze
-        if look["overcast"]:  # soft large-scale structure of a cloud deck
+        # Clouds are drawn per frame; a look without rng (`_fixed_look`) has none.
+        if rng is not None and look["overcast"]:  # soft large-scale structure of a cloud deck
             h, w = elev.shape
             deck = cv2.resize(rng.uniform(-1, 1, size=(3, 4)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
             sky[~below] *= (1 + 0.05 * deck[~below])[:, None]
-        if cover > 0:
+        if rng is not None and cover > 0:
             h, w = elev.shape
             small = rng.uniform(0, 1, size=(5, 7)).astype(np.float32)
             fine = rng.uniform(0, 1, size=(14, 14)).astype(np.float32)

@@ -34,7 +34,8 @@ class Terrain:
 
     def __init__(self, spec: WorldSpec, rng: np.random.Generator, n_waves: int = 6) -> None:
         ts = spec.terrain
-        lam = rng.uniform(*ts.wavelength, size=n_waves)
+        shortest, longest = ts.wavelength
+        lam = rng.uniform(shortest, longest, size=n_waves)
         theta = rng.uniform(0, 2 * np.pi, size=n_waves)
         self.k = np.stack([np.cos(theta), np.sin(theta)], axis=1) * (2 * np.pi / lam)[:, None]
         self.phase = rng.uniform(0, 2 * np.pi, size=n_waves)
@@ -198,7 +199,9 @@ def _body(client: int, mesh: Mesh, rgba=(1, 1, 1, 1), texture: int = -1) -> int:
     return body
 
 
-def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1, 1, 1)) -> Chunk:
+def _chunk(
+    client: int, levels: list[Mesh], kind: str, texture: int, rgba: tuple[float, float, float, float] = (1, 1, 1, 1)
+) -> Chunk:
     levels = [m for m in levels if m.n_triangles]
     centre, radius = levels[0].bounding_sphere()
     bodies = [_body(client, m, rgba, texture) for m in levels]
@@ -210,7 +213,7 @@ def _chunk(client: int, levels: list[Mesh], kind: str, texture: int, rgba=(1, 1,
         texture=texture,
         triangles=[m.n_triangles for m in levels],
         capsule=levels[0].bounding_capsule(),
-        tint=tuple(float(v) for v in rgba),
+        tint=(float(rgba[0]), float(rgba[1]), float(rgba[2]), float(rgba[3])),
         meshes=levels,
     )
 
@@ -346,11 +349,13 @@ def _wire_stations(s0: float, s1: float, step: float = 1.0) -> np.ndarray:
     return np.linspace(s0, s1, max(2, int(np.ceil((s1 - s0) / step)) + 1))
 
 
-def _structures(spec, layout, terrain, rng, client, textures, chunks, n_chunks, tris) -> list:
+def _structures(
+    spec, layout, terrain, rng, client, textures, chunks, n_chunks, tris
+) -> list[tuple[float, float, float]]:
     """Poles and wires (vineyards), posts, beams and wires (pergola): obstacles, not vegetation."""
     st, rs = spec.structures, spec.rows
     chunk_len = spec.render.chunk_length
-    obstacles = []
+    obstacles: list[tuple[float, float, float]] = []  # (x, y, radius) of each pole or post
     parts: dict[int, list[Mesh]] = {}
     if not (st.poles or st.pergola):
         return obstacles

@@ -57,7 +57,8 @@ class FramePlan:
     robot_pose: tuple[float, float, float]
     pose_offset: tuple[float, float, float, float]  # lateral, yaw, pitch, roll
     block: int  # appearance block
-    capture: tuple[float, float, float] | None = None  # hfov_deg, mount_height, tilt_deg; None = job camera
+    # hfov_deg, mount_height, tilt_deg; None = job camera, a None entry keeps the job camera's value
+    capture: tuple[float | None, float | None, float | None] | None = None
 
 
 @dataclass
@@ -149,9 +150,10 @@ def plan_frame(world, job_seed: int, frame: int, appearance_every: int) -> Frame
     cs = spec.capture
     if any(lo != hi for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg)):
         # Drawn after the pose, so worlds without camera variety keep their poses.
-        capture = tuple(
+        hfov, height, tilt = (
             float(rng.uniform(lo, hi)) if lo != hi else None for lo, hi in (cs.hfov_deg, cs.mount_height, cs.tilt_deg)
         )
+        capture = (hfov, height, tilt)
     return FramePlan(
         frame=frame,
         gap=gap,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -45,19 +46,22 @@ def time_env(
 
     import segmin.envs
 
-    options = {
+    options: dict[str, Any] = {  # the env's keyword arguments
         "field": field,
         "obs_keys": tuple(obs_keys),
         "size": size,
         "overrides": [f"render.backend={backend}"],
     }
+    env: gymnasium.Env | gymnasium.vector.VectorEnv
     if mode == "single":
         env = gymnasium.make(segmin.envs.ROW_FOLLOW, **options)
         action = np.array([0.4, 0.0])
     else:
         # Async workers spawn: a forked worker of a process that already rendered with gl cannot render.
-        spawn = {"vector_kwargs": {"context": "spawn"}} if mode == "async" else {}
-        env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **spawn, **options)
+        spawn = {"context": "spawn"} if mode == "async" else None
+        env = gymnasium.make_vec(
+            segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, vector_kwargs=spawn, **options
+        )
         action = np.tile([0.4, 0.0], (num_envs, 1))
     try:
         env.reset(seed=0)

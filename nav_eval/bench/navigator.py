@@ -40,7 +40,9 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
     # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
     # the check removes nothing here).
-    rgb = np.where(mask[..., None], np.uint8([60, 140, 50]), np.uint8([90, 60, 40])).astype(np.uint8)
+    rgb = np.where(mask[..., None], np.array([60, 140, 50], np.uint8), np.array([90, 60, 40], np.uint8)).astype(
+        np.uint8
+    )
     canopy = [(mask, depth, None, rgb)]
     rolled = [(*frame, (0.05, 0.0)) for frame in frames]  # 3 degrees: a cross slope
     runs: list[tuple[str, str, list, str, dict[str, Any]]] = [

@@ -17,6 +17,7 @@ import contextlib
 import dataclasses
 import functools
 import json
+import logging
 import math
 import os
 import time
@@ -49,6 +50,8 @@ from segmin.nav_eval.sim.mask_closing import with_closing
 from segmin.nav_eval.sim.mask_dropout import with_dropout
 from segmin.nav_eval.sim.protocols import FrameSegmenter
 from segmin.nav_eval.sim.track import Trajectory
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -420,7 +423,7 @@ def run_evaluation(
     todo = [job for job in jobs if keys.get(id(job)) not in finished]
     _check_bag_paths(todo)
     if finished:
-        print(f"{out}: resuming, {len(finished)} of {len(jobs)} runs finished before, {len(todo)} to do")
+        log.info("%s: resuming, %d of %d runs finished before, %d to do", out, len(finished), len(jobs), len(todo))
     results: list[RunResult] = list(finished.values())
 
     def done(job: Job, result: RunResult) -> None:

@@ -14,6 +14,7 @@ chosen column, one frame per command.
 from __future__ import annotations
 
 import io
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,8 @@ from segmin.common.atomic import write_bytes
 from segmin.data.overlay import GREEN, tint_mask
 from segmin.nav_eval.replay.video import write_video  # noqa: F401  (kept importable from here)
 from segmin.nav_eval.sim.track import project_onto_polyline
+
+log = logging.getLogger(__name__)
 
 COLOURS = {"segmin": "tab:red", "segmind": "tab:blue", "segzeros": "tab:orange", "segcorridor": "tab:green"}
 
@@ -65,14 +68,14 @@ def trajectory_figure(path: Path, field: str, env: Any, results: list[Any]) -> N
         if r.trajectory is None:
             continue
         colour = COLOURS.get(r.method, "k")
-        label = None if r.method in seen else f"{r.method}"
+        run_label = None if r.method in seen else f"{r.method}"  # one legend entry per method
         seen.add(r.method)
         width = 1.8 if r.run == 0 else 0.8
-        top.plot(r.trajectory.x, r.trajectory.y, color=colour, lw=width, label=label, zorder=4)
+        top.plot(r.trajectory.x, r.trajectory.y, color=colour, lw=width, label=run_label, zorder=4)
         if not r.success:
             top.plot(r.trajectory.x[-1], r.trajectory.y[-1], "x", color=colour, ms=9, mew=2, zorder=5)
         s, e, _ = project_onto_polyline(np.stack([r.trajectory.x, r.trajectory.y], 1), line)
-        lat.plot(s, e, color=colour, lw=width, label=label)
+        lat.plot(s, e, color=colour, lw=width, label=run_label)
     top.set_xlim(lo[0], hi[0])
     top.set_ylim(lo[1], hi[1])
     top.set_aspect("equal")
@@ -129,7 +132,7 @@ def make_field_figures(out: Path, results: list[Any], fields: list[str], config:
         try:
             ctx = FieldContext(field, config)
         except Exception as exc:  # the field could not even be built: the rows already say so
-            print(f"nav-eval: no figures for {label}: {type(exc).__name__}: {exc}")
+            log.warning("nav-eval: no figures for %s: %s: %s", label, type(exc).__name__, exc)
             continue
         try:
             env = RowEnv(ctx.world, ctx.renderer, config, gap=ctx.gap)
@@ -140,7 +143,7 @@ def make_field_figures(out: Path, results: list[Any], fields: list[str], config:
             histogram_for_field(out / rel, label, ctx, env, config, segmenters, model)
             written.append(rel)
         except Exception as exc:  # a figure never sinks the evaluation
-            print(f"nav-eval: figures for {label} failed: {type(exc).__name__}: {exc}")
+            log.warning("nav-eval: figures for %s failed: %s: %s", label, type(exc).__name__, exc)
         finally:
             ctx.close()
     return written

@@ -205,7 +205,8 @@ class FollowerCore:
                 return self._step(rgb, None, t, message.header.stamp, now)
             pairs = self.pairer.add_colour(t, (rgb, message.header.stamp))
         except (ImageMessageError, StampOrderError) as exc:
-            return self._reject(f"{topic}: {exc}" if isinstance(exc, StampOrderError) else str(exc), now)
+            self._reject(f"{topic}: {exc}" if isinstance(exc, StampOrderError) else str(exc), now)
+            return None
         return self._run_pairs(pairs, now)
 
     def on_depth(self, message: Any, now: float) -> FollowerOutput | None:
@@ -214,7 +215,8 @@ class FollowerCore:
         try:
             pairs = self.pairer.add_depth(stamp_seconds(message), decode_depth(message, topic)[0])
         except (ImageMessageError, StampOrderError) as exc:
-            return self._reject(f"{topic}: {exc}" if isinstance(exc, StampOrderError) else str(exc), now)
+            self._reject(f"{topic}: {exc}" if isinstance(exc, StampOrderError) else str(exc), now)
+            return None
         return self._run_pairs(pairs, now)
 
     def _run_pairs(self, pairs: list, now: float) -> FollowerOutput | None:
@@ -239,14 +241,16 @@ class FollowerCore:
     ) -> FollowerOutput | None:
         mismatch = self._camera_mismatch(rgb.shape)
         if mismatch is not None or self.follower is None:
-            return self._reject(mismatch or "no runtime", now)
+            self._reject(mismatch or "no runtime", now)
+            return None
         uses_attitude = self.follower.navigator.inputs.attitude
         attitude = self._frame_attitude(t, now) if uses_attitude else None
         start = self._wall()
         try:
             output = self.follower.step(rgb, depth, t, attitude=attitude, now=now)
         except ValueError as exc:
-            return self._reject(f"{self.params.node.colour_topic}: {exc}", now)
+            self._reject(f"{self.params.node.colour_topic}: {exc}", now)
+            return None
         if self._note_sensor_fault(self.follower.sensor_fault, now) and not output.fresh:
             self._send_stop(output.stopped, now)  # found between commands (an image, the clock): at once
         took = self._wall() - start

@@ -118,10 +118,14 @@ def _checkpoint_predictor(path: Path, size: int | None) -> Predictor:
     except ValueError as exc:  # torch's unpickler explains itself over several lines: keep the first
         first = str(exc).splitlines()[0].rstrip()
         raise ValueError(first + (" ...)" if first.count("(") > first.count(")") else "")) from exc
-    input_size = (int(size), int(size)) if size is not None else tuple(int(v) for v in info["input_size"])
+    if size is not None:
+        input_size = (int(size), int(size))
+    else:  # load_model checked it is [height, width]
+        height, width = (int(v) for v in info["input_size"])
+        input_size = (height, width)
     reference = torch_reference(DeployWrapper(model).eval())
 
     def probabilities(batch: np.ndarray) -> np.ndarray:
         return reference(batch)[0, 0]
 
-    return Predictor(path, "checkpoint", input_size, float(info.get("threshold", 0.5)), probabilities)  # type: ignore[arg-type]
+    return Predictor(path, "checkpoint", input_size, float(info.get("threshold", 0.5)), probabilities)

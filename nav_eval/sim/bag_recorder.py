@@ -87,7 +87,8 @@ def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
     else:
         s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
         q = ((r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s)
-    return tuple(float(v) for v in q)  # type: ignore[return-value]
+    x, y, z, w = q
+    return float(x), float(y), float(z), float(w)
 
 
 def _yaw_matrix(yaw: float) -> np.ndarray:

@@ -98,7 +98,9 @@ def check_size(size: int | Sequence[int]) -> tuple[int, int]:
 class RowFollowEnv(gymnasium.Env):
     """A robot in one row gap of a field (shipped name or world spec YAML)."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+    # gymnasium.make reads it from the class, but gymnasium's Env annotates it per instance (its
+    # wrappers turn it into a property).
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}  # type: ignore[misc]
 
     def __init__(
         self,
@@ -125,35 +127,37 @@ class RowFollowEnv(gymnasium.Env):
             from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
             self.segmenter = OnnxSegmenter(model)
-        if not isinstance(config, NavEvalConfig):
-            config = load_nav_config(config, list(overrides))
-        elif overrides:
-            raise ValueError("overrides apply to a config name or path, not to a NavEvalConfig")
+        if isinstance(config, NavEvalConfig):
+            if overrides:
+                raise ValueError("overrides apply to a config name or path, not to a NavEvalConfig")
+            nav_config = config
+        else:
+            nav_config = load_nav_config(config, list(overrides))
         if size is not None:
             if world is not None:
                 raise ValueError("size sets a field's camera; a given renderer keeps its own")
             height, width = check_size(size)
-            config = dataclasses.replace(
-                config, perception=dataclasses.replace(config.perception, width=width, height=height)
+            nav_config = dataclasses.replace(
+                nav_config, perception=dataclasses.replace(nav_config.perception, width=width, height=height)
             )
-        self.config = config
+        self.config = nav_config
         self._context = None
         if world is None:
             if field is None:
                 raise ValueError("give a field (name or world spec YAML) or a world and a renderer")
             from segmin.nav_eval.sim.factories import FieldContext
 
-            self._context = FieldContext(field, config)
+            self._context = FieldContext(field, nav_config)
             world, renderer = self._context.world, self._context.renderer
             gap = self._context.gap if gap is None else gap
         elif renderer is None:
             raise ValueError("a world needs its renderer")
         self.field = field
-        self.simulator = RowEnv(world, renderer, config, gap=gap)
-        self.depth_threshold = config.depth_threshold(world.spec.name, world.spec.family)
+        self.simulator = RowEnv(world, renderer, nav_config, gap=gap)
+        self.depth_threshold = nav_config.depth_threshold(world.spec.name, world.spec.family)
         self._closed = False
         height, width = self.simulator.camera_size
-        robot = config.robot
+        robot = nav_config.robot
         every: dict[str, spaces.Space] = {
             "rgb": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
             "depth": spaces.Box(0.0, np.inf, (height, width), dtype=np.float32),

@@ -18,6 +18,7 @@ import traceback
 from segmin import __version__
 from segmin.common.cli_args import CommandParser
 from segmin.common.config import ConfigError
+from segmin.common.console_log import show_progress
 from segmin.common.extras import missing_extra_message
 
 # Packages that contribute commands, in the order of the data flow.
@@ -61,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Parse arguments and run the chosen subcommand; user errors print one line and return 2."""
     args = build_parser().parse_args(argv)
+    show_progress()
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
