@@ -43,10 +43,11 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
     # The training stages that made the model, first to last (records from before fine-tuning
     # stages existed name none: the family's one training stage).
     keys = list(export.get("train_stages", [f"train/{family}"])) if export is not None else [f"train/{family}"]
-    chain = [_finished(cache, key) for key in keys]
-    train = chain[-1]
-    if train is None or export is None or None in chain:
+    found = [_finished(cache, key) for key in keys]
+    chain = [outputs for outputs in found if outputs is not None]
+    if export is None or len(chain) < len(keys):
         raise ValueError(f"{run_dir}: no finished {keys[-1]} and export/{family} stages (run `segmin pipeline`)")
+    train = chain[-1]
     onnx = _in_run(run_dir, f"export/{family}", export["onnx"])
     worlds = ((_finished(cache, "render") or {}).get("worlds") or {}).get(family, [])
     return {

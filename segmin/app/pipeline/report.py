@@ -295,14 +295,14 @@ def _real_photos(
     if not config.real_eval.enabled:
         return [*lines, "Disabled in this profile (`real_eval.enabled: false`).", ""]
     records = {f: cache.record(f"real-eval/{f}") for f in families}
-    records = {f: r for f, r in records.items() if r is not None and r.outputs}
-    if not records:
+    results = {f: r.outputs for f, r in records.items() if r is not None and r.outputs}
+    if not results:
         return [*lines, "(no results)", ""]
-    data = next(iter(records.values())).outputs["data"]
+    first = next(iter(results.values()))
     shipped = config.real_eval.data is None
     lines += [
-        f"Every exported model segments the labelled photos in `{data}` "
-        f"({next(iter(records.values())).outputs['images']} images"
+        f"Every exported model segments the labelled photos in `{first['data']}` "
+        f"({first['images']} images"
         + (
             ", the shipped real vineyard rows: Aghi et al. 2021, doi:10.5281/zenodo.4601472, CC BY 4.0"
             if shipped
@@ -314,8 +314,7 @@ def _real_photos(
         "| family | synthetic val IoU | real mean IoU | real pooled IoU | precision | recall | pixel acc |",
         "|---|---|---|---|---|---|---|",
     ]
-    for family, record in records.items():
-        o = record.outputs
+    for family, o in results.items():
         train = cache.record(config.training_chain(family)[-1].key)
         val_iou = kept_val_iou(train.outputs) if train and train.outputs else None
         lines.append(
@@ -330,7 +329,7 @@ def _real_photos(
             f"| {family}: shipped model | {format_figure(cards[family].get('synthetic_val_iou'))} | {format_figure(real['mean_iou'])} | "
             f"{format_figure(real['pooled_iou'])} | {format_figure(real['precision'])} | {format_figure(real['recall'])} | n/a |"
         )
-    lines += ["", *_steering_table(records)]
+    lines += ["", *_steering_table(results)]
     if shipped_rows:
         lines += [
             "Rows marked *shipped model*: the models segmin ships under the family's name (`segmin models list`), "
@@ -348,14 +347,13 @@ def _real_photos(
         "Contact sheets: photo | prediction (green: crop found, red: false crop, blue: missed crop) | ground truth.",
         "",
     ]
-    for family, record in records.items():
-        sheet = record.outputs.get("contact_sheet")
-        if sheet:
+    for family, o in results.items():
+        if o.get("contact_sheet"):
             lines += [f"![real photos, {family} model](real-eval/{family}/contact_sheet.png)", ""]
     return lines
 
 
-def _steering_table(records: dict[str, Any]) -> list[str]:
+def _steering_table(results: dict[str, dict[str, Any]]) -> list[str]:
     """Where each model's masks would steer on the photos against the truth's (eval-seg's steering figures)."""
     lines = [
         "Steering on the same photos: the SegMin target (no depth, 224 px of width) of each model mask against the "
@@ -366,8 +364,7 @@ def _steering_table(records: dict[str, Any]) -> list[str]:
         "| family | target error median (px) | mean (px) | worst (px) | outside the corridor | at the image edge | uniform frames painted |",
         "|---|---|---|---|---|---|---|",
     ]
-    for family, record in records.items():
-        o = record.outputs
+    for family, o in results.items():
         if "target_error_median_px" not in o:
             continue  # a stage cached before the steering figures existed
         blank = o.get("blank_frames_worst")

@@ -20,6 +20,7 @@ The log says why.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -113,16 +114,17 @@ class PipelineRunner:
         for family, chain in chains.items():
             final = chain[-1].key
             export_hash = hash_inputs("export", upstream[final], to_dict(config.export))
+
             exported = self._stage(
                 "export",
                 f"export/{family}",
                 export_hash,
-                lambda folder, fresh, ckpt=trained_all[family]["checkpoint"], fam=family, keys=[s.key for s in chain]: {
-                    **stages.export_stage(
-                        config, Path(ckpt), folder / f"{fam}.onnx", self.cache.folder("render") / "val", self.log
-                    ),
-                    "train_stages": keys,  # the chain that made the model, for its card
-                },
+                functools.partial(
+                    self._export_stage,
+                    checkpoint=trained_all[family]["checkpoint"],
+                    family=family,
+                    keys=[s.key for s in chain],
+                ),
                 reads=("render", final),  # the checkpoint, its training frames, the val frames
             )
             models[family] = (exported["onnx"], export_hash)
@@ -181,9 +183,29 @@ class PipelineRunner:
                 "real-eval",
                 key,
                 upstream[key],
-                lambda folder, fresh, m=onnx_path: stages.real_eval_stage(config, Path(m), folder, self.log),
+                functools.partial(self._real_eval_stage, model=onnx_path),
                 reads=(f"export/{family}",),
             )
+
+    # The stages' bodies, as the cache calls them: (folder, fresh) first, the rest bound by partial.
+
+    def _train_stage(self, folder: Path, fresh: bool, *, train_config: Any) -> dict[str, Any]:
+        return stages.train_stage(train_config, folder, resume=_resumable(folder, fresh), log=self.log)
+
+    def _export_stage(
+        self, folder: Path, fresh: bool, *, checkpoint: str, family: str, keys: list[str]
+    ) -> dict[str, Any]:
+        val_frames = self.cache.folder("render") / "val"
+        return {
+            **stages.export_stage(self.config, Path(checkpoint), folder / f"{family}.onnx", val_frames, self.log),
+            "train_stages": keys,  # the chain that made the model, for its card
+        }
+
+    def _real_eval_stage(self, folder: Path, fresh: bool, *, model: str) -> dict[str, Any]:
+        return stages.real_eval_stage(self.config, Path(model), folder, self.log)
+
+    def _nav_stage(self, folder: Path, fresh: bool, *, model: str, fields: list[str]) -> dict[str, Any]:
+        return stages.nav_stage(self.config, model, fields, folder, self.log)
 
     def _nav_eval(self, models: dict[str, tuple[str, str]], nav_config: Any, upstream: dict[str, str]) -> None:
         """Drive each family's fields with its exported model, then every field with the oracle."""
@@ -198,7 +220,7 @@ class PipelineRunner:
                 "nav-eval",
                 key,
                 upstream[key],
-                lambda folder, fresh, m=onnx_path, f=plan.fields: stages.nav_stage(config, m, f, folder, self.log),
+                functools.partial(self._nav_stage, model=onnx_path, fields=plan.fields),
                 reads=(f"export/{family}",),
             )
         if config.nav.oracle:
@@ -342,9 +364,7 @@ class PipelineRunner:
                     "train",
                     key,
                     train_hash,
-                    lambda folder, fresh, tc=train_config: stages.train_stage(
-                        tc, folder, resume=_resumable(folder, fresh), log=self.log
-                    ),
+                    functools.partial(self._train_stage, train_config=train_config),
                     reads=reads[family],
                 )
                 continue

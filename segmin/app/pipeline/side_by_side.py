@@ -54,7 +54,7 @@ def train_side_by_side(todo: dict[str, tuple[Any, Path, bool]], log: Callable[[s
             return _wait_for_outcomes(results, processes, todo, bar)
         except KeyboardInterrupt:
             for process in processes.values():
-                if process.is_alive():
+                if process.is_alive() and process.pid is not None:  # alive: started, so it has a pid
                     os.kill(process.pid, signal.SIGINT)
             raise
         finally:

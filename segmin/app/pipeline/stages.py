@@ -312,12 +312,15 @@ def train_stage_logged(train_config, folder: Path, resume: bool) -> dict[str, An
     included, goes to `folder/train.log` instead of a terminal the processes would share."""
     import contextlib
 
+    from segmin.common.console_log import show_progress
+
     make_dirs(folder)
     with (
         open(folder / "train.log", "a" if resume else "w", buffering=1) as handle,
         contextlib.redirect_stdout(handle),
         contextlib.redirect_stderr(handle),
     ):
+        show_progress()  # a process of its own: training's progress lines go to the log as in a command
         return train_stage(train_config, folder, resume=resume, log=print)
 
 
@@ -364,7 +367,7 @@ def export_stage(config: PipelineConfig, checkpoint: Path, out: Path, val_root: 
     return {"onnx": str(out), "verification": verification, "latency_ms": latency, "input_size": report["input_size"]}
 
 
-def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2) -> dict[str, float]:
+def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2) -> dict[str, Any]:
     """Median and p95 of one `OnnxSegmenter.segment` call on rendered validation frames."""
     from segmin.common.timing import time_calls
     from segmin.data.readers import read_image
