@@ -5,6 +5,8 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import logging
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -542,11 +544,25 @@ def release_run(tmp_path_factory: pytest.TempPathFactory) -> ReleaseRun:
             raise KeyboardInterrupt
         epoch(run, state)
 
+    @contextlib.contextmanager
+    def printed_and_logged(buffer: io.StringIO) -> Iterator[None]:
+        """What the command prints and what segmin logs (training's progress lines), as a user sees both."""
+        logger, handler = logging.getLogger("segmin"), logging.StreamHandler(buffer)
+        level = logger.level
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        try:
+            with contextlib.redirect_stdout(buffer):
+                yield
+        finally:
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+
     first, second = io.StringIO(), io.StringIO()
-    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(first):
+    with pytest.MonkeyPatch.context() as patch, printed_and_logged(first):
         patch.setattr(train_run, "train_epoch", killed_in_the_second_epoch)
         assert main(argv) == 130
-    with contextlib.redirect_stdout(second):
+    with printed_and_logged(second):
         code = main(argv)
     return ReleaseRun(out, first.getvalue(), second.getvalue(), code)
 
