@@ -1,4 +1,4 @@
-"""`segmin bench gym`: steps per second of `segmin/RowFollow-v0`, alone and under
+"""`python -m benchmarks gym`: steps per second of `segmin/RowFollow-v0`, alone and under
 `gymnasium.make_vec` (sync and async, 1 and 2 envs), per observation option and render backend.
 
 A step of a vector of N envs is N env steps: the figure is env steps per wall second. Every
@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -45,18 +46,19 @@ def time_env(
 
     import segmin.envs
 
-    options = {
+    options: dict[str, Any] = {
         "field": field,
         "obs_keys": tuple(obs_keys),
         "size": size,
         "overrides": [f"render.backend={backend}"],
     }
+    env: Any  # one env or a vector of them: both reset and step alike here
     if mode == "single":
         env = gymnasium.make(segmin.envs.ROW_FOLLOW, **options)
         action = np.array([0.4, 0.0])
     else:
         # Async workers spawn: a forked worker of a process that already rendered with gl cannot render.
-        spawn = {"vector_kwargs": {"context": "spawn"}} if mode == "async" else {}
+        spawn: dict[str, Any] = {"vector_kwargs": {"context": "spawn"}} if mode == "async" else {}
         env = gymnasium.make_vec(segmin.envs.ROW_FOLLOW, num_envs=num_envs, vectorization_mode=mode, **spawn, **options)
         action = np.tile([0.4, 0.0], (num_envs, 1))
     try:
