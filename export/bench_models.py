@@ -15,15 +15,20 @@ from a big network.
 
 from __future__ import annotations
 
+import functools
 import os
 import tempfile
 from collections import Counter
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from segmin.common.machine import load_average_1min
 from segmin.common.speed_targets import SpeedTarget, verdict_lines, verdicts
+from segmin.common.timing import time_calls
 from segmin.models.architectures import ARCHITECTURE, ARCHITECTURES, check_architecture
 
 # The chosen release network (configs/pipeline/release.yaml) against the paper model's 3.0-3.3 ms
@@ -60,11 +65,28 @@ class ModelSpeedOptions:
             raise ValueError(f"--threads {self.threads} / --runs {self.runs}: need threads >= 1 and runs >= 8")
 
 
+def interleaved(
+    candidates: Mapping[str, Callable[[], object]], runs: int, rounds: int = 8
+) -> dict[str, dict[str, float]]:
+    """Median / p95 milliseconds of each callable, measured in alternating rounds."""
+    samples: dict[str, list[float]] = {name: [] for name in candidates}
+    per_round = max(1, runs // rounds)
+    for _ in range(rounds):
+        for name, call in candidates.items():
+            samples[name].extend(time_calls(call, runs=per_round, warmup=min(3, per_round)) * 1e3)
+    return {
+        name: {
+            "median_ms": float(np.median(s)),
+            "p95_ms": float(np.percentile(s, 95)),
+            "min_ms": float(np.min(s)),
+            "runs": len(s),
+        }
+        for name, s in samples.items()
+    }
+
+
 def run_model_speed(options: ModelSpeedOptions) -> dict[str, Any]:
     """Export, inspect and time every architecture x size; print the table and the targets."""
-    import numpy as np
-
-    from segmin.export.bench import interleaved
     from segmin.export.roofline import conv_flops
     from segmin.export.verify import make_session
 
@@ -87,7 +109,7 @@ def run_model_speed(options: ModelSpeedOptions) -> dict[str, Any]:
                 rows[key]["graph"] = _optimised_ops(path, options.threads, Path(tmp_dir) / f"{arch}_{size}.opt.onnx")
                 session = make_session(path, threads=options.threads)
                 feed = {session.get_inputs()[0].name: rng.integers(0, 256, (1, size, size, 3), dtype=np.uint8)}
-                calls[key] = lambda s=session, f=feed: s.run(None, f)
+                calls[key] = functools.partial(session.run, None, feed)
         timings = interleaved(calls, runs=options.runs)
     load_after = load_average_1min()
     base_size = max(options.sizes)

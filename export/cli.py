@@ -1,6 +1,6 @@
 """`segmin export` and `segmin bench model-speed`.
 
-`segmin bench export` is wired in segmin.app.bench_export: it needs the runtime layer.
+The export latency bench (PyTorch eager against onnxruntime) is a developer's: `python -m benchmarks export`.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ optimiser, with more NCHWc reorders than the legacy exporter's graph (145). Mapp
 `aten.adaptive_avg_pool2d(x, 1)` to ONNX `GlobalAveragePool` gives the cleanest graph of the three
 (155 nodes as exported, 126 after optimisation, no shape arithmetic except the final Resize): the
 one we ship. The legacy TorchScript exporter (`exporter="legacy"`, opset 17) is deprecated but
-kept for old consumers; `segmin bench export --compare-exporters` times both.
+kept for old consumers; `python -m benchmarks export --compare-exporters` times both.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 LR-ASPP MobileNetV3-Large at 224 x 224 is dominated by 1 x 1 convolutions (matrix products), so
 the machine's float32 matrix-multiply rate with the same thread count is a practical reference
-for any fp32 runtime. `segmin bench export` prints the graph's convolution FLOPs, the rate
+for any fp32 runtime. `python -m benchmarks export` prints the graph's convolution FLOPs, the rate
 onnxruntime achieves, the reference rate (torch's sgemm, best of before and after the timing),
 and the latency a graph running at that rate would have. It is an estimate, not a proof: a
 runtime's own kernels can beat torch's sgemm (the fraction is then above 100 %), and on a shared

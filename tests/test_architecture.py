@@ -1,7 +1,8 @@
 """segmin's layers and their one-way data flow, checked on the source.
 
 common -> data -> models -> train -> export -> robot runtime -> replay / ROS 2 node / demo / photo scoring ->
-simulator -> closed-loop evaluation -> sweeps -> benches -> app: a module may import its own layer
+simulator -> closed-loop evaluation -> sweeps -> benches -> app -> the repository's benchmarks/ (outside
+the wheel: segmin never imports it): a module may import its own layer
 and the layers before it, never one after it, and no set of modules may import one another in a
 cycle. Imports inside functions count: a lazy import is still a dependency. The robot runtime is
 what the bare install ships, so it may import only the bare install's dependencies.
@@ -25,6 +26,8 @@ PACKAGE_DIRS: dict[str, str] = {
     "segmin.train": "train",
     "segmin.export": "export",
     "segmin.nav_eval": "nav_eval",
+    # The developers' benchmarks: outside the wheel, downstream of everything it ships.
+    "benchmarks": "benchmarks",
 }
 # The data flow, first to last. `segmin` alone (its __init__) and `segmin.common` are the ground.
 LAYERS: tuple[str, ...] = (
@@ -43,6 +46,7 @@ LAYERS: tuple[str, ...] = (
     "segmin.nav_eval.sweeps",
     "segmin.nav_eval.bench",
     "segmin.app",
+    "benchmarks",
 )
 OLD_TOP_LEVELS = {"data", "models", "train", "export", "nav_eval"}
 

@@ -32,21 +32,21 @@ def test_verdicts_cover_the_measured_figures_only():
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["bench", "export", "--runs", "0"], "--runs 0: must be >= 1"),
-        (["bench", "export", "--size", "16"], "--size 16: must be >= 32"),
-        (["bench", "train", "--repeats", "0"], "--repeats 0: must be >= 1"),
-        (["bench", "synth", "--frames", "0"], "--frames 0: must be >= 1"),
-        (["bench", "synth", "--workers", "1", "0"], "--workers 1 0: each must be >= 1"),
-        (["bench", "nav-eval", "--workers", "0"], "--workers 0: must be >= 1"),
-        (["bench", "nav-eval", "--seconds", "0"], "--seconds 0.0: must be > 0"),
-        (["bench", "nav-eval", "--backends", "tiny", "vulkan"], "--backends tiny vulkan: each must be one of tiny, gl"),
-        (["bench", "nav-eval", "--rounds", "0"], "--rounds 0: must be >= 1"),
-        (["bench", "synth", "--backends", "egl"], "--backends egl: each must be tiny or gl"),
-        (["bench", "render-agreement", "--poses", "0"], "--poses 0: must be >= 1"),
+        (["export", "--runs", "0"], "--runs 0: must be >= 1"),
+        (["export", "--size", "16"], "--size 16: must be >= 32"),
+        (["train", "--repeats", "0"], "--repeats 0: must be >= 1"),
+        (["synth", "--frames", "0"], "--frames 0: must be >= 1"),
+        (["synth", "--workers", "1", "0"], "--workers 1 0: each must be >= 1"),
+        (["nav-eval", "--workers", "0"], "--workers 0: must be >= 1"),
+        (["nav-eval", "--seconds", "0"], "--seconds 0.0: must be > 0"),
+        (["nav-eval", "--backends", "tiny", "vulkan"], "--backends tiny vulkan: each must be one of tiny, gl"),
+        (["nav-eval", "--rounds", "0"], "--rounds 0: must be >= 1"),
+        (["synth", "--backends", "egl"], "--backends egl: each must be tiny or gl"),
+        (["render-agreement", "--poses", "0"], "--poses 0: must be >= 1"),
     ],
 )
 def test_benches_refuse_bad_parameters_with_one_line(argv, message, capsys):
-    from segmin.app.cli import main
+    from benchmarks.cli import main
 
     assert main(argv) == 2
     err = capsys.readouterr().err

@@ -37,6 +37,36 @@ def test_every_subcommand_has_help(capsys: pytest.CaptureFixture[str]) -> None:
         assert "usage: segmin " + " ".join(path) in capsys.readouterr().out
 
 
+def _leaves(parser: argparse.ArgumentParser) -> list[tuple[str, ...]]:
+    """The commands a user can run: every parser path with no subcommands under it."""
+    subparsers = list(_all_subparsers(parser))
+    parents = {path[:-1] for path, _ in subparsers}
+    return [path for path, _ in subparsers if path not in parents]
+
+
+def test_the_cli_keeps_the_users_commands_and_only_their_benches() -> None:
+    leaves = _leaves(build_parser())
+    benches = sorted(path[1] for path in leaves if path[0] == "bench")
+    assert benches == ["model-speed", "navigator", "ros2"]
+    assert len(leaves) <= 22, leaves
+
+
+def test_the_benchmark_runner_has_every_developer_bench_with_help(capsys: pytest.CaptureFixture[str]) -> None:
+    from benchmarks.cli import build_parser as benchmarks_parser
+
+    targets = sorted(path[0] for path in _leaves(benchmarks_parser()))
+    assert targets == sorted(
+        ["synth", "render-agreement", "train", "iou-bound", "export", "nav-eval", "replay-bag", "gym", "executor"]
+    )
+    for target in targets:
+        with pytest.raises(SystemExit) as exit_info:
+            benchmarks_parser().parse_args([target, "--help"])
+        assert exit_info.value.code == 0
+        assert f"usage: python -m benchmarks {target}" in capsys.readouterr().out
+    out = subprocess.run([sys.executable, "-m", "benchmarks", "--help"], capture_output=True, text=True, check=True)
+    assert "iou-bound" in out.stdout
+
+
 def test_navigate_demo_writes_the_figure_and_summary(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["navigate-demo", "--out", str(tmp_path), "--size", "64"]) == 0
     figure = cv2.imread(str(tmp_path / "navigator_demo.png"))

@@ -22,7 +22,6 @@ def parser():
         ["synth", "render", "--world", "w", "--frames", "2", "--out", "d", "rows.length=10", "seed=3"],
         ["synth", "preview", "--world", "w", "--out", "p.png", "rows.length=10", "seed=3"],
         ["nav-eval", "--model", "oracle", "--out", "o", "rows.length=10", "seed=3"],
-        ["bench", "nav-eval", "rows.length=10", "seed=3"],
         ["train", "--config", "c.yaml", "rows.length=10", "seed=3"],
         ["pipeline", "rows.length=10", "seed=3"],
     ],
@@ -37,12 +36,11 @@ def test_every_command_takes_positional_overrides(parser, argv):
         ["synth", "render", "rows.length=10", "--world", "w", "--frames", "2", "seed=3", "--out", "d"],
         ["synth", "preview", "--out", "p.png", "rows.length=10", "--size", "64", "seed=3", "--world", "w"],
         ["nav-eval", "--model", "oracle", "--out", "o", "rows.length=10", "--runs", "1", "seed=3"],
-        ["bench", "nav-eval", "rows.length=10", "--seed", "2", "seed=3"],
         ["train", "--config", "c.yaml", "rows.length=10", "--resume", "seed=3"],
         ["pipeline", "rows.length=10", "--config", "quick", "seed=3", "--out", "o"],
         ["robustness", "vineyards", "rows.length=10", "--out", "o", "--runs", "1", "seed=3"],
     ],
-    ids=["render", "preview", "nav-eval", "bench-nav-eval", "train", "pipeline", "robustness"],
+    ids=["render", "preview", "nav-eval", "train", "pipeline", "robustness"],
 )
 @pytest.mark.filterwarnings("error")  # intermixed parsing warns on an empty override list
 def test_overrides_work_wherever_they_stand_on_the_line(parser, argv):
@@ -50,6 +48,17 @@ def test_overrides_work_wherever_they_stand_on_the_line(parser, argv):
     assert overrides_of(args) == ["rows.length=10", "seed=3"]
     if argv[0] == "robustness":
         assert args.spec == "vineyards"  # the command's own positional keeps its place
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["nav-eval", "rows.length=10", "seed=3"], ["nav-eval", "rows.length=10", "--seed", "2", "seed=3"]],
+)
+@pytest.mark.filterwarnings("error")
+def test_the_benchmark_runner_takes_overrides_anywhere_too(argv):
+    from benchmarks.cli import build_parser as benchmarks_parser
+
+    assert overrides_of(benchmarks_parser().parse_args(argv)) == ["rows.length=10", "seed=3"]
 
 
 def test_the_torchrun_entry_takes_overrides_anywhere_too(tmp_path):

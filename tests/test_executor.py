@@ -156,7 +156,7 @@ def test_a_ray_address_that_never_answers_times_out_in_the_time_given(ray_must_n
 
 
 def test_bench_executor_times_both_executors(ray_instance, capsys) -> None:
-    from segmin.nav_eval.bench.executor import ExecutorBenchOptions, bench_executor
+    from benchmarks.executor import ExecutorBenchOptions, bench_executor
 
     options = ExecutorBenchOptions(frames=2, size=32, runs=3, rounds=1, nav_overrides=tuple(NAV))
     ratios = bench_executor(options)

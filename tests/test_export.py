@@ -12,6 +12,7 @@ import pytest
 import torch
 from export_helpers import SIZE, field_image, write_frames
 
+from benchmarks.cli import main as benchmarks_main
 from segmin.app.cli import main as segmin_main
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper, read_metadata
@@ -318,14 +319,13 @@ def test_frames_from_agriseg_root_and_training_data(tmp_path) -> None:
 
 
 def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys) -> None:
-    """`segmin bench export` code path at 64 px with a handful of runs (figures are not checked).
+    """`python -m benchmarks export` code path at 64 px with a handful of runs (figures are not checked).
 
     One thread: on a shared machine, PyTorch's 2-thread OpenMP barriers can take a second a call.
     """
     out, _ = exported
-    code = segmin_main(
+    code = benchmarks_main(
         [
-            "bench",
             "export",
             "--onnx",
             str(out),
@@ -344,7 +344,7 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     )
     assert code == 0
     printed = capsys.readouterr().out
-    from segmin.nav_eval.bench.runtime import STEP_NAME
+    from benchmarks.perception_step import STEP_NAME
 
     assert "pytorch eager" in printed and STEP_NAME in printed
     summary = json.loads((tmp_path / "bench.json").read_text())
@@ -354,7 +354,7 @@ def test_bench_smoke_on_the_exported_file(exported, checkpoint, tmp_path, capsys
     assert roofline["conv_gflop"] > 0 and roofline["peak_gflops"] > 0
     assert roofline["floor_ms"] == pytest.approx(roofline["conv_gflop"] / roofline["peak_gflops"] * 1e3)
     assert "GFLOP of convolutions per frame" in printed
-    from segmin.export.bench import ExportBenchOptions, run_benchmark
+    from benchmarks.export import ExportBenchOptions, run_benchmark
 
     with pytest.raises(ValueError, match="pass --size"):
         run_benchmark(ExportBenchOptions(onnx=out, checkpoint=checkpoint, size=SIZE * 2, runs=2, int8=False))

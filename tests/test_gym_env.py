@@ -382,7 +382,7 @@ def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
 
 
 def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env_and_the_first_backend() -> None:
-    from segmin.nav_eval.bench.gym import GymBenchRow, format_gym_rows, time_env
+    from benchmarks.gym import GymBenchRow, format_gym_rows, time_env
 
     rate = time_env("sync", 2, ("mask", "depth"), 16, 3, "straight_vineyard", backend="gl")
     table = format_gym_rows(
@@ -398,7 +398,7 @@ def test_bench_gym_times_a_vector_and_tabulates_against_the_single_env_and_the_f
 
 
 def test_bench_gym_names_a_bad_backend(capsys) -> None:
-    from segmin.app.cli import main
+    from benchmarks.cli import main
 
-    assert main(["bench", "gym", "--backends", "vulkan"]) == 2
+    assert main(["gym", "--backends", "vulkan"]) == 2
     assert "--backends vulkan" in capsys.readouterr().err

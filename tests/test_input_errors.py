@@ -126,12 +126,12 @@ def test_lower_and_upper_limits_are_checked_together(family, refused, accepted, 
 @pytest.mark.parametrize(
     ("argv", "named"),
     [
-        (["bench", "synth", "--fields", "no_such_world", "--frames", "1"], "no_such_world"),
-        (["bench", "iou-bound", "--root", ".", "--sizes", "64", "0"], "size=0"),
+        (["synth", "--fields", "no_such_world", "--frames", "1"], "no_such_world"),
+        (["iou-bound", "--root", ".", "--sizes", "64", "0"], "size=0"),
     ],
 )
 def test_a_bench_refuses_bad_input_before_printing_its_table(argv, named, capsys) -> None:
-    from segmin.app.cli import main
+    from benchmarks.cli import main
 
     assert main(argv) == 2
     out, err = capsys.readouterr()

@@ -136,6 +136,18 @@ def test_every_shipped_data_folder_is_packaged() -> None:
                     assert any(f.match(p) for p in patterns), f"{f} matches no package-data pattern of {name}"
 
 
+def test_the_developers_benchmarks_stay_out_of_the_wheel() -> None:
+    """benchmarks/ is the repository's, not the users': no package of the wheel is it or maps to it
+    (`.ci/wheel_check.sh` checks the built wheel holds only segmin/)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert (root / "benchmarks" / "__main__.py").is_file()
+    assert all(package.split(".")[0] == "segmin" for package in setup["packages"])
+    assert not any(folder.split("/")[0] == "benchmarks" for folder in setup["package-dir"].values())
+
+
 @pytest.mark.parametrize(
     ("old", "new"),
     [

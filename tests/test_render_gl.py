@@ -14,10 +14,10 @@ import pybullet as p
 import pytest
 from synth_helpers import tiny, write_spec
 
-from segmin.app.cli import main
+from benchmarks.cli import main as benchmarks_main
+from benchmarks.render_agreement import field_agreement
 from segmin.common.config import ConfigError
 from segmin.data.synth import gl_raster
-from segmin.data.synth.agreement import field_agreement
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.render import Renderer
 from segmin.data.synth.spec import load_world_spec, spec_from_dict
@@ -129,7 +129,7 @@ def _render_in_child() -> None:
 def test_agreement_bench_refuses_to_overwrite_its_sheet(tmp_path, capsys):
     sheet = tmp_path / "sheet.png"
     sheet.write_bytes(b"keep")
-    assert main(["bench", "render-agreement", "--sheet", str(sheet)]) == 2
+    assert benchmarks_main(["render-agreement", "--sheet", str(sheet)]) == 2
     assert "--force" in capsys.readouterr().err and sheet.read_bytes() == b"keep"
 
 

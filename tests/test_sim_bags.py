@@ -18,6 +18,7 @@ import pytest
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 from test_replay_bags import GreenSegmenter
 
+from benchmarks.cli import main as benchmarks_main
 from segmin.app.cli import main
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.replay.bags import bag_frames
@@ -256,8 +257,8 @@ def test_a_run_that_raises_leaves_no_bag(tmp_path) -> None:
 
 def test_the_replay_bench_compares_bag_and_folders(exported, tmp_path, capsys) -> None:
     episode, _ = _episode(OnnxSegmenter(exported[0], threads=1), bag=tmp_path / "run")
-    argv = ["bench", "replay-bag", "--model", str(exported[0]), "--bag", str(tmp_path / "run"), "--threads", "1"]
-    assert main(argv) == 0
+    argv = ["replay-bag", "--model", str(exported[0]), "--bag", str(tmp_path / "run"), "--threads", "1"]
+    assert benchmarks_main(argv) == 0
     out = capsys.readouterr().out
     assert "replay --bag:" in out and "frames/s" in out
     assert f"same commands: True ({len(episode.commands)} commands)" in out

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
+from benchmarks.train import write_bench_dataset
 from segmin.app.cli import main as segmin_main
 from segmin.export.onnx import DeployWrapper
 from segmin.export.pipeline import variant_path
 from segmin.export.to_torch import network_from_onnx
 from segmin.export.verify import make_session, run_session
 from segmin.models.lraspp import build_model
-from segmin.train.bench import write_bench_dataset
 
 
 @pytest.fixture(scope="module")

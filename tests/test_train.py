@@ -345,7 +345,7 @@ def test_train_cli_runs_and_resumes(dataset_root, tmp_path, capsys):
 
 
 def test_bench_runs_and_reports_both_rates():
-    from segmin.train.bench import TrainBenchOptions, bench_train, report_lines
+    from benchmarks.train import TrainBenchOptions, bench_train, report_lines
 
     result = bench_train(
         TrainBenchOptions(image_size=64, batch_size=2, threads=1, steps=1, warmup=1, workers=0, repeats=1)
@@ -379,8 +379,8 @@ def test_cpu_training_uses_channels_last_and_can_turn_it_off(tmp_path, dataset_r
 
 
 def test_output_grid_matches_the_models_logit_grid():
+    from benchmarks.iou_bound import output_grid
     from segmin.models import build_model
-    from segmin.train.resolution_bound import output_grid
 
     model = build_model("none").eval()
     for size in (40, 45, 64):
@@ -391,7 +391,7 @@ def test_output_grid_matches_the_models_logit_grid():
 
 def test_iou_bound_is_exact_on_cell_aligned_masks_and_lower_on_stripes():
     """Masks made of whole 8x8 cells are representable (ceiling ~1); 1-pixel stripes are not."""
-    from segmin.train.resolution_bound import iou_bound
+    from benchmarks.iou_bound import iou_bound
 
     rng = np.random.default_rng(0)
     blocky = np.kron(rng.integers(0, 2, (4, 8, 8)), np.ones((8, 8))).astype(np.float32)
@@ -406,12 +406,9 @@ def test_iou_bound_is_exact_on_cell_aligned_masks_and_lower_on_stripes():
 
 
 def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
-    from segmin.app.cli import main
+    from benchmarks.cli import main
 
-    assert (
-        main(["bench", "iou-bound", "--root", str(dataset_root), "--sizes", "32", "--frames", "4", "--steps", "20"])
-        == 0
-    )
+    assert main(["iou-bound", "--root", str(dataset_root), "--sizes", "32", "--frames", "4", "--steps", "20"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.strip().startswith("32"))
     _size, grid, frames, area, fitted = row.split()
@@ -428,11 +425,11 @@ def test_bench_iou_bound_prints_both_ceilings(dataset_root, capsys):
     ],
 )
 def test_bench_iou_bound_rejects_bad_input_with_one_line(dataset_root, capsys, extra, message):
-    from segmin.app.cli import main
+    from benchmarks.cli import main
 
-    assert main(["bench", "iou-bound", "--root", str(dataset_root), "--steps", "1", *extra]) == 2
+    assert main(["iou-bound", "--root", str(dataset_root), "--steps", "1", *extra]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("segmin: error:") and message in err and len(err.splitlines()) == 1
+    assert err.startswith("benchmarks: error:") and message in err and len(err.splitlines()) == 1
 
 
 def test_train_refuses_to_replace_an_earlier_run_without_force(dataset_root, tmp_path, capsys):

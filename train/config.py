@@ -96,7 +96,7 @@ class TrainConfig:
     seed: int = 0
     device: str = "auto"  # "auto", "cpu", "cuda", "cuda:N"
     amp: bool = True  # GPU only
-    channels_last: bool = True  # every device: on CPUs the model step ran 1.4x faster (segmin bench train)
+    channels_last: bool = True  # every device: on CPUs the model step ran 1.4x faster (python -m benchmarks train)
     threads: int | None = None  # torch CPU threads (None = torch's default)
     num_workers: int = 2
     prefetch_factor: int = 2

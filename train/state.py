@@ -101,7 +101,7 @@ def _build_model(config: TrainConfig, dist: DistInfo) -> tuple[torch.nn.Module, 
     if cuda:
         torch.backends.cudnn.benchmark = True  # fixed input size: let cuDNN pick the fastest kernels
     model.to(dist.device)
-    if config.channels_last:  # GPUs and CPUs alike: oneDNN's CPU convolutions gain too (segmin bench train)
+    if config.channels_last:  # GPUs and CPUs alike: oneDNN's CPU convolutions gain too (python -m benchmarks train)
         model.to(memory_format=torch.channels_last)
     if not dist.distributed:
         return model, model

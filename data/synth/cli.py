@@ -1,4 +1,4 @@
-"""`segmin synth render|preview`, `segmin bench synth` and `segmin bench render-agreement`."""
+"""`segmin synth render|preview`."""
 
 from __future__ import annotations
 
@@ -40,26 +40,6 @@ def register(commands, bench) -> None:
     add_overrides(pv, example="rows.length=10")
     pv.set_defaults(func=_preview)
 
-    b = bench.add_parser("synth", help="frames/s written per test field (1 and 2 workers); 20 m vs 200 m rows")
-    b.add_argument("--frames", type=int, default=120, help="frames per measurement (default 120)")
-    b.add_argument("--fields", nargs="+", default=None, help="worlds to measure (default: the five test fields)")
-    b.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts (default 1 2)")
-    b.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
-    b.add_argument(
-        "--backends", nargs="+", default=["tiny", "gl"], help="render backends, in turn per world (default tiny gl)"
-    )
-    b.set_defaults(func=_bench)
-
-    a = bench.add_parser(
-        "render-agreement", help="the gl render backend against TinyRenderer: mask IoU, depth error, speed"
-    )
-    a.add_argument("--poses", type=int, default=8, help="poses along each field's evaluation gap (default 8)")
-    a.add_argument("--fields", nargs="+", default=None, help="worlds to compare (default: the five test fields)")
-    a.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
-    a.add_argument("--sheet", type=Path, default=None, help="PNG file for the side-by-side frames (one row a field)")
-    a.add_argument("--force", action="store_true", help="overwrite an existing --sheet")
-    a.set_defaults(func=_bench_agreement)
-
 
 def _world_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--world", required=True, help="world name (configs/worlds/<name>.yaml) or YAML path")
@@ -67,7 +47,8 @@ def _world_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
 
 
-def _camera(size: str):
+def camera_from_size(size: str):
+    """The camera of a `--size` flag: W or WxH pixels (the benchmarks take the same flag)."""
     from segmin.data.synth.camera import CameraModel
 
     try:
@@ -91,7 +72,7 @@ def _render(args) -> int:
         spec=spec,
         out=args.out,
         frames=args.frames,
-        camera=_camera(args.size),
+        camera=camera_from_size(args.size),
         seed=args.seed,
         frames_per_subset=args.frames_per_subset,
         noisy_depth=not args.exact_depth,
@@ -157,41 +138,10 @@ def _preview(args) -> int:
     check_output_file(args.out, "--out")  # before rendering anything
     if args.frames < 1:
         raise ValueError(f"--frames: must be >= 1, got {args.frames}")
-    sheet = preview_sheet(args.world, args.frames, _camera(args.size), overrides_of(args))
+    sheet = preview_sheet(args.world, args.frames, camera_from_size(args.size), overrides_of(args))
     ok, png = cv2.imencode(".png", sheet[:, :, ::-1])
     if not ok:
         raise RuntimeError("PNG encoding failed")
     write_bytes(args.out, png.tobytes())
     print(f"wrote {args.out} ({sheet.shape[1]}x{sheet.shape[0]}, {len(args.world)} world(s) x {args.frames} frame(s))")
-    return 0
-
-
-def _bench(args) -> int:
-    from segmin.data.synth.bench import SynthBenchOptions, bench_synth
-    from segmin.data.synth.spec import TEST_FIELDS
-
-    options = SynthBenchOptions(
-        camera=_camera(args.size),
-        frames=args.frames,
-        fields=tuple(args.fields or TEST_FIELDS),
-        workers=tuple(args.workers),
-        backends=tuple(args.backends),
-    )
-    bench_synth(options)
-    return 0
-
-
-def _bench_agreement(args) -> int:
-    from segmin.common.outputs import check_output_file
-    from segmin.data.synth.agreement import AgreementOptions, bench_render_agreement
-    from segmin.data.synth.spec import TEST_FIELDS
-
-    if args.sheet is not None:
-        check_output_file(args.sheet, "--sheet")
-        if args.sheet.exists() and not args.force:
-            raise ValueError(f"--sheet {args.sheet}: already exists; use --force to overwrite")
-    options = AgreementOptions(
-        camera=_camera(args.size), poses=args.poses, fields=tuple(args.fields or TEST_FIELDS), sheet=args.sheet
-    )
-    bench_render_agreement(options)
     return 0

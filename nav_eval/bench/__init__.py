@@ -1,1 +1,1 @@
-"""Speed figures: `segmin bench nav-eval` (closed loop) and `segmin bench navigator` (navigators, runtime)."""
+"""`segmin bench navigator`: the navigators and the robot runtime per frame, on the robot's own computer."""

@@ -30,6 +30,26 @@ CLOSING_STEP_TARGET = SpeedTarget("median_ms", "segmind with mask_closing 8 medi
 SLOPED_ROWS = {"hold_slope_drift": 0.5, "row_start_max": 2.5, "trim": 2.0}
 
 
+def untrained_onnx(folder: Path, size: int = 224) -> Path:
+    """An untrained (random-weight) model exported with the export package, for timing only."""
+    import onnx
+    import torch
+
+    from segmin.export.onnx import build_metadata, export_graph, set_metadata
+    from segmin.models import build_model
+    from segmin.models.checkpoint import model_info
+
+    torch.manual_seed(0)
+    path = folder / "untrained.onnx"
+    model = build_model(backbone_weights="none").eval()
+    opset = export_graph(model, path, input_size=(size, size), exporter="legacy")
+    proto = onnx.load(str(path))
+    info = model_info(backbone_weights="none", input_size=(size, size), family="untrained", train_data="none")
+    set_metadata(proto, build_metadata(info, input_size=(size, size), exporter="legacy", opset=opset))
+    onnx.save(proto, str(path))
+    return path
+
+
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
     """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
     SegCorridor's on a closed canopy over trunks (its trunk mode: another code path) and with the
@@ -203,8 +223,6 @@ def _full_step_line(frames: _RuntimeFrames, model: str | None, size: int, steps:
 
     if model is None:
         try:
-            from segmin.nav_eval.bench.closed_loop import untrained_onnx
-
             model, label = str(untrained_onnx(tmp, size=size)), "untrained model exported to a temp file"
         except ModuleNotFoundError as exc:
             return (

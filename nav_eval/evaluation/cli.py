@@ -22,8 +22,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser = commands.add_parser(
         "nav-eval",
         help="closed-loop navigation in the simulated test fields (Table 3 metrics, plots)",
-        description="Drive a simulated Jackal through the row gaps of the test fields with SegMin, SegMinD "
-        "and/or SegZeros, guided by an exported ONNX model or the simulator's exact mask ('oracle'). Writes "
+        description="Drive a simulated Jackal through the row gaps of the test fields with the paper's SegMin, "
+        "SegMinD and SegZeros and/or SegCorridor (the corridor follower), guided by an exported ONNX model or the simulator's exact mask ('oracle'). Writes "
         "results.csv, results.json, report.md, trajectory and histogram figures (and MP4 videos with --video). "
         "Resumable: finished runs are kept under OUT/runs, and the same call again does only the missing ones "
         "(--force redoes them all).",
@@ -36,7 +36,9 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument(
         "--fields", default="all", help="'all' (the five test fields), comma-separated names, or world spec YAML paths"
     )
-    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods")
+    parser.add_argument(
+        "--methods", default=",".join(METHODS), help=f"comma-separated methods (default all: {','.join(METHODS)})"
+    )
     parser.add_argument("--runs", type=int, default=3, help="runs per field and method (default 3)")
     parser.add_argument(
         "--out",

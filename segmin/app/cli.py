@@ -2,7 +2,9 @@
 
 Each package keeps its command-line code in its own `cli.py` exposing
 `register(commands, bench)`: `commands` is the top-level subparser group, `bench` the group
-under `segmin bench`. A registered parser sets `func` (called with the parsed args, returns an
+under `segmin bench` (the benches a robot team runs on its own hardware; the developers' benches
+are in the repository's `benchmarks/` folder, outside the wheel). A registered parser sets `func`
+(called with the parsed args, returns an
 exit code). Heavy imports (torch, pybullet, onnxruntime) happen inside those functions, so
 `segmin --help` stays fast and works on the bare robot install; a command whose optional
 dependencies are missing says which extra to install.
@@ -28,7 +30,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.data.synth.cli",
     "segmin.train.cli",
     "segmin.export.cli",
-    "segmin.app.bench_export",
     "segmin.nav_eval.demo.cli",
     "segmin.nav_eval.replay.cli",
     "segmin.nav_eval.ros2.cli",
@@ -52,7 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"segmin {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    bench_parser = commands.add_parser("bench", help="benchmarks that print speed figures")
+    bench_parser = commands.add_parser(
+        "bench", help="speed figures on this computer: the models, the navigator with the runtime, the ROS 2 node"
+    )
     bench = bench_parser.add_subparsers(dest="bench_target", metavar="TARGET", required=True)
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).register(commands, bench)
@@ -61,23 +64,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Parse arguments and run the chosen subcommand; user errors print one line and return 2."""
-    args = build_parser().parse_args(argv)
+    return run_command(build_parser().parse_args(argv))
+
+
+def run_command(args: argparse.Namespace, prog: str = "segmin") -> int:
+    """Run a parsed command (its `func`), the way every segmin entry point answers errors: a user
+    error or a missing extra is one line `PROG: error: ...` and exit 2 (`--debug`: the traceback too),
+    Ctrl-C exit 130. The repository's benchmark runner shares it, so its errors read the same."""
     show_progress()
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print("segmin: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except ModuleNotFoundError as exc:
         message = missing_extra_message(exc)
         if message is None or args.debug:
             raise
-        print(f"segmin: error: {message}", file=sys.stderr)
+        print(f"{prog}: error: {message}", file=sys.stderr)
         return 2
     except USER_ERRORS as exc:
         if args.debug:
             traceback.print_exc()
-        print(f"segmin: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
 
 

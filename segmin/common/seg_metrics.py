@@ -1,7 +1,7 @@
 """Crop-segmentation metrics, all derived from one set of pixel counts (TP, FP, FN, TN).
 
 Training's validation IoU, the export check's mask IoU, the resolution ceiling of
-`segmin bench iou-bound` and the figures of `segmin eval-seg` are computed here, so that an
+`python -m benchmarks iou-bound` and the figures of `segmin eval-seg` are computed here, so that an
 "IoU" means the same thing wherever segmin prints one. As in torchvision's reference
 `ConfusionMatrix`, callers only count pixels and every figure is derived from the counts.
 Numpy only: the export check runs on the robot's bare install. Training counts on its own

@@ -1,4 +1,5 @@
-"""Speed targets as data: each `segmin bench ...` declares a small table and prints its figures against it.
+"""Speed targets as data: each bench (`segmin bench ...`, `python -m benchmarks ...`) declares a small table and
+prints its figures against it.
 
 A target names the figure a bench measures (its key in the bench's results), a limit and the
 side of it that is good. Benches print "target ...: met / NOT met" lines and put the verdicts in

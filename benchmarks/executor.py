@@ -1,4 +1,4 @@
-"""`segmin bench executor`: the Ray executor's overhead against the local pool, on the same jobs.
+"""`python -m benchmarks executor`: the Ray executor's overhead against the local pool, on the same jobs.
 
 Two workloads, each run under both executors in turn (local, ray, ray, local, ... so that a
 drift in the machine's load falls on both alike): a render of `frames` frames of one field and

@@ -1,4 +1,4 @@
-"""`segmin bench synth`: frames/s written per world (1 and 2 workers), and 20 m vs 200 m rows.
+"""`python -m benchmarks synth`: frames/s written per world (1 and 2 workers), and 20 m vs 200 m rows.
 
 Every render backend (`--backends`, default tiny and gl) measures each world in turn, so their
 ratio is taken under the same load.
@@ -29,7 +29,7 @@ ROW_LENGTHS = (20.0, 200.0)  # metres: the short and the long straight vineyard 
 
 @dataclass(frozen=True)
 class SynthBenchOptions:
-    """What `segmin bench synth` takes (data/synth/cli.py has the command-line help)."""
+    """What `python -m benchmarks synth` takes (benchmarks/cli.py has the command-line help)."""
 
     camera: CameraModel
     frames: int = 120  # frames per measurement
@@ -55,7 +55,7 @@ def bench_synth(options: SynthBenchOptions) -> dict[str, float]:
     specs = {name: load_world_spec(name) for name in options.fields}  # a bad name fails before the table
     camera = options.camera
     print(
-        f"segmin bench synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
+        f"python -m benchmarks synth: {camera.width}x{camera.height}, RGB + depth + mask PNGs written, "
         f"{options.frames} frames per run, {load_average()}"
     )
     print("frames/s: whole run (incl. building the world in each worker) and steady (after the first task);")

@@ -14,7 +14,7 @@ predictors that any LR-ASPP could in principle reproduce:
 `fitted` estimates the ceiling from below: it is one reachable grid, found with a BCE
 objective, not a proven optimum of IoU. On the vineyard test fields it moved by 0.002
 with 4x more steps, so it is a close estimate there. A target well above it is not a matter of
-training longer; `segmin bench iou-bound` prints both figures for given sizes on any data.
+training longer; `python -m benchmarks iou-bound` prints both figures for given sizes on any data.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`segmin bench render-agreement`: the gl backend against TinyRenderer (the reference) on every test field.
+"""`python -m benchmarks render-agreement`: the gl backend against TinyRenderer (the reference) on every test field.
 
 Both renderers draw the same built world (the gl backend leaves pybullet's bodies alone), from the
 same poses along the evaluation gap, with the same per-frame randomness (tints, light, sky,
@@ -27,7 +27,7 @@ BACKENDS = ("tiny", "gl")
 
 @dataclass(frozen=True)
 class AgreementOptions:
-    """What `segmin bench render-agreement` takes (data/synth/cli.py has the command-line help)."""
+    """What `python -m benchmarks render-agreement` takes (benchmarks/cli.py has the command-line help)."""
 
     camera: CameraModel
     poses: int = 8
@@ -125,7 +125,7 @@ def bench_render_agreement(options: AgreementOptions) -> dict[str, FieldAgreemen
     specs = {name: load_world_spec(name) for name in options.fields}  # a bad name fails before the table
     cam = options.camera
     print(
-        f"segmin bench render-agreement: gl against tiny (TinyRenderer), {cam.width}x{cam.height}, "
+        f"python -m benchmarks render-agreement: gl against tiny (TinyRenderer), {cam.width}x{cam.height}, "
         f"{options.poses} poses per field, {load_average()}"
     )
     print(

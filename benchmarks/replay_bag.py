@@ -1,4 +1,4 @@
-"""`segmin bench replay-bag`: `segmin replay --bag` against `segmin replay` on the same frames as folders.
+"""`python -m benchmarks replay-bag`: `segmin replay --bag` against `segmin replay` on the same frames as folders.
 
 The bag's colour and depth frames are written out as PNG colour frames and float32 metre .npy
 depth (lossless: both replays feed the runtime the same arrays), then both replays run with the
@@ -47,7 +47,7 @@ def bench_replay_bag(model: Path, bag: Path, threads: int, method: str, depth_th
     count = len(times)
     return "\n".join(
         [
-            f"segmin bench replay-bag: {count} frames, {method}, {Path(model).name}, {threads} thread(s)",
+            f"python -m benchmarks replay-bag: {count} frames, {method}, {Path(model).name}, {threads} thread(s)",
             f"replay --bag: {count / bag_s:.1f} frames/s ({bag_s:.2f} s)",
             f"replay of the same frames as folders (PNG + .npy): {count / folder_s:.1f} frames/s ({folder_s:.2f} s)",
             f"same commands: {same} ({len(from_bag.commands)} commands)",

@@ -1,4 +1,4 @@
-"""`segmin bench export`: per-frame latency of PyTorch eager vs onnxruntime, and one full SegMinD step.
+"""`python -m benchmarks export`: per-frame latency of PyTorch eager vs onnxruntime, and one full SegMinD step.
 
 All candidates are timed in alternating rounds (eager, fp32, INT8, ..., eager, fp32, ...) so that
 load from other processes on a shared machine hits every candidate alike; each figure is the
@@ -21,7 +21,7 @@ import numpy as np
 
 from segmin.common.machine import load_average_1min
 from segmin.common.speed_targets import SpeedTarget, verdict_lines, verdicts
-from segmin.common.timing import time_calls
+from segmin.export.bench_models import interleaved
 
 TARGETS: tuple[SpeedTarget, ...] = (
     SpeedTarget("ort_fp32_ms", "ort fp32 median", 6.0, "ms"),
@@ -39,7 +39,7 @@ StepCandidates = Callable[[Path, np.ndarray, int], dict[str, Callable[[], object
 
 @dataclass(frozen=True)
 class ExportBenchOptions:
-    """What `segmin bench export` takes (segmin/app/bench_export.py has the command-line help)."""
+    """What `python -m benchmarks export` takes (benchmarks/cli.py has the command-line help)."""
 
     checkpoint: Path | None = None  # None: random weights (latency does not depend on the weights)
     onnx: Path | None = None  # an exported fp32 file to time instead of exporting the model
@@ -72,24 +72,6 @@ def _field_like_frames(count: int, size: int, seed: int = 0) -> np.ndarray:
         frame += rng.normal(0, 12, frame.shape)
         frames[i] = np.clip(frame, 0, 255).astype(np.uint8)
     return frames
-
-
-def interleaved(candidates: dict[str, Callable[[], object]], runs: int, rounds: int = 8) -> dict[str, dict[str, float]]:
-    """Median / p95 milliseconds of each callable, measured in alternating rounds."""
-    samples: dict[str, list[float]] = {name: [] for name in candidates}
-    per_round = max(1, runs // rounds)
-    for _ in range(rounds):
-        for name, call in candidates.items():
-            samples[name].extend(time_calls(call, runs=per_round, warmup=min(3, per_round)) * 1e3)
-    return {
-        name: {
-            "median_ms": float(np.median(s)),
-            "p95_ms": float(np.percentile(s, 95)),
-            "min_ms": float(np.min(s)),
-            "runs": len(s),
-        }
-        for name, s in samples.items()
-    }
 
 
 def run_benchmark(options: ExportBenchOptions, step_candidates: StepCandidates | None = None) -> dict[str, Any]:
@@ -266,7 +248,9 @@ def _print_table(
     import onnxruntime as ort
     import torch
 
-    print(f"segmin bench export: {options.size}x{options.size}, batch 1, {options.threads} threads, weights: {origin}")
+    print(
+        f"python -m benchmarks export: {options.size}x{options.size}, batch 1, {options.threads} threads, weights: {origin}"
+    )
     print(f"onnxruntime {ort.__version__}, torch {torch.__version__}")
     if load_before is not None:
         print(

@@ -1,4 +1,4 @@
-"""The robot-side perception + control step, timed by `segmin bench export`.
+"""The robot-side perception + control step, timed by `python -m benchmarks export`.
 
 One step is what the robot computer does per camera frame at the inference rate: `OnnxSegmenter`
 (resize, onnxruntime, threshold) then `Navigator.step` with SegMinD. It lives here, beside the

@@ -1,4 +1,4 @@
-"""`segmin bench gym`: steps per second of `segmin/RowFollow-v0`, alone and under
+"""`python -m benchmarks gym`: steps per second of `segmin/RowFollow-v0`, alone and under
 `gymnasium.make_vec` (sync and async, 1 and 2 envs), per observation option and render backend.
 
 A step of a vector of N envs is N env steps: the figure is env steps per wall second. Every

@@ -1,4 +1,4 @@
-"""`segmin bench nav-eval`: how fast the closed loop runs, and what the full matrix costs.
+"""`python -m benchmarks nav-eval`: how fast the closed loop runs, and what the full matrix costs.
 
 One run on one field with the ONNX segmenter on one thread (what each of 2 workers gets on the
 2-core machine), timed per stage: rendering, segmentation (on a helper thread, overlapping the
@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from segmin.common.speed_targets import SpeedTarget, verdict_lines
+from segmin.nav_eval.bench.navigator import untrained_onnx
 from segmin.nav_eval.sim.config import NavEvalConfig
 
 TARGETS: tuple[SpeedTarget, ...] = (
@@ -35,7 +36,7 @@ MATRIX_SIM_S = 5 * 3 * (2 * 45.0) + 5 * 3 * 60.0
 
 @dataclass(frozen=True)
 class NavEvalBenchOptions:
-    """What `segmin bench nav-eval` takes (nav_eval/bench/cli.py has the command-line help)."""
+    """What `python -m benchmarks nav-eval` takes (benchmarks/cli.py has the command-line help)."""
 
     config: NavEvalConfig
     model: str | None = None  # .onnx file or 'oracle'; None: an untrained model exported for timing
@@ -82,26 +83,6 @@ class _Timed:
 
     def ms(self) -> float:
         return 1000.0 * self.seconds / max(self.calls, 1)
-
-
-def untrained_onnx(folder: Path, size: int = 224) -> Path:
-    """An untrained (random-weight) model exported with the export package, for timing only."""
-    import onnx
-    import torch
-
-    from segmin.export.onnx import build_metadata, export_graph, set_metadata
-    from segmin.models import build_model
-    from segmin.models.checkpoint import model_info
-
-    torch.manual_seed(0)
-    path = folder / "untrained.onnx"
-    model = build_model(backbone_weights="none").eval()
-    opset = export_graph(model, path, input_size=(size, size), exporter="legacy")
-    proto = onnx.load(str(path))
-    info = model_info(backbone_weights="none", input_size=(size, size), family="untrained", train_data="none")
-    set_metadata(proto, build_metadata(info, input_size=(size, size), exporter="legacy", opset=opset))
-    onnx.save(proto, str(path))
-    return path
 
 
 def bench_one_run(

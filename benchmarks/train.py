@@ -1,4 +1,4 @@
-"""`segmin bench train`: is the data pipeline ever the bottleneck?
+"""`python -m benchmarks train`: is the data pipeline ever the bottleneck?
 
 Measures training images/s twice on the same model and batch size: (a) the model step alone
 on one fixed batch already in memory, (b) the full pipeline (PNG decode, augmentation,
@@ -28,7 +28,7 @@ TARGETS: tuple[SpeedTarget, ...] = (SpeedTarget("ratio", "full pipeline / model 
 
 @dataclass(frozen=True)
 class TrainBenchOptions:
-    """What `segmin bench train` takes (train/cli.py has the command-line help)."""
+    """What `python -m benchmarks train` takes (benchmarks/cli.py has the command-line help)."""
 
     root: Path | None = None  # dataset root; None: a generated 320x240 PNG set
     image_size: int = 224
@@ -224,7 +224,7 @@ def _loader(dataset, options: TrainBenchOptions, device: torch.device):
 
 
 def report_lines(r: dict[str, Any]) -> list[str]:
-    """What `segmin bench train` prints, the ratio against `TARGETS` included."""
+    """What `python -m benchmarks train` prints, the ratio against `TARGETS` included."""
     from segmin.common.machine import load_average
 
     return [
