@@ -637,18 +637,16 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
     assert card == json.loads((folder / "vineyards.card.json").read_text())
     assert card["command"] == f"segmin pipeline --config release_micro --out {release_run.out}"
     assert card["recipe"]["profile"] == "release_micro"
-    assert [s["stage"] for s in card["stages"]] == list(RELEASE_CHAIN)
-    assert [s["start"] for s in card["stages"]] == [
-        "none",
-        "train/vineyards/base/best.pt",
-        "train/vineyards/tree_edges/swa.pt",
+    # release_micro's candidate (by_trees) has a gate no model passes: the stage before it ships.
+    assert card["candidate_gate"]["stage"] == "by_trees" and not card["candidate_gate"]["passed"]
+    assert [s["stage"] for s in card["stages"]] == list(RELEASE_CHAIN[:2])
+    assert [s["start"] for s in card["stages"]] == ["none", "train/vineyards/base/best.pt"]
+    assert [s["seed"] for s in card["stages"]] == [0, 0]
+    assert [(w["world"], w["seed"], w["frames"]) for w in card["stages"][1]["worlds"]] == [
+        ("train_vineyard_a", 2101, 3),
+        ("train_vineyard_d_tree_edges", 2122, 3),
     ]
-    assert [s["seed"] for s in card["stages"]] == [0, 0, 0]
-    assert [(w["world"], w["seed"], w["frames"]) for w in card["stages"][2]["worlds"]] == [
-        ("train_vineyard_a", 2101, 2),
-        ("train_vineyard_d_tree_edges", 2122, 2),
-    ]
-    assert card["data"]["train_frames"] == 4 and card["data"]["val_frames"] == 2
+    assert card["data"]["train_frames"] == 6 and card["data"]["val_frames"] == 2
     assert [(w["world"], w["seed"]) for w in card["data"]["validation"]] == [("slope_vineyard_s4", 5201)]
     report = (release_run.out / "report.md").read_text()
     assert (
@@ -656,8 +654,11 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
     )
     for label in ("vineyards/base", "vineyards/tree_edges", "vineyards/by_trees"):
         assert f"| {label} | " in report  # one training row a stage
+    assert "the candidate stage `by_trees` fails its gate (" in report and "a uniform frame painted" in report
+    assert "exported: `tree_edges`" in report
     markdown = (folder / "vineyards.md").read_text()
-    assert "## Training stages" in markdown and "from train/vineyards/tree_edges/swa.pt" in markdown
+    assert "## Training stages" in markdown and "from train/vineyards/base/best.pt" in markdown
+    assert "candidate stage `by_trees`: failed its gate" in markdown
     # Into the run's folder only: the package's registry keeps its own models.
     shipped = models_dir() / "vineyards.card.json"
     assert not shipped.is_file() or json.loads(shipped.read_text())["recipe"]["profile"] != "release_micro"

@@ -70,6 +70,7 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
             "machine": train.get("machine"),
         },
         "stages": [_stage_entry(run_dir, key, outputs, worlds) for key, outputs in zip(keys, chain, strict=True)],
+        "candidate_gate": export.get("gate"),  # a candidate stage's verdict on held-out frames (None: no gate)
         "synthetic_val_iou": train.get("kept_val_iou"),
         "real_photos": _real_photos(cache, family),
         "closed_loop": _closed_loop(run_dir, cache, family),
@@ -109,6 +110,18 @@ def card_markdown(card: dict[str, Any]) -> str:
             for i, st in enumerate(card["stages"], 1)
         ]
         lines.append("")
+    gate = card.get("candidate_gate")
+    if gate:
+        lines.append(
+            f"- candidate stage `{gate['stage']}`: "
+            + (
+                "passed its gate on the held-out frames, so this model is it"
+                if gate["passed"]
+                else "failed its gate on the held-out frames ("
+                + "; ".join(gate["failures"])
+                + "), so this model is the stage before it"
+            )
+        )
     if real:
         lines.append(
             f"- real photos ({real['images']} labelled vineyard photos, a test set): mean IoU "

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from segmin.app.pipeline.gate import GateRule
 from segmin.common.config import load_config
 from segmin.common.executor import Executor
 from segmin.common.shipped import resolve_config
@@ -58,6 +59,9 @@ class FineTunePlan:
     frames_per_world: int | None = None  # null: the previous stage's
     train_overrides: list[str] = field(default_factory=list)
     keep: Keep | None = None  # the model-choice rule, checked against the training config
+    # A candidate stage (the family's last only): its model replaces the stage before it only if
+    # it passes this rule on the held-out frames (segmin.app.pipeline.gate); null: it always does.
+    gate: GateRule | None = None
 
     def __post_init__(self) -> None:
         if not self.name.replace("_", "").isalnum() or self.name == FIRST_STAGE:
@@ -79,6 +83,7 @@ class TrainStep:
     render_split: str  # the render folder of its training frames
     overrides: tuple[str, ...]  # after the family's train_overrides
     keep: Keep | None
+    gate: GateRule | None = None  # a candidate stage's shipping rule (segmin.app.pipeline.gate)
 
 
 @dataclass
@@ -107,6 +112,10 @@ class FamilyPlan:
             raise ValueError("give the held-out worlds in validation (or val_worlds), exactly one of the two")
         if self.frames_per_world is not None and (isinstance(self.frames_per_world, bool) or self.frames_per_world < 1):
             raise ValueError(f"frames_per_world must be >= 1 or null, got {self.frames_per_world!r}")
+        if any(stage.gate is not None for stage in self.finetune[:-1]):
+            raise ValueError(
+                "finetune: only the last stage may have a gate (a later stage would start from a model that may not ship)"
+            )
         names = [stage.name for stage in self.finetune]
         if len(set(names)) != len(names):
             raise ValueError(f"finetune: stage names must differ, got {names}")
@@ -144,6 +153,7 @@ class FamilyPlan:
                     render_split=f"train-{family}-{stage.name}",
                     overrides=tuple(stage.train_overrides),
                     keep=stage.keep,
+                    gate=stage.gate,
                 )
             )
         return steps

@@ -198,6 +198,7 @@ def _export(cache: StageCache, families: list[str]) -> list[str]:
         "| family | max abs prob diff | mask agreement | onnxruntime latency median / p95 ms (2 threads) |",
         "|---|---|---|---|",
     ]
+    verdicts = []
     for family in families:
         record = cache.record(f"export/{family}")
         if record and record.outputs:
@@ -206,6 +207,15 @@ def _export(cache: StageCache, families: list[str]) -> list[str]:
                 f"| {family} | {v['max_abs_diff']:.2e} | {100 * v['mask_agreement']:.3f} % | "
                 f"{t['median']:.2f} / {t['p95']:.2f} |"
             )
+            gate = record.outputs.get("gate")
+            if gate:
+                shipped = record.outputs["train_stages"][-1].rsplit("/", 1)[-1]
+                outcome = (
+                    "passes its gate" if gate["passed"] else "fails its gate (" + "; ".join(gate["failures"]) + ")"
+                )
+                verdicts.append(f"- {family}: the candidate stage `{gate['stage']}` {outcome}; exported: `{shipped}`.")
+    if verdicts:
+        lines += ["", "Candidate stages, judged on their held-out frames against the stage before them:", "", *verdicts]
     return lines
 
 

@@ -31,6 +31,7 @@ import yaml
 from segmin.app.pipeline import stages
 from segmin.app.pipeline.cache import StageCache, Timer, file_manifest, hash_inputs
 from segmin.app.pipeline.config import STAGES, PipelineConfig, TrainStep
+from segmin.app.pipeline.gate import GateVerdict, judge
 from segmin.app.pipeline.run_files import COMMAND_FILE, RECIPE_FILE
 from segmin.app.pipeline.side_by_side import train_side_by_side
 from segmin.common.atomic import write_text
@@ -106,35 +107,55 @@ class PipelineRunner:
     def _train_and_export(
         self, render: dict[str, Any], backbone: Any, upstream: dict[str, str]
     ) -> dict[str, tuple[str, str]]:
-        """Train every family's chain of stages, then export each family's last; {family: (onnx path, export hash)}."""
+        """Train every family's chain of stages, then export each family's last (or, when the last
+        is a candidate that fails its gate, the stage before it); {family: (onnx path, export hash)}."""
         config = self.config
         chains = {family: config.training_chain(family) for family in config.families}
         trained_all = self._train_chains(chains, render, backbone, upstream)
         models: dict[str, tuple[str, str]] = {}
         for family, chain in chains.items():
-            final = chain[-1].key
-            export_hash = hash_inputs("export", upstream[final], to_dict(config.export))
-
+            kept, verdict = self._gate(family, chain, trained_all[family])
+            final = chain[kept].key
+            judged = (upstream[chain[-1].key], verdict.as_dict()) if verdict is not None else ()
+            export_hash = hash_inputs("export", upstream[final], to_dict(config.export), *judged)
             exported = self._stage(
                 "export",
                 f"export/{family}",
                 export_hash,
                 functools.partial(
                     self._export_stage,
-                    checkpoint=trained_all[family]["checkpoint"],
+                    checkpoint=trained_all[family][kept]["checkpoint"],
                     family=family,
-                    keys=[s.key for s in chain],
+                    keys=[s.key for s in chain[: kept + 1]],
+                    gate=verdict.as_dict() if verdict is not None else None,
                 ),
-                reads=("render", final),  # the checkpoint, its training frames, the val frames
+                reads=("render", final, *((chain[-1].key,) if verdict is not None else ())),
             )
             models[family] = (exported["onnx"], export_hash)
             upstream[f"export/{family}"] = export_hash
         return models
 
+    def _gate(
+        self, family: str, chain: list[TrainStep], trained: list[dict[str, Any]]
+    ) -> tuple[int, GateVerdict | None]:
+        """The index of the stage whose model the family exports, and the candidate's verdict (None
+        without a gate): a gated last stage ships only if it passes on the held-out frames."""
+        rule = chain[-1].gate
+        if rule is None or len(chain) < 2:
+            return len(chain) - 1, None
+        verdict = judge(rule, chain[-1].name, trained[-1].get("held_out"), trained[-2].get("held_out"))
+        if verdict.passed:
+            self.log(f"gate: {family} {chain[-1].name} passes on its held-out frames: it ships")
+            return len(chain) - 1, verdict
+        self.log(
+            f"gate: {family} {chain[-1].name} does not ship ({'; '.join(verdict.failures)}): {chain[-2].name} does"
+        )
+        return len(chain) - 2, verdict
+
     def _train_chains(
         self, chains: dict[str, list[TrainStep]], render: dict[str, Any], backbone: Any, upstream: dict[str, str]
-    ) -> dict[str, dict[str, Any]]:
-        """Every family's training stages in order; the outputs of each family's last stage.
+    ) -> dict[str, list[dict[str, Any]]]:
+        """Every family's training stages in order; each family's stage outputs, first to last.
 
         Round n trains the n-th stage of every family that has one (side by side with
         `parallel_training`). A fine-tuning stage starts from the previous stage's kept
@@ -143,6 +164,7 @@ class PipelineRunner:
         config = self.config
         render_dir = self.cache.folder("render")
         last: dict[str, tuple[str, dict[str, Any]]] = {}  # family -> (stage key, outputs)
+        trained: dict[str, list[dict[str, Any]]] = {family: [] for family in chains}
         for index in range(max(len(chain) for chain in chains.values())):
             jobs: dict[str, tuple[Any, str]] = {}
             keys: dict[str, str] = {}
@@ -169,7 +191,8 @@ class PipelineRunner:
             for family, outputs in self._train_families(jobs, keys, reads).items():
                 upstream[keys[family]] = jobs[family][1]
                 last[family] = (keys[family], outputs)
-        return {family: outputs for family, (_, outputs) in last.items()}
+                trained[family].append(outputs)
+        return trained
 
     def _real_eval(self, models: dict[str, tuple[str, str]], fingerprint: Any, upstream: dict[str, str]) -> None:
         """Score every exported model on the labelled real photos."""
@@ -193,12 +216,13 @@ class PipelineRunner:
         return stages.train_stage(train_config, folder, resume=_resumable(folder, fresh), log=self.log)
 
     def _export_stage(
-        self, folder: Path, fresh: bool, *, checkpoint: str, family: str, keys: list[str]
+        self, folder: Path, fresh: bool, *, checkpoint: str, family: str, keys: list[str], gate: dict[str, Any] | None
     ) -> dict[str, Any]:
         val_frames = self.cache.folder("render") / "val"
         return {
             **stages.export_stage(self.config, Path(checkpoint), folder / f"{family}.onnx", val_frames, self.log),
             "train_stages": keys,  # the chain that made the model, for its card
+            "gate": gate,  # a candidate stage's verdict (None without one), for the report and the card
         }
 
     def _real_eval_stage(self, folder: Path, fresh: bool, *, model: str) -> dict[str, Any]:
