@@ -369,7 +369,7 @@ def _steering_table(results: dict[str, dict[str, Any]]) -> list[str]:
         "Steering on the same photos: the SegMin target (no depth, 224 px of width) of each model mask against the "
         "truth mask's; the free corridor is where the truth's histogram is clearly free (definitions: the metrics "
         "reference of segmin's documentation, docs/reference/metrics.md). Uniform frames: the "
-        "largest share of an all-black, all-white or one-colour frame painted as crop (a shipped model stays under 1 %).",
+        "largest share of an all-black, all-white or one-colour frame painted as crop (a release model must stay under 1 %).",
         "",
         "| family | target error median (px) | mean (px) | worst (px) | outside the corridor | at the image edge | uniform frames painted |",
         "|---|---|---|---|---|---|---|",
