@@ -176,3 +176,18 @@ def test_labels_that_do_not_match_their_photos_fail_with_one_line(tmp_path: Path
     assert main(["eval-seg", "--model", str(checkpoint), "--data", str(extra), "--out", str(tmp_path / "b")]) == 2
     assert "photo_7.png" in one_error_line(capsys)
     assert not (tmp_path / "a" / "results.json").exists() and not (tmp_path / "b" / "results.json").exists()
+
+
+def test_strip_labels_refuse_photos_that_share_a_stem(tmp_path: Path) -> None:
+    from segmin.data.agriseg_loader import DatasetError, Frame
+    from segmin.nav_eval.seg_eval.strips import find_strips
+
+    (tmp_path / "strips").mkdir()
+    (tmp_path / "strips" / "000001.png").write_bytes(b"")
+    frames = [
+        Frame(domain, "train", 1, tmp_path / domain / "000001.png", tmp_path / domain / "m.png")
+        for domain in ("vineyard_a", "vineyard_b")
+    ]
+    with pytest.raises(DatasetError, match="share the stem '000001'"):
+        find_strips(tmp_path, frames)
+    assert find_strips(tmp_path, frames[:1]) == {frames[0].image_path: tmp_path / "strips" / "000001.png"}

@@ -87,13 +87,13 @@ def evaluate(
         truth_closing=truth_closing,
     )
     flat = len({(f.domain, f.subset) for f in frames}) == 1
-    strips = find_strips(root, list(frames))  # before the model runs: a bad label fails fast
+    strip_files = find_strips(root, list(frames))
     picks = sheet_picks(len(frames), sheet_rows)
     rows: list[np.ndarray] = []
     for index, frame in enumerate(_progress(frames, progress, "eval-seg")):
         image, truth = load_frame(frame)
         truth = canopy_region(truth, truth_closing)
-        strip = read_strip(strips[frame.image_path], truth.shape) if frame.image_path in strips else None
+        strip = read_strip(strip_files[frame.image_path], truth.shape) if frame.image_path in strip_files else None
         _, prediction = predictor.predict(image)
         result = ImageResult(
             name=frame_name(frame, flat),

@@ -80,12 +80,13 @@ def draw_steering(panel: np.ndarray, steering: PhotoSteering) -> None:
 
     height, width = panel.shape[:2]
 
-    def x(column: float) -> int:
-        return int(round((column + 0.5) * width / STEERING_WIDTH))
+    def x(column: float) -> int:  # the panel pixel under a column's centre
+        return min(width - 1, int((column + 0.5) * width / STEERING_WIDTH))
 
     band = max(3, height // 30)
     start, stop = steering.corridor
-    cv2.rectangle(panel, (x(start - 0.5), height - band), (x(stop + 0.5) - 1, height - 1), CORRIDOR, -1)
+    left, right = int(start * width / STEERING_WIDTH), min(width, int((stop + 1) * width / STEERING_WIDTH)) - 1
+    cv2.rectangle(panel, (left, height - band), (right, height - 1), CORRIDOR, -1)
     cv2.line(panel, (x(steering.truth_target), 0), (x(steering.truth_target), height - 1), TRUTH_TARGET, 2)
     cv2.line(panel, (x(steering.model_target), 0), (x(steering.model_target), height - 1), MODEL_TARGET, 2)
 

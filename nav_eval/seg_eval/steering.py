@@ -8,8 +8,9 @@ figures score what the robot steers by.
 Per photo (definitions also in docs/reference/metrics.md):
 
 1. Both masks are brought to `STEERING_WIDTH` (224) px of width, the width the paper's node and
-   the shipped models steer at, keeping the aspect ratio (area average, then a majority vote, as
-   the navigator's mask closing rescales masks), so an error in px means the same on any photo.
+   the shipped models steer at, keeping the aspect ratio (the mask as 0/1 floats resampled, area
+   average when shrinking, bilinear when enlarging, then a majority vote: >= 0.5), so an error in
+   px means the same on any photo.
 2. Each goes through the navigator's own SegMin rule without depth (the paper's rule on the
    mask alone: `column_histogram`, the moving average of `smooth_window` columns, the global
    minimum with ties averaged), giving the model's target x_m and the truth's target x_t.
@@ -39,10 +40,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from segmin.nav_eval.runtime.navigator import column_histogram, histogram_minimum, moving_average
+from segmin.nav_eval.runtime.navigator import NavigatorConfig, histogram_minimum, smoothed_histogram
 
 STEERING_WIDTH = 224
-SMOOTH_WINDOW = 11  # the paper's moving average (NavigatorConfig.smooth_window)
+SMOOTH_WINDOW = NavigatorConfig.smooth_window  # the paper's moving average, the navigator's default
 CORRIDOR_FRACTION = 0.25
 EDGE_FRACTION = 0.05
 AGREEMENT_PX = 1.0
@@ -113,7 +114,7 @@ def segmin_target(mask: np.ndarray) -> SteeringTarget:
     """The paper's SegMin target of a mask without depth (every vegetation pixel counts as near)."""
     small = to_steering_width(mask)
     everywhere = np.ones(small.shape, np.float32)  # depth 1 m under a 2 m threshold: every pixel counts
-    histogram = moving_average(column_histogram(small, everywhere, method="segmin", depth_threshold=2.0), SMOOTH_WINDOW)
+    histogram = smoothed_histogram(small, everywhere, method="segmin", depth_threshold=2.0, smooth_window=SMOOTH_WINDOW)
     return SteeringTarget(histogram_minimum(histogram), histogram)
 
 
@@ -129,7 +130,7 @@ def photo_steering(prediction: np.ndarray, truth: np.ndarray, strip: np.ndarray 
     in_strip = crop_on_strip = None
     if strip is not None:
         in_strip = bool(strip_columns(strip)[column])
-        crop_on_strip = float(prediction[strip].mean()) if strip.any() else math.nan
+        crop_on_strip = float(prediction[strip].mean())  # never empty: strips.read_strip refuses that
     return PhotoSteering(
         model_target=model.column,
         truth_target=reference.column,

@@ -24,11 +24,19 @@ STRIP_SUFFIXES = (".png", ".json")
 
 
 def find_strips(data_root: str | Path, frames: list[Frame]) -> dict[Path, Path]:
-    """Each photo's strip file (by image path), for the photos that have one; {} without a strips folder."""
+    """Each photo's strip file (by image path), for the photos that have one; {} without a strips folder.
+    Photos are matched by stem, so with a strips folder two photos of one stem are refused."""
     folder = Path(data_root) / STRIPS_FOLDER
     if not folder.is_dir():
         return {}
-    photos = {frame.image_path.stem: frame.image_path for frame in frames}
+    photos: dict[str, Path] = {}
+    for frame in frames:  # a strip is named by its photo's stem: two photos of one stem are ambiguous
+        other = photos.setdefault(frame.image_path.stem, frame.image_path)
+        if other != frame.image_path:
+            raise DatasetError(
+                f"{folder}: photos {other} and {frame.image_path} share the stem {frame.image_path.stem!r}; "
+                "strip labels need photos named apart"
+            )
     strips: dict[Path, Path] = {}
     for path in sorted(folder.iterdir()):
         if path.name.startswith(".") or not path.is_file():

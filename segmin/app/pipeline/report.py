@@ -167,7 +167,7 @@ def _held_out(cache: StageCache, trainings: dict[str, str]) -> list[str]:
     for label, key in trainings.items():
         record = cache.record(key)
         held = (record.outputs or {}).get("held_out") if record else None
-        if held:
+        if held and "target_error_median_px" in held:  # none on a held-out set without frames
             blank = held.get("blank_frames_worst")
             rows.append(
                 f"| {label} | {held['images']} | {format_figure(held['pooled_iou'])} | {format_figure(held['mean_iou'])} | "
