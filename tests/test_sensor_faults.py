@@ -135,6 +135,20 @@ def test_a_frozen_image_stops_a_driving_robot_but_not_a_standing_one() -> None:
     assert set(follower.faults) == {"depth_invalid"}
 
 
+def test_a_robot_whose_driving_is_off_sees_its_still_scene_without_a_frozen_stop() -> None:
+    """The node runs the runtime while driving is disabled: commands move, the wheels do not."""
+    frozen = _rows(99)
+    held = _follower()
+    for k in range(30):  # a second of one still frame, the runtime commanding motion, driving off
+        held.step(frozen, _depth(), k / HZ, driving=False)
+    assert "image_frozen" not in held.faults
+    assert held.step(frozen, _depth(), 30 / HZ, driving=True).command.valid  # enabled: it drives at once
+    free = _follower()
+    for k in range(30):
+        free.step(frozen, _depth(), k / HZ)  # driving None: the commands reach the wheels
+    assert "image_frozen" in free.faults
+
+
 def test_frames_stamped_far_from_the_followers_clock_stop_the_robot_and_name_use_sim_time() -> None:
     follower = _follower()
     bad = _good(30, 30)

@@ -29,6 +29,7 @@ from segmin.nav_eval.sim.track import Trajectory
         ("{kind: zero_depth, start_s: 1, duration_s: 1, region: top}", r"faults\[0\]: region 'top' is not one of"),
         ("{kind: black_frame, start_s: 1, duration_s: 1, region: left}", "region 'left' applies to depth faults only"),
         ("{kind: depth_dropout, start_s: 1, duration_s: 1, share: 0}", r"faults\[0\]: share must be within \(0, 1\]"),
+        ("{kind: zero_depth, start_s: 1, duration_s: 1, share: 0.5}", "share applies to depth_dropout only"),
         ("{kind: black_frame, start_s: 1}", r"faults\[0\]: missing required key\(s\) \['duration_s'\]"),
         (
             "{kind: black_frame, start_s: 1, duration_s: 2}, {kind: zero_depth, start_s: 2, duration_s: 1}",
@@ -94,6 +95,9 @@ def test_fault_metrics_measure_the_stop_the_blind_distance_and_the_restart() -> 
     never = fault_metrics([SimFault("black_frame", 0.5, 1.0)], trajectory, driving)  # no stop while it lasted
     assert math.isnan(never["fault_stop_s"]) and never["fault_blind_m"] == pytest.approx(0.5)
     assert all(math.isnan(value) for value in fault_metrics([], trajectory, driving).values())
+    # A fault the run never reached neither fails nor hides the one it did reach.
+    later = SimFault("black_frame", 20.0, 1.0)
+    assert fault_metrics([SimFault("zero_depth", 2.0, 1.2), later], trajectory, driving) == metrics
 
 
 @pytest.mark.parametrize("kind", ["black_frame", "zero_depth"])

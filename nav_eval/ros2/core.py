@@ -247,7 +247,7 @@ class FollowerCore:
         attitude = self._frame_attitude(t, now) if uses_attitude else None
         start = self._wall()
         try:
-            output = self.follower.step(rgb, depth, t, attitude=attitude, now=now)
+            output = self.follower.step(rgb, depth, t, attitude=attitude, now=now, driving=self.enabled)
         except ValueError as exc:
             self._reject(f"{self.params.node.colour_topic}: {exc}", now)
             return None

@@ -160,6 +160,7 @@ class RowFollower:
         mask: np.ndarray | Future[np.ndarray] | None = None,
         attitude: object = None,
         now: float | None = None,
+        driving: bool | None = None,
     ) -> FollowerOutput:
         """Take one camera frame at time `t` (seconds); return the command in force.
 
@@ -169,7 +170,10 @@ class RowFollower:
         (roll, pitch) in radians at the frame (REP 103), for navigators that level the depth
         points (SegCorridor); None: level ground assumed. `now` is the follower's clock when the
         frame arrives (the node's): a stamp further from it than `checks.max_clock_offset_s` stops
-        the robot ("clock_offset"); None (the simulator, a replay): not checked. Raises ValueError
+        the robot ("clock_offset"); None (the simulator, a replay): not checked. `driving` says
+        whether the commands reach the wheels (the node: driving enabled); None: they do whenever
+        one moves. A still image is judged frozen only while the robot drives, so a robot held
+        still sees its still scene without a stop that would outlast it. Raises ValueError
         for a frame out of time order, with mismatched sizes, without what the navigator declares
         it needs, or with an invalid attitude.
         """
@@ -205,7 +209,7 @@ class RowFollower:
         if self._t0 is None:
             self._t0 = t
         command = self._command
-        moving = command.valid and (command.v != 0.0 or command.omega != 0.0)
+        moving = command.valid and (command.v != 0.0 or command.omega != 0.0) and driving is not False
         self._sensors.on_frame(rgb, t, None if now is None else _seconds(now, "follower clock"), moving)
         fault = self._sensors.reason
         if fault is not None and command.valid:  # at once, not at the next command

@@ -150,6 +150,8 @@ class SimFault:
             raise ValueError(f"region {self.region!r} applies to depth faults only, not {self.kind}")
         if not 0.0 < self.share <= 1.0:
             raise ValueError(f"share must be within (0, 1], got {self.share!r}")
+        if self.share != 1.0 and self.kind != "depth_dropout":
+            raise ValueError(f"share applies to depth_dropout only, not {self.kind} (which spoils its whole region)")
 
     @property
     def end_s(self) -> float:

@@ -87,6 +87,8 @@ def fault_metrics(
     moving = np.array([d for _, d in driving])
     step = np.hypot(np.diff(trajectory.x), np.diff(trajectory.y))
     for fault in faults:
+        if fault.start_s >= times[-1]:
+            continue  # the run ended before this fault began: nothing to measure, nothing failed
         during = np.flatnonzero((times >= fault.start_s) & (times < fault.end_s) & ~moving)
         stop = float(times[during[0]]) if during.size else math.nan
         standing = (trajectory.t >= stop) & (trajectory.t <= fault.end_s) & (np.abs(trajectory.v) < MOVING_SPEED)
@@ -102,4 +104,8 @@ def fault_metrics(
         for key, value in values.items():
             per_fault[key].append(value)
     # A fault never stopped for (or never recovered from) is the worst: NaN wins over any number.
-    return {key: math.nan if any(map(math.isnan, values)) else max(values) for key, values in per_fault.items()}
+    # No fault reached (the run ended first): NaN as without faults.
+    return {
+        key: math.nan if not values or any(map(math.isnan, values)) else max(values)
+        for key, values in per_fault.items()
+    }
