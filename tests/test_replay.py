@@ -144,6 +144,15 @@ def test_a_mask_closing_beyond_the_frame_is_refused_naming_the_flag(sequence, mo
     assert not (tmp_path / "out").exists()
 
 
+def test_a_depth_cut_beyond_the_sensors_range_is_refused_naming_the_flag(sequence, model, tmp_path, capsys) -> None:
+    rgb_dir, _, _ = sequence
+    argv = ["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmind"]
+    assert main([*argv, "--depth-threshold", "25", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("segmin: error: --depth-threshold 25: beyond the sensor's range (20 m")
+    assert not (tmp_path / "out").exists()
+
+
 def test_without_depth_segmin_runs_on_the_mask_and_segmind_is_refused(sequence, model, tmp_path, capsys) -> None:
     rgb_dir, _, _ = sequence
     assert (

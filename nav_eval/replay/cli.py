@@ -87,6 +87,12 @@ def _replay(args: argparse.Namespace) -> int:
     from segmin.nav_eval.runtime.follower import RuntimeConfig
 
     check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
+    runtime = RuntimeConfig(segment_hz=args.segment_hz, command_hz=args.command_hz)
+    if args.depth_threshold > runtime.checks.max_depth_m:  # refused by the runtime too, later and unnamed
+        raise ValueError(
+            f"--depth-threshold {args.depth_threshold:g}: beyond the sensor's range "
+            f"({runtime.checks.max_depth_m:g} m, max_depth_m), where a reading is no reading"
+        )
     result = replay(
         args.model,
         args.rgb,
@@ -99,7 +105,7 @@ def _replay(args: argparse.Namespace) -> int:
         fps=args.fps,
         timestamps=args.timestamps,
         force=args.force,
-        runtime=RuntimeConfig(segment_hz=args.segment_hz, command_hz=args.command_hz),
+        runtime=runtime,
         threads=args.threads,
     )
     valid = sum(row[4] for row in result.commands)
