@@ -141,6 +141,11 @@ def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_ru
 
 
 def test_release_never_replaces_a_model_without_force(pipeline_run, registry, capsys) -> None:
+    (registry / "vineyards.md").write_text("a card left without its model")
+    assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 2  # any file of the family counts
+    assert "vineyards.md: already released (use --force" in capsys.readouterr().err
+    assert (registry / "vineyards.md").read_text() == "a card left without its model"
+    (registry / "vineyards.md").unlink()
     assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 0
     before = (registry / "vineyards.onnx").read_bytes()
     assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 2

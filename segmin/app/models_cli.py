@@ -93,6 +93,7 @@ def release_run(run: Path, root: Path, *, families: list[str] | None = None, for
     planned = _plan(run, families, root, force)
     make_dirs(root, "--to")
     with writer_lock(root / ".release.lock", f"the model registry {root}"):
+        _check_unreleased(root, list(planned), force)  # again under the lock: another release may have come first
         _remove_leftovers(root)
         _write_release(planned, root)
     return planned
@@ -127,9 +128,7 @@ def _plan(run: Path, families: list[str] | None, root: Path, force: bool) -> dic
     unknown = [n for n in names if n not in SHIPPED_NAMES]
     if unknown:
         raise ValueError(f"--families {unknown[0]}: not a shipped model name (shipped: {', '.join(SHIPPED_NAMES)})")
-    existing = [root / f"{n}.onnx" for n in names if (root / f"{n}.onnx").exists()]
-    if existing and not force:
-        raise ValueError(f"{existing[0]}: already released (use --force to replace it)")
+    _check_unreleased(root, names, force)
     planned = {}
     for name in names:
         card = build_card(run, name)
@@ -141,6 +140,18 @@ def _plan(run: Path, families: list[str] | None, root: Path, force: bool) -> dic
         set_metadata(model, {md.KEY_MODEL_CARD: markdown, md.KEY_MODEL_CARD_JSON: card_json})
         planned[name] = _Release(model, card, markdown, card_json, sheet)
     return planned
+
+
+def _check_unreleased(root: Path, names: list[str], force: bool) -> None:
+    """Without `force`, none of the files a release of `names` writes may exist in `root` yet."""
+    from segmin.nav_eval.runtime.shipped_models import CARD_SUFFIX, SHEET_SUFFIX
+
+    if force:
+        return
+    for name in names:
+        for suffix in (".onnx", ".md", CARD_SUFFIX, SHEET_SUFFIX):
+            if (root / f"{name}{suffix}").exists():
+                raise ValueError(f"{root / f'{name}{suffix}'}: already released (use --force to replace it)")
 
 
 def _contact_sheet(run: Path, card: dict[str, Any]) -> bytes | None:
