@@ -141,6 +141,7 @@ def test_release_ships_the_model_with_its_card_and_the_name_resolves(pipeline_ru
 
 
 def test_release_never_replaces_a_model_without_force(pipeline_run, registry, capsys) -> None:
+    registry.mkdir(parents=True, exist_ok=True)
     (registry / "vineyards.md").write_text("a card left without its model")
     assert segmin_main(["models", "release", "--run", str(pipeline_run)]) == 2  # any file of the family counts
     assert "vineyards.md: already released (use --force" in capsys.readouterr().err
