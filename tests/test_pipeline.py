@@ -647,7 +647,7 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
         ("train_vineyard_d_tree_edges", 2122, 3),
     ]
     assert card["data"]["train_frames"] == 6 and card["data"]["val_frames"] == 2
-    assert [(w["world"], w["seed"]) for w in card["data"]["validation"]] == [("slope_vineyard_s4", 5201)]
+    assert [(w["world"], w["seed"]) for w in card["data"]["validation"]] == [("heldout_vineyard_row_end_hedge", 5201)]
     report = (release_run.out / "report.md").read_text()
     assert (
         "- **vineyards/by_trees** (fine-tuning stage, from the stage before's checkpoint): 4 training frames" in report
@@ -672,6 +672,11 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
             "training world of vineyards",
         ),
         ("families.vineyards.validation=[{world: straight_vineyard, seed: 1}]", "test field of vineyards"),
+        (
+            "families.vineyards.validation=[{world: high_trees, seed: 1}]",
+            "high_trees is a test field of the test fields",
+        ),
+        ("families.vineyards.validation=[{world: slope_vineyard_s4, seed: 1}]", "test field of the sloped test rows"),
         ("families.vineyards.val_worlds=[train_vineyard_a]", "exactly one of the two"),
         ("families.vineyards.validation=[]", "exactly one of the two"),
         ("families.vineyards.validation=[{world: tune_pear, seed: 1}, {world: tune_pear, seed: 1}]", "listed twice"),
@@ -688,6 +693,15 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
 def test_release_profiles_are_validated(override: str, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         load_pipeline_config("release_micro", [override])
+
+
+def test_a_world_s_old_name_is_that_world_when_validation_is_checked() -> None:
+    overrides = [
+        "families.vineyards.train_worlds=[train_vineyard_under_nets]",
+        "families.vineyards.validation=[{world: train_vineyard_a_levers, seed: 1}]",  # its old name
+    ]
+    with pytest.raises(ConfigError, match="train_vineyard_a_levers is a training world of vineyards"):
+        load_pipeline_config("release_micro", overrides)
 
 
 def test_a_stage_whose_keep_rule_its_training_contradicts_is_refused_before_the_first_stage(tmp_path: Path) -> None:

@@ -304,18 +304,26 @@ class PipelineConfig:
 def check_held_out(config: PipelineConfig) -> None:
     """A `validation` world is held out: no training stage of any family renders it, and it is
     none of the closed-loop test fields (a choice made on it would then fit the test)."""
-    trained = {w: f for f in config.families for step in config.training_chain(f) for w in step.worlds}
-    fields = {w: f for f, plan in config.families.items() for w in plan.fields}
+    from segmin.data.synth.spec import RENAMED_WORLDS, TEST_FIELDS
+
+    def same(world: str) -> str:  # an old name is the world it was renamed to
+        return RENAMED_WORLDS.get(world, world)
+
+    trained = {same(w): f for f in config.families for step in config.training_chain(f) for w in step.worlds}
+    fields = {same(w): f for f, plan in config.families.items() for w in plan.fields}
+    fields.update({w: "the test fields" for w in TEST_FIELDS if w not in fields})
     for family, plan in config.families.items():
         for entry in plan.validation:
-            if entry.world in trained:
+            world = same(entry.world)
+            if world in trained:
                 raise ValueError(
-                    f"families.{family}.validation: {entry.world} is a training world of {trained[entry.world]}; "
+                    f"families.{family}.validation: {entry.world} is a training world of {trained[world]}; "
                     "validation worlds must be held out"
                 )
-            if entry.world in fields:
+            if world in fields or world.startswith("slope_"):
+                owner = fields.get(world, "the sloped test rows")
                 raise ValueError(
-                    f"families.{family}.validation: {entry.world} is a test field of {fields[entry.world]}; "
+                    f"families.{family}.validation: {entry.world} is a test field of {owner}; "
                     "validation worlds must be held out"
                 )
 
