@@ -182,6 +182,13 @@ def test_a_nav_eval_killed_between_runs_resumes_with_its_finished_runs(tmp_path,
     assert len(json.loads((out / "trajectories.json").read_text())) == 3  # the kept run's path too
     assert main(command) == 0 and ran == [0, 1, 2]  # finished: nothing to redo
     assert main([*command, "--force"]) == 0 and ran == [0, 1, 2, 0, 1, 2]  # --force starts over
+    # A forced redo killed part-way resumes from its own runs, never from those before the force.
+    monkeypatch.setattr(evaluate.Worker, "run", killed_at_run_1)
+    ran.clear()
+    assert main([*command, "--force"]) == 130 and ran == [0]
+    monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: ran.append(job.run) or _driven(job))
+    assert main(command) == 0 and ran == [0, 1, 2]
+    capsys.readouterr()
     # Another evaluation's results are not overwritten (its seed differs) without --force.
     assert main([*command, "--seed", "1"]) == 2
     err = capsys.readouterr().err.strip()

@@ -20,6 +20,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import time
 import traceback
 import zlib
@@ -420,6 +421,8 @@ def run_evaluation(
     if out is not None and resume:
         _check_same_evaluation(out, meta)
         finished = stored_runs(out / RUNS_FOLDER, keys.values(), RunResult.from_stored)
+    elif out is not None:  # starting over: a later resume must not pick up runs from before
+        shutil.rmtree(out / RUNS_FOLDER, ignore_errors=True)
     todo = [job for job in jobs if keys.get(id(job)) not in finished]
     _check_bag_paths(todo)
     if finished:
