@@ -31,17 +31,17 @@ _FOLDED_BIAS = ".weight_bias"  # the bias the exporter gives a convolution it fo
 
 
 def network_from_onnx(
-    path: Path, frames_root: Path, count: int = 64, *, batch: int = 16
+    path: Path, frames_root: Path, count: int = 64, *, batch: int = 16, domains: list[str] | None = None
 ) -> tuple[SegmentationNet, np.ndarray]:
     """The PyTorch network of the segmin ONNX model at `path`, BatchNorm statistics measured on up
-    to `count` frames of `frames_root` (any dataset root or image folder, `export.verify.load_frames`),
-    and those frames (uint8 N x H x W x 3 at the model's input size) for `check_conversion`.
+    to `count` frames of `frames_root` (any dataset root or image folder, `export.verify.load_frames`;
+    `domains` keeps a dataset root's frames to those), and those frames (uint8 N x H x W x 3 at the model's input size) for `check_conversion`.
 
     ValueError naming the file when it is not an fp32 segmin model whose weights fit the
     architecture its metadata names, or naming the folder when it has no frames.
     """
     props, tensors = _read_segmin_onnx(path)
-    frames = load_frames(frames_root, md.parse_input_size(props[md.KEY_INPUT_SIZE]), limit=count)
+    frames = load_frames(frames_root, md.parse_input_size(props[md.KEY_INPUT_SIZE]), limit=count, domains=domains)
     model = build_model("none", architecture=props.get(md.KEY_ARCHITECTURE, "lraspp_mobilenet_v3_large"))
     _load_folded(model, tensors, path)
     _measure_batchnorm_inputs(model, frames, batch)

@@ -684,6 +684,9 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
         ("families.vineyards.finetune=[{name: a, train_overrides: [backbone_weights=x.pt]}]", "previous stage"),
         ("families.vineyards.finetune=[{name: base}]", "other than 'base'"),
         ("families.vineyards.finetune=[{name: a}, {name: a}]", "must differ"),
+        ("families.vineyards.start_from={model: vineyards, stage: by_trees}", "name a stage with one after it"),
+        ("families.vineyards.start_from={model: ' '}", "model: name a shipped model"),
+        ("families.vineyards.start_from={model: vineyards, calibration_frames: 0}", "calibration_frames must be >= 1"),
         (
             "families={apples: {train_worlds: [train_trees_a], val_worlds: [train_trees_a], fields: [pear_field]}}",
             "release: no family",
@@ -739,3 +742,60 @@ def test_the_release_profile_is_the_shipped_recipe_and_the_next_stage() -> None:
     for family, plan in config.families.items():
         held_out = {v.world for v in plan.validation}
         assert held_out and not held_out & {w for s in config.training_chain(family) for w in s.worlds}
+
+
+def test_a_run_starts_its_chain_at_a_stage_with_a_model_made_before(
+    exported: tuple[Path, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """start_from: an exported model (ONNX, 64 px) stands in for the micro release's tree_edges;
+    base and tree_edges are not trained, by_trees fine-tunes from it, its gate judges it against it."""
+    import cv2
+    import yaml
+
+    from segmin.nav_eval.seg_eval.predictor import load_predictor
+
+    onnx = exported[0]
+    out = tmp_path / "run"
+    start = f"families.vineyards.start_from={{model: {onnx}, stage: tree_edges, calibration_frames: 4}}"
+    assert main(["pipeline", "--config", "release_micro", "--out", str(out), start]) == 0
+    assert "largest probability difference to the ONNX model" in capsys.readouterr().out
+    cache = StageCache(out)
+    assert cache.record("train/vineyards/base") is None and not (out / "train" / "vineyards" / "base").exists()
+    given = cache.record("train/vineyards/tree_edges").outputs
+    assert given["kept"] == "given" and given["epochs"] == 0 and given["backbone_weights"] == str(onnx)
+    assert not (out / "train" / "vineyards" / "tree_edges" / "metrics.csv").exists()  # nothing trained
+    # The given checkpoint computes what the ONNX model computes (BatchNorm measured again).
+    frame = next(p for p in sorted((out / "render" / "val").rglob("*.png")) if "images" in p.parts)
+    image = cv2.cvtColor(cv2.imread(str(frame)), cv2.COLOR_BGR2RGB)
+    probs = [load_predictor(p, threads=1).predict(image)[0] for p in (Path(given["checkpoint"]), onnx)]
+    assert abs(probs[0] - probs[1]).max() < 1e-3
+    config = yaml.safe_load((out / "train" / "vineyards" / "by_trees" / "config.yaml").read_text())
+    assert config["backbone_weights"] == given["checkpoint"]
+    card = json.loads((out / "release" / "vineyards.card.json").read_text())
+    assert card["candidate_gate"]["stage"] == "by_trees" and not card["candidate_gate"]["passed"]
+    assert [(s["stage"], s["start"], s["kept"]) for s in card["stages"]] == [
+        ("train/vineyards/tree_edges", str(onnx), "given")
+    ]
+    report = (out / "report.md").read_text()
+    assert "| vineyards/tree_edges | 0 |" in report and "| vineyards/base |" not in report
+
+
+def test_a_given_state_dict_must_fit_the_stage_s_network_whole(tmp_path: Path) -> None:
+    import torch
+
+    from segmin.app.pipeline.config import StartFrom
+    from segmin.app.pipeline.given_stage import given_stage
+    from segmin.models.lraspp import build_model
+    from segmin.train.config import load_train_config
+
+    train_config = load_train_config("quick", ["image_size=64", "data.val_domains=[]"])
+    whole = build_model("none", architecture=train_config.architecture).state_dict()
+    fits, partial = tmp_path / "fits.pt", tmp_path / "partial.pt"
+    torch.save(whole, fits)
+    torch.save(dict(list(whole.items())[:10]), partial)
+    outputs = given_stage(StartFrom(model=str(fits)), train_config, tmp_path, tmp_path / "stage", log=print)
+    assert outputs["kept"] == "given" and outputs["held_out"] is None  # no held-out frames configured
+    with pytest.raises(ValueError, match=r"start_from.model .*partial.pt: does not fit the stage's"):
+        given_stage(StartFrom(model=str(partial)), train_config, tmp_path, tmp_path / "stage2", log=print)
+    with pytest.raises(FileNotFoundError, match=r"start_from.model .*missing.pt: no such file"):
+        given_stage(StartFrom(model=str(tmp_path / "missing.pt")), train_config, tmp_path, tmp_path / "s3", log=print)

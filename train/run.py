@@ -190,7 +190,7 @@ def _fit(config: TrainConfig, out_dir: Path, resume: bool, dist: DistInfo) -> Fi
         loaders,
         ctx,
         logger,
-        info=_model_info(config),
+        info=checkpoint_model_info(config),
         config_dict=to_dict(config),
         clock=CheckpointClock(config.checkpoint_every_steps, config.checkpoint_every_minutes),
     )
@@ -424,7 +424,7 @@ def _average_batchnorm_statistics(run: Run, averaged: AveragedModel) -> None:
                 all_reduce_sum(buffer).div_(run.dist.world_size)
 
 
-def _model_info(config: TrainConfig) -> dict[str, Any]:
+def checkpoint_model_info(config: TrainConfig) -> dict[str, Any]:
     """What every checkpoint of the run says about its model and the data it learned from."""
     d = config.data
     train_data = f"{d.root} domains={d.domains or 'all'}"

@@ -7,12 +7,15 @@ test fields. Validation is either `validation` (worlds no training stage uses, e
 from a seed of its own: what a model choice may look at) or `val_worlds` (the training worlds
 grown again from another seed: the quick profiles). A family may add fine-tuning stages
 (`finetune`), each starting from the checkpoint the stage before it kept, so that a recipe
-of several trainings is one run. Training and nav configs are shipped names or YAML paths
+of several trainings is one run; `start_from` lets a run begin that chain at one of its stages
+with a model made before (a shipped model or a checkpoint), so a next stage can be tried without
+training the stages before it again. Training and nav configs are shipped names or YAML paths
 (relative to the working folder).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -46,6 +49,29 @@ class ValidationWorld:
             raise ValueError(f"seed must be >= 0, got {self.seed!r}")
         if isinstance(self.frames, bool) or self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames!r}")
+
+
+@dataclass
+class StartFrom:
+    """A model that stands in for a family's chain up to and including `stage`: the stages before
+    it are not trained in this run, the named stage's model is this one, scored on the held-out
+    frames like a trained stage (so a gated candidate after it is judged against it), and the
+    stages after it fine-tune from it. The data the family renders stays the whole recipe's.
+
+    `model`: a shipped model name or a segmin fp32 ONNX file (its BatchNorm statistics measured
+    again on `calibration_frames` of that stage's training frames, as `segmin models to-torch`
+    does), or a PyTorch state dict (.pt) used as it is.
+    """
+
+    model: str
+    stage: str = FIRST_STAGE
+    calibration_frames: int = 64
+
+    def __post_init__(self) -> None:
+        if not str(self.model).strip():
+            raise ValueError("model: name a shipped model, an .onnx or a .pt file")
+        if isinstance(self.calibration_frames, bool) or self.calibration_frames < 1:
+            raise ValueError(f"calibration_frames must be >= 1, got {self.calibration_frames!r}")
 
 
 @dataclass
@@ -84,6 +110,7 @@ class TrainStep:
     overrides: tuple[str, ...]  # after the family's train_overrides
     keep: Keep | None
     gate: GateRule | None = None  # a candidate stage's shipping rule (segmin.app.pipeline.gate)
+    given: StartFrom | None = None  # not trained here: this model stands in for it (FamilyPlan.start_from)
 
 
 @dataclass
@@ -103,6 +130,7 @@ class FamilyPlan:
     validation: list[ValidationWorld] = field(default_factory=list)
     keep: Keep | None = None  # the first stage's model-choice rule (null: whatever the training config does)
     finetune: list[FineTunePlan] = field(default_factory=list)
+    start_from: StartFrom | None = None  # begin the chain at a stage with a model made before
 
     def __post_init__(self) -> None:
         for name in ("train_worlds", "fields"):
@@ -122,6 +150,21 @@ class FamilyPlan:
         pairs = [(v.world, v.seed) for v in self.validation]
         if len(set(pairs)) != len(pairs):
             raise ValueError(f"validation: a world and seed listed twice in {pairs}")
+        startable = [FIRST_STAGE, *names][:-1]  # a stage with one after it to train
+        if self.start_from is not None and self.start_from.stage not in startable:
+            raise ValueError(
+                f"start_from.stage {self.start_from.stage!r}: name a stage with one after it to train, "
+                f"one of {startable} (a family without finetune stages has none)"
+            )
+
+    def run_chain(self, family: str, default_frames: int) -> list[TrainStep]:
+        """The stages this run has: the whole chain, or with `start_from` the chain from its stage
+        on, that stage given (not trained)."""
+        steps = self.training_chain(family, default_frames)
+        if self.start_from is None:
+            return steps
+        index = [step.name for step in steps].index(self.start_from.stage)
+        return [dataclasses.replace(steps[index], given=self.start_from), *steps[index + 1 :]]
 
     def training_chain(self, family: str, default_frames: int) -> list[TrainStep]:
         """The family's training stages in order: the first on `train_worlds`, then each fine-tuning
@@ -293,8 +336,13 @@ class PipelineConfig:
                 raise ValueError(f"release: no family is named as a shipped model ({', '.join(SHIPPED_NAMES)})")
 
     def training_chain(self, family: str) -> list[TrainStep]:
-        """`family`'s training stages in order; the last one's model is exported."""
+        """`family`'s training stages in order, the whole recipe (what the family renders and
+        what its model has been trained on); the last one's model is exported."""
         return self.families[family].training_chain(family, self.render.frames_per_world)
+
+    def run_chain(self, family: str) -> list[TrainStep]:
+        """`family`'s stages in this run: `training_chain`, from `start_from`'s stage on."""
+        return self.families[family].run_chain(family, self.render.frames_per_world)
 
     def fan_out(self) -> Executor:
         """The render and nav-eval stages' executor."""

@@ -31,9 +31,7 @@ def write_pipeline_report(
     """
     families = list(config.families)
     # Every training stage by its label: the family, or family/stage in a chain of fine-tuning stages.
-    trainings = {
-        step.key.removeprefix("train/"): step.key for family in families for step in config.training_chain(family)
-    }
+    trainings = {step.key.removeprefix("train/"): step.key for family in families for step in config.run_chain(family)}
     curves = run_dir / "report" / "training_curves.png"
     _training_curves(run_dir, trainings, curves)
     model_results, oracle_results = _nav_eval_results(config, run_dir, families)
@@ -87,7 +85,7 @@ def _title_and_stages(config: PipelineConfig, cache: StageCache, families: list[
     ]
     for key in [
         "render",
-        *[step.key for f in families for step in config.training_chain(f)],
+        *[step.key for f in families for step in config.run_chain(f)],
         *[f"{s}/{f}" for s in ("export", "real-eval", "nav-eval") for f in families],
         *(["nav-eval/oracle"] if config.nav.oracle else []),
     ]:
@@ -325,7 +323,7 @@ def _real_photos(
         "|---|---|---|---|---|---|---|",
     ]
     for family, o in results.items():
-        train = cache.record(config.training_chain(family)[-1].key)
+        train = cache.record(config.run_chain(family)[-1].key)
         val_iou = kept_val_iou(train.outputs) if train and train.outputs else None
         lines.append(
             f"| {family} | {format_figure(val_iou)} | {format_figure(o['mean_iou'])} | {format_figure(o['pooled_iou'])} | "

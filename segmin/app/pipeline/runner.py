@@ -110,7 +110,7 @@ class PipelineRunner:
         """Train every family's chain of stages, then export each family's last (or, when the last
         is a candidate that fails its gate, the stage before it); {family: (onnx path, export hash)}."""
         config = self.config
-        chains = {family: config.training_chain(family) for family in config.families}
+        chains = {family: config.run_chain(family) for family in config.families}
         trained_all = self._train_chains(chains, render, backbone, upstream)
         models: dict[str, tuple[str, str]] = {}
         for family, chain in chains.items():
@@ -184,6 +184,11 @@ class PipelineRunner:
                     step,
                     init=before[1]["checkpoint"] if before else None,
                 )
+                if step.given is not None:  # not trained here: the model made before stands in for it
+                    upstream[step.key], outputs = self._given(step, train_config, render_dir, upstream["render"])
+                    last[family] = (step.key, outputs)
+                    trained[family].append(outputs)
+                    continue
                 chained = (upstream[before[0]],) if before else ()
                 jobs[family] = (train_config, hash_inputs("train", upstream["render"], *chained, to_dict(train_config)))
                 keys[family] = step.key
@@ -193,6 +198,31 @@ class PipelineRunner:
                 last[family] = (keys[family], outputs)
                 trained[family].append(outputs)
         return trained
+
+    def _given(
+        self, step: TrainStep, train_config: Any, render_dir: Path, render_hash: str
+    ) -> tuple[str, dict[str, Any]]:
+        """A stage `start_from` gives (its input hash, its outputs): the model's checkpoint and its
+        held-out figures, redone when the model file, the frames or the stage's config change."""
+        from segmin.app.pipeline.cache import file_digest
+        from segmin.app.pipeline.given_stage import given_stage
+        from segmin.nav_eval.runtime.shipped_models import resolve_model
+
+        start = step.given
+        assert start is not None
+        model = Path(start.model)
+        source = model if model.suffix.lower() == ".pt" else resolve_model(start.model)
+        if not source.is_file():
+            raise FileNotFoundError(f"start_from.model {start.model}: no such file")
+        key_hash = hash_inputs("given", render_hash, to_dict(start), file_digest(source), to_dict(train_config))
+        outputs = self._stage(
+            "train",
+            step.key,
+            key_hash,
+            lambda folder, fresh: given_stage(start, train_config, render_dir / step.render_split, folder, self.log),
+            reads=("render",),
+        )
+        return key_hash, outputs
 
     def _real_eval(self, models: dict[str, tuple[str, str]], fingerprint: Any, upstream: dict[str, str]) -> None:
         """Score every exported model on the labelled real photos."""
@@ -307,7 +337,7 @@ class PipelineRunner:
         stages.nav_config(self.config)
         for family, plan in self.config.families.items():
             try:
-                for step in self.config.training_chain(family):
+                for step in self.config.run_chain(family):
                     train_config = load_train_config(
                         plan.train_config, [f"family={family}", *plan.train_overrides, *step.overrides]
                     )

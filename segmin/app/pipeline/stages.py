@@ -40,11 +40,12 @@ def output_paths(stage: str, folder: Path, outputs: dict[str, Any]) -> list[Path
 
     The whole stage folder, except for training: its folder also holds what only training reads
     back (last.pt to resume, logs, previews), and a log appended by a resumed run changes no
-    model. There the kept checkpoint and metrics.csv (the report's curves) count. The report
+    model. There the kept checkpoint and metrics.csv (the report's curves) count; a stage given
+    by `start_from` trained nothing and has no metrics.csv. The report
     writes report.md and report.html beside the stage folders.
     """
     if stage == "train":
-        return [Path(outputs["checkpoint"]), folder / "metrics.csv"]
+        return [Path(outputs["checkpoint"]), *([] if outputs.get("kept") == "given" else [folder / "metrics.csv"])]
     if stage == "report":
         return [folder, Path(outputs["markdown"]), Path(outputs["html"])]
     return [folder]
