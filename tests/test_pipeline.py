@@ -659,6 +659,7 @@ def test_the_release_run_ends_in_the_released_files_with_their_cards(release_run
     markdown = (folder / "vineyards.md").read_text()
     assert "## Training stages" in markdown and "from train/vineyards/base/best.pt" in markdown
     assert "candidate stage `by_trees`: failed its gate" in markdown
+    assert "a test set looked at once for this model, after it was chosen" in markdown
     # Into the run's folder only: the package's registry keeps its own models.
     shipped = models_dir() / "vineyards.card.json"
     assert not shipped.is_file() or json.loads(shipped.read_text())["recipe"]["profile"] != "release_micro"
@@ -757,7 +758,8 @@ def test_a_run_starts_its_chain_at_a_stage_with_a_model_made_before(
     onnx = exported[0]
     out = tmp_path / "run"
     start = f"families.vineyards.start_from={{model: {onnx}, stage: tree_edges, calibration_frames: 4}}"
-    assert main(["pipeline", "--config", "release_micro", "--out", str(out), start]) == 0
+    looks = "families.vineyards.photo_looks_before=3"
+    assert main(["pipeline", "--config", "release_micro", "--out", str(out), start, looks]) == 0
     assert "largest probability difference to the ONNX model" in capsys.readouterr().out
     cache = StageCache(out)
     assert cache.record("train/vineyards/base") is None and not (out / "train" / "vineyards" / "base").exists()
@@ -776,6 +778,9 @@ def test_a_run_starts_its_chain_at_a_stage_with_a_model_made_before(
     assert [(s["stage"], s["start"], s["kept"]) for s in card["stages"]] == [
         ("train/vineyards/tree_edges", str(onnx), "given")
     ]
+    assert card["real_photos"]["looks"] == {"before": 3, "this_model": 1}
+    markdown = (out / "release" / "vineyards.md").read_text()
+    assert "a test set looked at 3 times while this model's recipe was made and once for this model" in markdown
     report = (out / "report.md").read_text()
     assert "| vineyards/tree_edges | 0 |" in report and "| vineyards/base |" not in report
 

@@ -72,7 +72,7 @@ def build_card(run_dir: Path, family: str) -> dict[str, Any]:
         "stages": [_stage_entry(run_dir, key, outputs, worlds) for key, outputs in zip(keys, chain, strict=True)],
         "candidate_gate": export.get("gate"),  # a candidate stage's verdict on held-out frames (None: no gate)
         "synthetic_val_iou": train.get("kept_val_iou"),
-        "real_photos": _real_photos(cache, family),
+        "real_photos": _real_photos(cache, family, _photo_looks_before(run_dir, family)),
         "closed_loop": _closed_loop(run_dir, cache, family),
         "latency": export.get("latency_ms"),
         "licence": LICENCE,
@@ -124,7 +124,7 @@ def card_markdown(card: dict[str, Any]) -> str:
         )
     if real:
         lines.append(
-            f"- real photos ({real['images']} labelled vineyard photos, a test set): mean IoU "
+            f"- real photos ({real['images']} labelled vineyard photos, a test set{_looks(real)}): mean IoU "
             f"{format_figure(real['mean_iou'])} (pooled {format_figure(real['pooled_iou'])}), precision "
             f"{format_figure(real['precision'])} and recall {format_figure(real['recall'])} over all pixels "
             f"(per-photo means {format_figure(real['mean_precision'])} / {format_figure(real['mean_recall'])}); "
@@ -182,6 +182,16 @@ def _chain_seconds(run_dir: Path, keys: list[str]) -> float | None:
     """The whole chain's time of epochs (None when no stage recorded one)."""
     times = [t for t in (_training_seconds(run_dir, key) for key in keys) if t is not None]
     return sum(times) if times else None
+
+
+def _looks(real: dict[str, Any]) -> str:
+    """How often the photo set was looked at, for the card's line (cards from before it was kept: nothing)."""
+    looks = real.get("looks")
+    if not looks:
+        return ""
+    before = looks["before"]
+    earlier = f"{before} time{'s' * (before != 1)} while this model's recipe was made and " if before else ""
+    return f" looked at {earlier}once for this model, after it was chosen"
 
 
 def _stage_entry(run_dir: Path, key: str, outputs: dict[str, Any], worlds: list[dict[str, Any]]) -> dict[str, Any]:
@@ -258,7 +268,16 @@ def _data(run_dir: Path, cache: StageCache, family: str, stage: str) -> dict[str
     }
 
 
-def _real_photos(cache: StageCache, family: str) -> dict[str, Any] | None:
+def _photo_looks_before(run_dir: Path, family: str) -> int:
+    """The family's `photo_looks_before` in the run's resolved profile (0 when it has none)."""
+    import yaml
+
+    path = run_dir / RECIPE_FILE
+    recipe = (yaml.safe_load(path.read_text(encoding="utf-8")) or {}) if path.is_file() else {}
+    return int(((recipe.get("families") or {}).get(family) or {}).get("photo_looks_before") or 0)
+
+
+def _real_photos(cache: StageCache, family: str, looks_before: int) -> dict[str, Any] | None:
     real = _finished(cache, f"real-eval/{family}")
     if real is None:
         return None
@@ -272,6 +291,8 @@ def _real_photos(cache: StageCache, family: str) -> dict[str, Any] | None:
     return {
         **{k: real.get(k) for k in keys},
         "shipped_photos": on_shipped,
+        # A test set is worth what its looks left of it: before this run (the record), and this run's one.
+        "looks": {"before": looks_before if on_shipped else 0, "this_model": 1},
         "contact_sheet": f"real-eval/{family}/contact_sheet.png",
     }
 

@@ -131,6 +131,10 @@ class FamilyPlan:
     keep: Keep | None = None  # the first stage's model-choice rule (null: whatever the training config does)
     finetune: list[FineTunePlan] = field(default_factory=list)
     start_from: StartFrom | None = None  # begin the chain at a stage with a model made before
+    # How many times the shipped real photos (a test set) were scored for models of this family's
+    # recipe before this run, while it was being made: the record its model card carries beside
+    # this run's one look (docs/results/history/models.md lists each). Changes no stage's output.
+    photo_looks_before: int = 0
 
     def __post_init__(self) -> None:
         for name in ("train_worlds", "fields"):
@@ -150,6 +154,8 @@ class FamilyPlan:
         pairs = [(v.world, v.seed) for v in self.validation]
         if len(set(pairs)) != len(pairs):
             raise ValueError(f"validation: a world and seed listed twice in {pairs}")
+        if isinstance(self.photo_looks_before, bool) or self.photo_looks_before < 0:
+            raise ValueError(f"photo_looks_before must be >= 0, got {self.photo_looks_before!r}")
         startable = [FIRST_STAGE, *names][:-1]  # a stage with one after it to train
         if self.start_from is not None and self.start_from.stage not in startable:
             raise ValueError(
