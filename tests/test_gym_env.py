@@ -68,9 +68,9 @@ def _old_loop(world: FakeWorld, config, method: str, seed: int):
     renderer = FakeRenderer(world)
     row = RowEnv(world, renderer, config)
     navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, fuse_frames=1))
-    r = config.rates
-    cam, seg, cmd = r.physics_hz // r.camera_hz, r.physics_hz // r.segment_hz, r.physics_hz // r.command_hz
-    fuse = config.perception.fuse_frames
+    r, runtime = config.rates, config.follower.runtime
+    cam, seg, cmd = r.physics_hz // r.camera_hz, r.physics_hz // runtime.segment_hz, r.physics_hz // runtime.command_hz
+    fuse = config.follower.config(method, 5.0).navigator.fuse_frames
     frames: dict[int, object] = {}
     info = row.reset(seed)
     ended = info["reason"] is not None

@@ -52,8 +52,8 @@ def test_earlier_results_are_not_overwritten_without_force(tmp_path, capsys):
 @pytest.mark.parametrize(
     "setting, message",
     [
-        ("navigator.v_max=-1", "v_max"),
-        ("navigator.smooth_window=4", "smooth_window"),
+        ("follower.navigator.v_max=-1", "v_max"),
+        ("follower.navigator.smooth_window=4", "smooth_window"),
     ],
 )
 def test_bad_navigator_settings_fail_before_any_run(tmp_path, capsys, setting, message):
@@ -68,7 +68,10 @@ def test_corridor_limits_that_leave_no_row_seen_fail_before_any_run(tmp_path, ca
     SegCorridor run would be SegMinD's fallback, reported as SegCorridor)."""
     out = tmp_path / "out"
     fast = [*FAST[:2], "--methods", "segcorridor", *FAST[4:]]
-    assert main(["nav-eval", "--model", "oracle", "--out", str(out), "--set", "corridor.min_points=1000", *fast]) == 2
+    assert (
+        main(["nav-eval", "--model", "oracle", "--out", str(out), "--set", "follower.corridor.min_points=1000", *fast])
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert err.startswith("segmin: error: ") and len(err.splitlines()) == 1
     assert "corridor.min_points (1000)" in err and "corridor.max_points (600)" in err
@@ -78,9 +81,9 @@ def test_corridor_limits_that_leave_no_row_seen_fail_before_any_run(tmp_path, ca
 @pytest.mark.parametrize(
     "setting, message",
     [
-        ("navigator.smooth_window=4", "navigator.smooth_window must be an odd integer"),
-        ("corridor.min_points=1000", "corridor.min_points (1000)"),
-        ("corridor.h_min=5.0", "corridor.h_min (5.0) must be below corridor.h_max"),
+        ("follower.navigator.smooth_window=4", "navigator: smooth_window must be an odd integer"),
+        ("follower.corridor.min_points=1000", "corridor.min_points (1000)"),
+        ("follower.corridor.h_min=5.0", "corridor.h_min (5.0) must be below corridor.h_max"),
     ],
 )
 def test_navigator_sections_are_checked_when_the_config_loads(setting, message):

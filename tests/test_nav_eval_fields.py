@@ -42,7 +42,11 @@ def test_short_oracle_run_per_field_has_finite_metrics(worker, field: str) -> No
 
 WORLDS = Path(__file__).resolve().parents[1] / "configs" / "worlds"
 # SegCorridor as the sloped rows want it: the skid-steer robot, centre_hold with the slope feedforward.
-SLOPED = ["robot.model=skid_steer", "corridor.controller=centre_hold", "corridor.hold_slope_drift=0.5"]
+SLOPED = [
+    "robot.model=skid_steer",
+    "follower.corridor.controller=centre_hold",
+    "follower.corridor.hold_slope_drift=0.5",
+]
 
 
 @pytest.mark.parametrize(("world", "cross_slope"), [("slope_vineyard_s8.yaml", -0.08), ("slope_pear_s8.yaml", 0.08)])
@@ -135,7 +139,7 @@ def test_run_evaluation_writes_outputs_and_reports_failed_runs(tmp_path) -> None
     # An invalid navigator value set past the loader is refused before the first run (it used
     # to make every run raise); at load time the errors tests refuse it.
     bad = load_nav_config(overrides=TINY)
-    bad.navigator["smooth_window"] = 4
+    bad.follower.navigator["smooth_window"] = 4
     with pytest.raises(ValueError, match="smooth_window"):
         run_evaluation(
             "oracle", "straight_vineyard", "segmin,segmind", 1, tmp_path / "bad", 1, bad, progress=False, plots=False

@@ -275,5 +275,7 @@ def test_a_depth_cut_beyond_the_sensors_range_is_refused_wherever_it_is_set() ->
     assert RowFollower(None, navigator, RuntimeConfig(checks=SensorChecks(max_depth_m=30.0)))
     with pytest.raises(ValueError, match=r"^parameter depth_threshold: depth_threshold \(25 m\) is beyond"):
         node_params({"depth_threshold": 25.0})
-    with pytest.raises(ValueError, match=r"depth threshold for 'high_trees': .* \(sensor_checks.max_depth_m\)"):
-        load_nav_config(None, ["sensor_checks.max_depth_m=9"])
+    with pytest.raises(
+        ValueError, match=r"depth threshold for 'high_trees': .* \(follower.runtime.checks.max_depth_m\)"
+    ):
+        load_nav_config(None, ["follower.runtime.checks.max_depth_m=9"])

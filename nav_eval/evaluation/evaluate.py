@@ -41,6 +41,7 @@ from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
 from segmin.nav_eval.sim.factories import (
     FieldContext,
     field_label,
+    follower_config,
     make_follower,
     make_navigator,
     make_segmenter,
@@ -216,7 +217,7 @@ def check_navigators(spec: Any, label: str, methods: list[str], config: NavEvalC
         except (TypeError, ValueError) as exc:
             raise ValueError(
                 f"navigator settings for {label} / {method} (depth threshold "
-                f"{threshold!r}, navigator {config.navigator}): {exc}"
+                f"{threshold!r}, follower {config.follower}): {exc}"
             ) from exc
 
 
@@ -321,7 +322,7 @@ class Worker:
             if job.video_path and episode.video:
                 from segmin.nav_eval.replay.video import write_video
 
-                write_video(job.video_path, episode.video, fps=config.rates.command_hz)
+                write_video(job.video_path, episode.video, fps=config.follower.runtime.command_hz)
         except Exception as exc:  # a failed run is a row, never a crash of the evaluation
             result.success, result.reason = False, "error"
             result.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
@@ -336,7 +337,7 @@ def _recorder(job: Job, model: str, config: NavEvalConfig, ctx: FieldContext, de
     from segmin import __version__
     from segmin.nav_eval.sim.bag_recorder import RunRecorder
 
-    rates = config.rates
+    rates, follower = config.rates, follower_config(job.method, depth_threshold, config)
     metadata = {
         "version": __version__,
         "field": field_label(job.field),
@@ -346,9 +347,9 @@ def _recorder(job: Job, model: str, config: NavEvalConfig, ctx: FieldContext, de
         "model": model,
         "depth_threshold": depth_threshold,
         "camera_hz": rates.camera_hz,
-        "segment_hz": rates.segment_hz,
-        "command_hz": rates.command_hz,
-        "fuse_frames": config.perception.fuse_frames,
+        "segment_hz": follower.runtime.segment_hz,
+        "command_hz": follower.runtime.command_hz,
+        "fuse_frames": follower.navigator.fuse_frames,
     }
     return RunRecorder(job.bag_path, ctx.camera, job.seed, metadata)
 

@@ -4,7 +4,8 @@ camera frame -> segmenter (ONNX) -> mask -> navigator -> `RowFollower` timing ->
 
 The interfaces between those pieces are `typing.Protocol`s in `protocols` (`Segmenter`,
 `MaskNavigator` and the `NavigatorInputs` a navigator declares); the command, its limits and
-the EMA that every navigator shares are in `control`.
+the EMA that every navigator shares are in `control`; what configures them all, the one
+`FollowerConfig` and `make_navigator`, in `follower_config`.
 
 Only numpy, OpenCV and onnxruntime: never torch, pybullet or matplotlib (the architecture test
 checks it). The main names are importable from here; each is defined in its own module.
@@ -20,6 +21,7 @@ if TYPE_CHECKING:
     from .control import Command
     from .corridor import CorridorConfig, CorridorNavigator
     from .follower import FollowerOutput, RowFollower, RuntimeConfig
+    from .follower_config import CameraConfig, FollowerConfig, load_follower_config, make_navigator
     from .navigator import Navigator, NavigatorConfig, target_column
     from .protocols import MaskNavigator, NavigatorInputs, Segmenter
     from .segmenter import OnnxSegmenter
@@ -41,14 +43,20 @@ _EXPORTS: dict[str, str] = {
     "RowFollower": "follower",
     "RuntimeConfig": "follower",
     "FollowerOutput": "follower",
+    "CameraConfig": "follower_config",
+    "FollowerConfig": "follower_config",
+    "load_follower_config": "follower_config",
+    "make_navigator": "follower_config",
     "OnnxSegmenter": "segmenter",
     "SensorChecks": "sensor_faults",
 }
 __all__ = [
+    "CameraConfig",
     "CameraGeometry",
     "Command",
     "CorridorConfig",
     "CorridorNavigator",
+    "FollowerConfig",
     "FollowerOutput",
     "MaskNavigator",
     "Navigator",
@@ -59,6 +67,8 @@ __all__ = [
     "RuntimeConfig",
     "Segmenter",
     "SensorChecks",
+    "load_follower_config",
+    "make_navigator",
     "target_column",
 ]
 

@@ -1,56 +1,68 @@
 """The closed-loop evaluation config (`configs/nav/default.yaml`), validated by segmin.common.config.
 
 Every number of the simulation a user may change lives here: rates, robot limits, run length,
-start noise, depth thresholds per field. The navigator's own constants (v_max, omega_gain, ...)
-are the paper's and live in `NavigatorConfig`; the `navigator` section may override them, and
-its keys are checked against `NavigatorConfig` at load time.
+start noise, depth thresholds per field. The robot runtime's own settings are its
+`FollowerConfig` (nav_eval.runtime.follower_config), under `follower:` with the same keys as
+`segmin replay --follower` and the ROS 2 node, but for two things each run sets: the method
+(from `--methods`) and the depth threshold (from the field). As one evaluation drives several
+methods, it keeps the settings of both kinds of navigator: `follower.navigator` for the paper's
+three, `follower.corridor` for SegCorridor.
+
+The keys before the follower config (`rates.segment_hz`, `rates.command_hz`,
+`perception.fuse_frames`, `navigator`, `corridor`, `sensor_checks`) are still read, for one
+release, with a one-line deprecation warning (`migrate_old_keys`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from pathlib import Path
 from typing import Any, Literal
 
+from segmin.common.config import ConfigError
 from segmin.data.canopy_region import check_closing_radius
-from segmin.nav_eval.runtime.sensor_faults import SensorChecks, check_depth_range
+from segmin.nav_eval.runtime.corridor import CorridorConfig
+from segmin.nav_eval.runtime.follower import RuntimeConfig
+from segmin.nav_eval.runtime.follower_config import (
+    INTRINSICS,
+    CameraConfig,
+    FollowerConfig,
+    navigator_class,
+    navigator_from_dict,
+)
+from segmin.nav_eval.runtime.sensor_faults import check_depth_range
 from segmin.nav_eval.sim.robot import RobotConfig
+
+log = logging.getLogger(__name__)
 
 DEFAULT_CONFIG = "default"  # the shipped configs/nav/default.yaml
 
 
 @dataclasses.dataclass
 class Rates:
-    """Simulated-time rates in Hz (the paper: camera 30, inference 20, commands 5).
+    """Simulated-time rates in Hz (the paper: physics 60, camera 30); the runtime's own rates
+    (inference 20, commands 5) are `follower.runtime`'s.
 
     The physics tick must be a whole multiple of every other rate, so all events fall on ticks.
     """
 
     physics_hz: int = 60
     camera_hz: int = 30
-    segment_hz: int = 20
-    command_hz: int = 5
 
     def __post_init__(self) -> None:
-        for name in ("physics_hz", "camera_hz", "segment_hz", "command_hz"):
+        for name in ("physics_hz", "camera_hz"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"rates.{name} must be > 0")
-        for name in ("camera_hz", "segment_hz", "command_hz"):
-            if self.physics_hz % getattr(self, name):
-                raise ValueError(f"rates.physics_hz ({self.physics_hz}) must be a multiple of rates.{name}")
-        if self.segment_hz % self.command_hz:
-            raise ValueError(
-                f"rates.segment_hz ({self.segment_hz}) must be a multiple of rates.command_hz "
-                f"({self.command_hz}): every command falls on a segmentation deadline"
-            )
+        if self.physics_hz % self.camera_hz:
+            raise ValueError(f"rates.physics_hz ({self.physics_hz}) must be a multiple of rates.camera_hz")
 
 
 @dataclasses.dataclass
 class Perception:
     """How masks reach the navigator."""
 
-    fuse_frames: int = 3  # OR of the last N segmentation masks (paper: 3)
     width: int | None = None  # camera resolution override (None: the CameraModel default, 224)
     height: int | None = None
     depth_noise: bool = True  # the D435i-like depth-noise model of data.synth.camera
@@ -72,8 +84,6 @@ class Perception:
     imu: bool = True
 
     def __post_init__(self) -> None:
-        if self.fuse_frames < 1:
-            raise ValueError("perception.fuse_frames must be >= 1")
         if self.depth_noise_scale < 0:
             raise ValueError(f"perception.depth_noise_scale must be >= 0, got {self.depth_noise_scale}")
         if self.depth_noise_sampling not in ("auto", "pixels", "field"):
@@ -173,11 +183,51 @@ def check_faults(faults: list[SimFault]) -> None:
                 )
 
 
+# What each run sets, not the config: the method (--methods) and the depth cut (the field's).
+RUN_SET = ("method", "depth_threshold")
+STAND_IN_THRESHOLD = 1.0  # any valid depth cut, to check a navigator section before the fields are known
+
+
+@dataclasses.dataclass
+class EvalFollower:
+    """The robot runtime nav-eval drives: `FollowerConfig`'s sections less what each run sets
+    (`RUN_SET`), with both navigators' settings since one evaluation drives both: `navigator`
+    (NavigatorConfig's fields) for SegMin, SegMinD and SegZeros, `corridor` (CorridorConfig's)
+    for SegCorridor. The camera's intrinsics are the simulator's (perception.width / height):
+    only its mount is set here, and the simulated camera is mounted the same way."""
+
+    runtime: RuntimeConfig = dataclasses.field(default_factory=RuntimeConfig)
+    navigator: dict[str, Any] = dataclasses.field(default_factory=dict)
+    corridor: dict[str, Any] = dataclasses.field(default_factory=dict)
+    camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
+
+    def __post_init__(self) -> None:
+        given = [name for name in INTRINSICS if getattr(self.camera, name)]
+        if given:
+            raise ValueError(
+                f"camera.{given[0]}: the simulator's camera gives the intrinsics (perception.width / height); "
+                "only the mount (mount_height, tilt_deg, mount_forward) is set here"
+            )
+        for section, method in (("navigator", "segmind"), ("corridor", "segcorridor")):
+            values = getattr(self, section)
+            forbidden = sorted(set(RUN_SET) & set(values))
+            if forbidden:
+                raise ValueError(f"{section}: {forbidden} are set by each run, not the config")
+            navigator_from_dict(method, {"depth_threshold": STAND_IN_THRESHOLD, **values}, section)
+
+    def config(self, method: str, depth_threshold: float) -> FollowerConfig:
+        """The FollowerConfig of one run: `method` with the field's `depth_threshold`."""
+        section = self.corridor if navigator_class(method) is CorridorConfig else self.navigator
+        navigator = navigator_from_dict(method, {"depth_threshold": depth_threshold, **section}, "follower.navigator")
+        return FollowerConfig(navigator, self.runtime, self.camera)
+
+
 @dataclasses.dataclass
 class NavEvalConfig:
     """The whole evaluation config."""
 
     rates: Rates = dataclasses.field(default_factory=Rates)
+    follower: EvalFollower = dataclasses.field(default_factory=EvalFollower)
     robot: RobotConfig = dataclasses.field(default_factory=RobotConfig)
     perception: Perception = dataclasses.field(default_factory=Perception)
     run: RunSettings = dataclasses.field(default_factory=RunSettings)
@@ -196,10 +246,6 @@ class NavEvalConfig:
     family_depth_thresholds: dict[str, float] = dataclasses.field(
         default_factory=lambda: {"vineyards": 5.0, "trees": 8.0}
     )
-    navigator: dict[str, Any] = dataclasses.field(default_factory=dict)
-    corridor: dict[str, Any] = dataclasses.field(default_factory=dict)  # SegCorridor (nav_eval.corridor)
-    # The runtime's sensor checks (nav_eval.runtime.sensor_faults): each fault stops the robot.
-    sensor_checks: SensorChecks = dataclasses.field(default_factory=SensorChecks)
     # Sensor faults injected into every run (nav_eval.sim.faults), none by default.
     faults: list[SimFault] = dataclasses.field(default_factory=list)
 
@@ -208,14 +254,18 @@ class NavEvalConfig:
             for k, v in table.items():
                 if not isinstance(v, (int, float)) or v <= 0:
                     raise ValueError(f"depth threshold for {k!r} must be > 0, got {v!r}")
-        for section in ("navigator", "corridor"):
-            _check_section(section, getattr(self, section), self.perception.fuse_frames)
+        runtime = self.follower.runtime
+        for name in ("segment_hz", "command_hz"):
+            if self.rates.physics_hz % getattr(runtime, name):
+                raise ValueError(
+                    f"rates.physics_hz ({self.rates.physics_hz}) must be a multiple of follower.runtime.{name}"
+                )
         check_faults(self.faults)
         for name, threshold in {**self.depth_thresholds, **self.family_depth_thresholds}.items():
             try:
-                check_depth_range(threshold, self.sensor_checks)
+                check_depth_range(threshold, runtime.checks)
             except ValueError as exc:
-                raise ValueError(f"depth threshold for {name!r}: {exc} (sensor_checks.max_depth_m)") from None
+                raise ValueError(f"depth threshold for {name!r}: {exc} (follower.runtime.checks.max_depth_m)") from None
 
     def depth_threshold(self, name: str, family: str) -> float:
         """The depth cut for a field: by name, else by crop family."""
@@ -226,39 +276,100 @@ class NavEvalConfig:
         raise ValueError(f"no depth threshold for field {name!r} (family {family!r}); add it to depth_thresholds")
 
 
-def _check_section(section: str, values: dict[str, Any], fuse_frames: int) -> None:
-    """The `navigator` / `corridor` overrides, built into NavigatorConfig / CorridorConfig.
+# Keys of the config before the follower config -> where they are now (read for one release).
+OLD_KEYS: dict[tuple[str, ...], tuple[str, ...]] = {
+    ("rates", "segment_hz"): ("follower", "runtime", "segment_hz"),
+    ("rates", "command_hz"): ("follower", "runtime", "command_hz"),
+    ("sensor_checks",): ("follower", "runtime", "checks"),
+    ("navigator",): ("follower", "navigator"),
+    ("corridor",): ("follower", "corridor"),
+}
+OLD_FUSE_FRAMES = ("perception", "fuse_frames")  # one window for both navigators then, one each now
 
-    Building them checks the values too (ranges and limits that only fail together), when the
-    config loads: the evaluation builds them per field, after a pipeline's render and training.
-    The depth threshold is the evaluation's, per field; no other check depends on it, so any
-    valid one stands in for it here.
-    """
-    forbidden = {"method", "depth_threshold", "fuse_frames"} & set(values)
-    if forbidden:
-        raise ValueError(f"{section}: {sorted(forbidden)} are set by the evaluation, not the config")
-    try:
-        if section == "navigator":
-            from segmin.nav_eval.runtime.navigator import NavigatorConfig as Target
-        else:
-            from segmin.nav_eval.runtime.corridor import CorridorConfig as Target
-    except ImportError:  # navigator not installed yet: checked when a run builds it
-        return
-    allowed = {f.name for f in dataclasses.fields(Target)} - {"method", "depth_threshold", "fuse_frames"}
-    unknown = sorted(set(values) - allowed)
-    if unknown:
-        raise ValueError(f"{section}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    method = {"method": "segmind"} if section == "navigator" else {}
-    try:
-        Target(**method, depth_threshold=1.0, fuse_frames=fuse_frames, **values)
-    except ValueError as exc:
-        message = str(exc)
-        raise ValueError(message if message.startswith(f"{section}.") else f"{section}.{message}") from exc
+
+def migrate_old_keys(raw: dict[str, Any], where: str = "config") -> dict[str, Any]:
+    """`raw` with the keys of the config before the follower config moved to their new places
+    (`OLD_KEYS`; `perception.fuse_frames` into both navigator sections) and one warning line
+    naming them. A value given both ways is refused (ConfigError naming both keys)."""
+    moves = [(old, new) for old, new in OLD_KEYS.items() if _pop(raw, old, probe=True)[0]]
+    if _pop(raw, OLD_FUSE_FRAMES, probe=True)[0]:
+        moves += [(OLD_FUSE_FRAMES, ("follower", section, "fuse_frames")) for section in ("navigator", "corridor")]
+    if not moves:
+        return raw
+    values = {old: _pop(raw, old)[1] for old in dict(moves)}
+    for old, new in moves:
+        _merge(raw, new, values[old], f"{where}: {'.'.join(old)} (old) and {'.'.join(new)}")
+    _warn_old(where, moves)
+    return raw
+
+
+def migrate_old_overrides(overrides: list[str] | tuple[str, ...]) -> list[str]:
+    """The `key=value` overrides with old keys (`OLD_KEYS`, `perception.fuse_frames`) renamed, and
+    one warning line naming them; applied after the file's keys, they win over them as before."""
+    renamed, moves = [], []
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        parts = tuple(p for p in key.strip().split(".") if p)
+        targets = [new + parts[len(old) :] for old, new in OLD_KEYS.items() if parts[: len(old)] == old]
+        if parts == OLD_FUSE_FRAMES:
+            targets = [("follower", section, "fuse_frames") for section in ("navigator", "corridor")]
+        renamed += [".".join(target) + sep + value for target in targets] or [item]
+        moves += [(parts, target) for target in targets]
+    if moves:
+        _warn_old("overrides", moves)
+    return renamed
+
+
+def _warn_old(where: str, moves: list[tuple[tuple[str, ...], tuple[str, ...]]]) -> None:
+    log.warning(
+        "%s: old nav config keys %s read as %s; they are dropped in the next release",
+        where,
+        ", ".join(dict.fromkeys(".".join(old) for old, _ in moves)),
+        ", ".join(".".join(new) for _, new in moves),
+    )
+
+
+def _pop(raw: dict[str, Any], path: tuple[str, ...], probe: bool = False) -> tuple[bool, Any]:
+    """(found, value) of the dotted `path` in `raw`, removed unless `probe`; an emptied parent
+    section is removed too (`rates: {}` then reads as the defaults)."""
+    parent: Any = raw
+    for key in path[:-1]:
+        parent = parent.get(key)
+        if not isinstance(parent, dict):
+            return False, None
+    if path[-1] not in parent:
+        return False, None
+    value = parent[path[-1]] if probe else parent.pop(path[-1])
+    if not probe and len(path) > 1 and not parent:
+        raw.pop(path[0])
+    return True, value
+
+
+def _merge(raw: dict[str, Any], path: tuple[str, ...], value: Any, conflict: str) -> None:
+    """Put `value` at `path`; mappings merge key by key, a key set both ways is a ConfigError."""
+    node = raw
+    for key in path[:-1]:
+        node = node.setdefault(key, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"{conflict}: {key!r} is not a section")
+    last = path[-1]
+    if isinstance(value, dict) and isinstance(node.get(last), dict):
+        both = sorted(set(value) & set(node[last]))
+        if both:
+            raise ConfigError(f"{conflict} both set {both}: keep the new key only")
+        node[last].update(value)
+    elif last in node and node[last] is not None:
+        raise ConfigError(f"{conflict} are both set: keep the new key only")
+    else:
+        node[last] = value
 
 
 def load_nav_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> NavEvalConfig:
-    """Load the evaluation config (a shipped name or a YAML path; the shipped default when None)."""
-    from segmin.common.config import load_config
+    """Load the evaluation config (a shipped name or a YAML path; the shipped default when None),
+    old keys read with a warning (`migrate_old_keys`)."""
+    from segmin.common.config import apply_overrides, from_dict, read_yaml
     from segmin.common.shipped import resolve_config
 
-    return load_config(NavEvalConfig, resolve_config("nav", DEFAULT_CONFIG if path is None else path), overrides)
+    resolved = resolve_config("nav", DEFAULT_CONFIG if path is None else path)
+    raw = apply_overrides(migrate_old_keys(read_yaml(resolved), str(resolved)), migrate_old_overrides(overrides))
+    return from_dict(NavEvalConfig, raw, where=str(resolved))

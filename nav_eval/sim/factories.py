@@ -19,6 +19,7 @@ from segmin.nav_eval.sim.row_env import RowEnv
 if TYPE_CHECKING:
     from segmin.data.synth.camera import CameraModel
     from segmin.nav_eval.runtime.follower import RowFollower
+    from segmin.nav_eval.runtime.follower_config import FollowerConfig
     from segmin.nav_eval.runtime.protocols import MaskNavigator
 
 
@@ -29,17 +30,24 @@ def field_label(field: str) -> str:
 
 
 def nav_camera(config: NavEvalConfig, backend: str = "tiny") -> CameraModel:
-    """The robot camera of the evaluation: the CameraModel default at perception.width/height, its
-    depth noise sampled as perception.depth_noise_sampling says (auto: from noise fields with the
-    gl `backend`, per pixel with TinyRenderer)."""
+    """The robot camera of the evaluation: the CameraModel default at perception.width/height on
+    the follower's camera mount, its depth noise sampled as perception.depth_noise_sampling says
+    (auto: from noise fields with the gl `backend`, per pixel with TinyRenderer)."""
     from segmin.data.synth.camera import CameraModel
 
-    perception = config.perception
+    perception, mount = config.perception, config.follower.camera
     sampling = perception.depth_noise_sampling
     if sampling == "auto":
         sampling = "field" if backend == "gl" else "pixels"
     changes = {k: v for k, v in (("width", perception.width), ("height", perception.height)) if v}
-    return dataclasses.replace(CameraModel(), depth_noise_sampling=sampling, **changes)
+    return dataclasses.replace(
+        CameraModel(),
+        depth_noise_sampling=sampling,
+        mount_height=mount.mount_height,
+        tilt_deg=mount.tilt_deg,
+        mount_forward=mount.mount_forward,
+        **changes,
+    )
 
 
 class FieldContext:
@@ -87,38 +95,26 @@ def make_segmenter(model: str, threads: int = 1) -> FrameSegmenter:
     return OnnxFrameSegmenter(OnnxSegmenter(resolve_model(model), threads=threads))
 
 
+def follower_config(method: str, depth_threshold: float, config: NavEvalConfig) -> FollowerConfig:
+    """The robot runtime's config of one run: `method` at the field's `depth_threshold`, with the
+    evaluation's `follower` section (nav_eval.sim.config.EvalFollower)."""
+    return config.follower.config(method, depth_threshold)
+
+
 def make_navigator(method: str, depth_threshold: float, config: NavEvalConfig) -> MaskNavigator:
-    """The method's navigator with the evaluation's fusion window (perception.fuse_frames):
-    the paper's `Navigator` (its `navigator` section), or SegCorridor (its `corridor` section,
-    with the evaluation camera's intrinsics and mount)."""
-    if method == "segcorridor":
-        from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator
+    """The method's navigator under the evaluation's config, on the simulated camera (which
+    SegCorridor places its pixels with): the runtime's own `make_navigator`."""
+    from segmin.nav_eval.runtime.camera import CameraGeometry
+    from segmin.nav_eval.runtime.follower_config import make_navigator as build
 
-        corridor = CorridorConfig(
-            depth_threshold=depth_threshold, fuse_frames=config.perception.fuse_frames, **config.corridor
-        )
-        return CorridorNavigator(corridor, CameraGeometry.from_camera(nav_camera(config)))
-    from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
-
-    return Navigator(
-        NavigatorConfig(
-            method=method,
-            depth_threshold=depth_threshold,
-            fuse_frames=config.perception.fuse_frames,
-            **config.navigator,
-        )
-    )
+    camera = CameraGeometry.from_camera(nav_camera(config))
+    return build(follower_config(method, depth_threshold, config), camera)
 
 
 def make_follower(method: str, depth_threshold: float, config: NavEvalConfig) -> RowFollower:
     """The robot runtime at the evaluation's rates: what nav-eval drives in the simulator. It has
     no segmenter of its own: the simulator segments every frame it renders (`run_episode`) and
     hands the runtime the mask with the frame."""
-    from segmin.nav_eval.runtime.follower import RowFollower, RuntimeConfig
+    from segmin.nav_eval.runtime.follower import RowFollower
 
-    rates = config.rates
-    return RowFollower(
-        None,
-        make_navigator(method, depth_threshold, config),
-        RuntimeConfig(segment_hz=rates.segment_hz, command_hz=rates.command_hz, checks=config.sensor_checks),
-    )
+    return RowFollower(None, make_navigator(method, depth_threshold, config), config.follower.runtime)
