@@ -62,7 +62,7 @@ def test_the_method_chooses_the_navigator_and_its_keys(tmp_path) -> None:
             "follower.runtime: segment_hz (7) must be a multiple",
         ),
         (["navigator.depth_threshold=5", "camera.fx=300"], "follower.camera: width: unset beside the other"),
-        (["navigator.depth_threshold=5", "camera.tilt_deg=95"], "follower.camera: tilt_deg: camera tilt_deg must be"),
+        (["navigator.depth_threshold=5", "camera.tilt_deg=95"], "follower.camera: camera tilt_deg must be"),
         (["navigator.depth_threshold=five"], "follower.navigator.depth_threshold: expected a number"),
     ],
 )

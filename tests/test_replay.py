@@ -149,7 +149,8 @@ def test_a_depth_cut_beyond_the_sensors_range_is_refused_naming_the_flag(sequenc
     argv = ["replay", "--model", str(model), "--rgb", str(rgb_dir), "--fps", "30", "--method", "segmind"]
     assert main([*argv, "--depth-threshold", "25", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("segmin: error: --depth-threshold 25: beyond the sensor's range (20 m")
+    assert len(err) == 1 and err[0].startswith("segmin: error: --depth-threshold 25: depth_threshold (25 m) is beyond")
+    assert "max_depth_m (20 m)" in err[0]
     assert not (tmp_path / "out").exists()
 
 

@@ -21,12 +21,12 @@ from test_replay_bags import GreenSegmenter
 from benchmarks.cli import main as benchmarks_main
 from segmin.app.cli import main
 from segmin.nav_eval.evaluation.rollout import run_episode
-from segmin.nav_eval.replay.bags import bag_frames
+from segmin.nav_eval.replay.bags import bag_camera, bag_frames
 from segmin.nav_eval.replay.run import read_commands_csv, replay
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 from segmin.nav_eval.sim.bag_recorder import RunRecorder, quaternion
-from segmin.nav_eval.sim.factories import make_follower, nav_camera
+from segmin.nav_eval.sim.factories import follower_config, make_follower, nav_camera
 from segmin.nav_eval.sim.protocols import FrameSegmenter
 from segmin.nav_eval.sim.row_env import RowEnv
 
@@ -140,6 +140,32 @@ def test_replaying_the_bag_gives_the_commands_of_the_simulator(recorded, tmp_pat
     assert len(result.commands) == len(episode.commands) > 5
     assert [(v, w, c) for _, v, w, c, _ in result.commands] == [(v, w, c) for _, v, w, c in episode.commands]
     assert [r[0] for r in result.commands] == pytest.approx([c[0] for c in episode.commands], abs=1e-9)
+
+
+def test_segcorridor_replays_the_bag_with_the_camera_of_its_camera_info(tmp_path) -> None:
+    """SegCorridor, which `segmin replay` could not run before the follower config: its camera
+    from the bag's CameraInfo on the config's mount, its commands the simulator's (flat ground:
+    the IMU's level attitude changes nothing)."""
+    episode, _ = _episode(GreenSegmenter(), method="segcorridor", bag=tmp_path / "run")
+    follower = follower_config("segcorridor", 5.0, _config(length_m=LENGTH_M))
+    camera = bag_camera(tmp_path / "run", topics.COLOUR_INFO, follower.camera)
+    assert camera == make_follower("segcorridor", 5.0, _config()).navigator.camera
+    result = replay(
+        "model.onnx",
+        None,
+        tmp_path / "out",
+        follower=follower,
+        camera=camera,
+        source=bag_frames(tmp_path / "run", topics.COLOUR, topics.DEPTH),
+        segmenter=GreenSegmenter(),
+    )
+    assert len(result.commands) == len(episode.commands) > 5
+    assert [(v, w, c) for _, v, w, c, _ in result.commands] == [(v, w, c) for _, v, w, c in episode.commands]
+    assert any("no IMU: segcorridor assumed level ground" in note for note in result.notes)
+    with pytest.raises(ValueError, match=r"Imu, not sensor_msgs/msg/CameraInfo, on '/imu/data' \(--camera-info-topic"):
+        bag_camera(tmp_path / "run", topics.IMU, follower.camera)
+    with pytest.raises(ValueError, match=r"no topic '/nope' \(--camera-info-topic.*the bag has: /camera"):
+        bag_camera(tmp_path / "run", "/nope", follower.camera)
 
 
 def test_the_round_trip_holds_with_the_onnx_model(exported, tmp_path) -> None:

@@ -13,6 +13,10 @@ another size than the first) stops it at that message, naming the topic, the mes
 it and its stamp; a bag whose colour and depth never pair within `--slop` stops it naming the
 nearest gap between their stamps. Nothing is written then. `rosbags` is imported only here,
 when `--bag` is used.
+
+SegCorridor places its pixels with the camera's intrinsics: `bag_camera` reads them from the
+bag's first `CameraInfo` on `--camera-info-topic` (by default the colour topic's sibling
+`camera_info`, as camera drivers publish it).
 """
 
 from __future__ import annotations
@@ -23,11 +27,20 @@ from typing import Any
 
 import numpy as np
 
-from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth, stamp_seconds
+from segmin.nav_eval.replay.ros_images import (
+    ImageMessageError,
+    camera_from_info,
+    decode_colour,
+    decode_depth,
+    stamp_seconds,
+)
 from segmin.nav_eval.replay.run import FrameSource
 from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
+from segmin.nav_eval.runtime.camera import CameraGeometry
+from segmin.nav_eval.runtime.follower_config import CameraConfig
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 DEFAULT_SLOP_S = 0.01  # RealSense colour and aligned depth differ by a few ms; frames are 33 ms apart
 
 
@@ -65,6 +78,34 @@ def _message_count(reader: Any, path: Path, topic: str, option: str) -> int:
     if count == 0:
         raise ValueError(f"--bag {path}: {option} {topic} has no messages; the bag has: {_topics_line(reader)}")
     return count
+
+
+def camera_info_topic(rgb_topic: str) -> str:
+    """The CameraInfo topic a driver publishes beside `rgb_topic` (`/camera/color/image_raw` ->
+    `/camera/color/camera_info`; a `/compressed` transport's too)."""
+    base = rgb_topic.removesuffix("/compressed").rstrip("/")
+    return f"{base.rpartition('/')[0]}/camera_info"
+
+
+def bag_camera(path: str | Path, topic: str, mount: CameraConfig) -> CameraGeometry:
+    """The camera of the bag's first CameraInfo on `topic`, on `mount` (ValueError naming the bag
+    and the topic, listing the bag's topics when it has no such one)."""
+    path = Path(path)
+    reader = open_bag(path)
+    try:
+        info = reader.topics.get(topic)
+        if info is None or info.msgtype != CAMERA_INFO_TYPE:
+            what = "no topic" if info is None else f"{info.msgtype}, not {CAMERA_INFO_TYPE}, on"
+            raise ValueError(
+                f"--bag {path}: {what} {topic!r} (--camera-info-topic, SegCorridor's camera intrinsics); "
+                f"the bag has: {_topics_line(reader)}"
+            )
+        connections = [c for c in reader.connections if c.topic == topic]
+        for connection, _, raw in reader.messages(connections=connections):
+            return camera_from_info(reader.deserialize(raw, connection.msgtype), topic, mount)
+        raise ValueError(f"--bag {path}: --camera-info-topic {topic} has no messages")
+    finally:
+        reader.close()
 
 
 def bag_frames(

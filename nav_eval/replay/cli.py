@@ -1,4 +1,5 @@
-"""`segmin replay`: the robot runtime over a recorded sequence."""
+"""`segmin replay`: the robot runtime over a recorded sequence, configured by a follower config
+(`--follower FILE` and `KEY=VALUE`, the keys of nav-eval's `follower:` and the ROS 2 node's)."""
 
 from __future__ import annotations
 
@@ -6,8 +7,22 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
+
 if TYPE_CHECKING:
     from segmin.nav_eval.replay.run import FrameSource
+    from segmin.nav_eval.runtime.camera import CameraGeometry
+    from segmin.nav_eval.runtime.follower_config import FollowerConfig
+
+# The flags that set one follower key each: shortcuts, applied before the KEY=VALUE overrides.
+SHORTCUTS = {
+    "method": "method",
+    "depth_threshold": "navigator.depth_threshold",
+    "mask_closing": "navigator.mask_closing",
+    "segment_hz": "runtime.segment_hz",
+    "command_hz": "runtime.command_hz",
+}
 
 
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
@@ -18,7 +33,10 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         description="Runs RowFollower (the runtime a robot runs, at the paper's 20 Hz masks / 5 Hz commands) "
         "over a folder of RGB frames (with optional aligned uint16 millimetre depth PNGs or float metre .npy "
         "named alike), a video, or the colour (and depth) topics of a ROS bag (times from the header stamps), and writes commands.csv, overlay.mp4 and commands.png (the plot needs the "
-        "[sim] extra). Without depth SegMin runs on the mask alone; SegMinD needs depth.",
+        "[sim] extra). Without depth SegMin runs on the mask alone; SegMinD and SegCorridor need depth. The runtime is set "
+        "up by a follower config (--follower FILE, then KEY=VALUE overrides such as navigator.depth_threshold=8: the "
+        "keys of nav-eval's follower section and of the ROS 2 node's follower parameters); SegCorridor takes the "
+        "camera from the bag's CameraInfo or from the config's camera section.",
     )
     replay.add_argument("--model", required=True, help="exported .onnx file or a shipped model name (vineyards, trees)")
     source = replay.add_mutually_exclusive_group(required=True)
@@ -43,26 +61,85 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     timing = replay.add_mutually_exclusive_group()
     timing.add_argument("--fps", type=float, default=None, help="frame rate: frame i at i / fps seconds")
     timing.add_argument("--timestamps", type=Path, default=None, help="file of one timestamp (s) per frame")
-    replay.add_argument("--method", default="segmind", choices=("segmin", "segmind", "segzeros"))
     replay.add_argument(
-        "--depth-threshold", type=float, required=True, help="depth cut d_th in metres (paper: 5, 8, 10)"
+        "--follower",
+        type=Path,
+        default=None,
+        help="follower config YAML (method, navigator, runtime, camera), or a ROS 2 parameter file with a follower "
+        "section such as configs/ros2/jackal_d435.yaml (default: the defaults, method segmind)",
+    )
+    replay.add_argument(
+        "--method", default=None, choices=METHODS, help="shortcut for method=... (default: the config's, segmind)"
+    )
+    replay.add_argument(
+        "--depth-threshold",
+        type=float,
+        default=None,
+        help="depth cut d_th in metres (paper: 5, 8, 10); shortcut for navigator.depth_threshold=...",
     )
     replay.add_argument(
         "--mask-closing",
         type=int,
-        default=0,
+        default=None,
         help="close each mask with a disc of this radius (px at 224 px of width, whatever the frames' size) before "
-        "the fusion (default 0: the paper's; 8 with the shipped trees model)",
+        "the fusion (0: the paper's; 8 with the shipped trees model); shortcut for navigator.mask_closing=...",
     )
-    replay.add_argument("--segment-hz", type=int, default=20, help="segmentation rate (default 20, the paper's)")
-    replay.add_argument("--command-hz", type=int, default=5, help="command rate, divides --segment-hz (default 5)")
+    replay.add_argument(
+        "--segment-hz", type=int, default=None, help="segmentation rate (20, the paper's); runtime.segment_hz=..."
+    )
+    replay.add_argument(
+        "--command-hz",
+        type=int,
+        default=None,
+        help="command rate, divides the segmentation rate (5); runtime.command_hz=...",
+    )
+    replay.add_argument(
+        "--camera-info-topic",
+        default=None,
+        help="with --bag, SegCorridor: the CameraInfo topic of its intrinsics (default: camera_info beside --rgb-topic)",
+    )
     replay.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     replay.add_argument("--out", type=Path, required=True, help="output folder (must be empty unless --force)")
     replay.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    add_overrides(replay, example="navigator.depth_threshold=8")
     replay.set_defaults(func=_replay)
 
 
-def _bag_source(args: argparse.Namespace) -> FrameSource | None:
+def follower_of(args: argparse.Namespace) -> FollowerConfig:
+    """The follower config of the command line: --follower, the shortcut flags, then KEY=VALUE.
+    A bad depth cut given by its flag is named by the flag."""
+    from segmin.common.config import ConfigError
+    from segmin.nav_eval.runtime.follower_config import load_follower_config
+
+    given = {flag: getattr(args, flag) for flag in SHORTCUTS if getattr(args, flag) is not None}
+    overrides = [f"{SHORTCUTS[flag]}={value}" for flag, value in given.items()] + overrides_of(args)
+    if args.follower is None and not any(o.startswith(f"{SHORTCUTS['depth_threshold']}=") for o in overrides):
+        raise ValueError(
+            "--depth-threshold: the depth cut in metres is needed (paper: 5, 8, 10), or navigator.depth_threshold=... "
+            "or a --follower file"
+        )
+    try:
+        return load_follower_config(args.follower, overrides)
+    except ConfigError as exc:
+        if "depth_threshold" in given and f"{SHORTCUTS['depth_threshold']}:" in str(exc):
+            detail = str(exc).partition(f"{SHORTCUTS['depth_threshold']}: ")[2]
+            raise ValueError(f"--depth-threshold {args.depth_threshold:g}: {detail}") from None
+        raise
+
+
+def _bag_camera(args: argparse.Namespace, follower: FollowerConfig) -> CameraGeometry | None:
+    """SegCorridor's camera from the bag's CameraInfo, unless the config gives the intrinsics
+    (None then, and for the paper's methods, which need no camera)."""
+    if args.camera_info_topic is not None and args.bag is None:
+        raise ValueError("--camera-info-topic goes with --bag")
+    if follower.method != "segcorridor" or follower.camera.intrinsics_given or args.bag is None:
+        return None
+    from segmin.nav_eval.replay.bags import bag_camera, camera_info_topic
+
+    return bag_camera(args.bag, args.camera_info_topic or camera_info_topic(args.rgb_topic), follower.camera)
+
+
+def _bag_source(args: argparse.Namespace, method: str) -> FrameSource | None:
     """The bag's `FrameSource` for --bag (None without); the bag-only options are checked here."""
     if args.bag is None:
         for option in ("rgb_topic", "depth_topic", "slop"):
@@ -74,8 +151,8 @@ def _bag_source(args: argparse.Namespace) -> FrameSource | None:
             raise ValueError(f"{option} does not go with --bag (times and depth come from the bag's topics)")
     if not args.rgb_topic:
         raise ValueError("--bag needs --rgb-topic (the colour topic)")
-    if args.method == "segmind" and args.depth_topic is None:
-        raise ValueError("--method segmind needs --depth-topic (depth frames); without depth use segmin (mask alone)")
+    if method in DEPTH_METHODS and args.depth_topic is None:
+        raise ValueError(f"--method {method} needs --depth-topic (depth frames); without depth use segmin (mask alone)")
     from segmin.nav_eval.replay.bags import DEFAULT_SLOP_S, bag_frames
 
     return bag_frames(args.bag, args.rgb_topic, args.depth_topic, DEFAULT_SLOP_S if args.slop is None else args.slop)
@@ -84,32 +161,25 @@ def _bag_source(args: argparse.Namespace) -> FrameSource | None:
 def _replay(args: argparse.Namespace) -> int:
     from segmin.data.canopy_region import check_closing_radius
     from segmin.nav_eval.replay.run import replay
-    from segmin.nav_eval.runtime.follower import RuntimeConfig
 
-    check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
-    runtime = RuntimeConfig(segment_hz=args.segment_hz, command_hz=args.command_hz)
-    if args.depth_threshold > runtime.checks.max_depth_m:  # refused by the runtime too, later and unnamed
-        raise ValueError(
-            f"--depth-threshold {args.depth_threshold:g}: beyond the sensor's range "
-            f"({runtime.checks.max_depth_m:g} m, max_depth_m), where a reading is no reading"
-        )
+    if args.mask_closing is not None:
+        check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
+    follower = follower_of(args)
     result = replay(
         args.model,
         args.rgb,
         args.out,
-        source=_bag_source(args),
-        method=args.method,
-        depth_threshold=args.depth_threshold,
-        mask_closing=args.mask_closing,
+        follower=follower,
+        camera=_bag_camera(args, follower),
+        source=_bag_source(args, follower.method),
         depth=args.depth,
         fps=args.fps,
         timestamps=args.timestamps,
         force=args.force,
-        runtime=runtime,
         threads=args.threads,
     )
     valid = sum(row[4] for row in result.commands)
-    print(f"replay: {result.frames} frames, {len(result.commands)} commands ({valid} valid) with {args.method}")
+    print(f"replay: {result.frames} frames, {len(result.commands)} commands ({valid} valid) with {follower.method}")
     for note in result.notes:
         print(f"note: {note}")
     for path in result.files:

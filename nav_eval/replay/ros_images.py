@@ -14,6 +14,7 @@ imports either (this module is part of the bare robot install: numpy and OpenCV 
   reading (REP 118's NaN / inf readings become 0, and the caller is told).
 
 A message that cannot be decoded raises `ImageMessageError` naming the topic and the problem.
+A `CameraInfo` gives the camera's intrinsics (`camera_from_info`), which SegCorridor needs.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ import numpy as np
 
 from segmin.data.frames import DatasetError
 from segmin.data.readers import check_depth_metres
+from segmin.nav_eval.runtime.camera import CameraGeometry
+from segmin.nav_eval.runtime.follower_config import CameraConfig
 from segmin.nav_eval.runtime.navigator import to_metres
 
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
@@ -36,6 +39,25 @@ COMPRESSED_DEPTH_HEADER = struct.Struct("<iff")
 
 class ImageMessageError(ValueError):
     """A message that is not an image the runtime can use (one line: the topic and the problem)."""
+
+
+def camera_from_info(message: Any, topic: str, mount: CameraConfig) -> CameraGeometry:
+    """The camera of a `CameraInfo` message (`k`, `width`, `height`) on `mount` (the mount is in no
+    message: the follower config's). ValueError naming `topic`."""
+    k = np.asarray(message.k, dtype=float).reshape(-1)
+    if k.size != 9 or not np.isfinite(k).all():
+        raise ValueError(f"{topic}: k is not a finite 3 x 3 matrix")
+    try:
+        return mount.mounted(
+            width=int(message.width),
+            height=int(message.height),
+            fx=float(k[0]),
+            fy=float(k[4]),
+            cx=float(k[2]),
+            cy=float(k[5]),
+        )
+    except ValueError as exc:
+        raise ValueError(f"{topic}: {exc} (an uncalibrated camera publishes zeros)") from None
 
 
 @functools.cache

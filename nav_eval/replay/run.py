@@ -21,8 +21,13 @@ depth of another size than the RGB frame, implausible float depth (see above), a
 missing or unreadable depth or RGB file, a video OpenCV cannot open, a timestamp count that does
 not match the frames, rates that do not divide evenly. Non-finite pixels in .npy depth are "no
 reading", as the navigator treats them; the frames that had some are counted in the summary.
-Without depth, SegMin and SegZeros run on the mask alone (said in the summary); SegMinD needs
-depth and is refused.
+Without depth, SegMin and SegZeros run on the mask alone (said in the summary); SegMinD and
+SegCorridor need depth and are refused.
+
+The runtime is configured by a `FollowerConfig` (nav_eval.runtime.follower_config: `--follower`
+and `KEY=VALUE`), built into its navigator by the runtime's `make_navigator`, as nav-eval and
+the ROS 2 node build theirs. SegCorridor needs the camera: a bag's CameraInfo (`camera`) or the
+config's own intrinsics. It replays without the IMU: level ground is assumed (said in the summary).
 
 No torch, pybullet or matplotlib at import: this runs on the bare robot install.
 """
@@ -41,8 +46,11 @@ from segmin.common.atomic import write_text
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.replay.sequence import RecordedSequence, read_sequence
 from segmin.nav_eval.replay.video import overlay, write_video
+from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.follower import FollowerOutput, RowFollower, RuntimeConfig
-from segmin.nav_eval.runtime.navigator import Navigator, NavigatorConfig
+from segmin.nav_eval.runtime.follower_config import FollowerConfig, make_navigator
+from segmin.nav_eval.runtime.methods import DEPTH_METHODS
+from segmin.nav_eval.runtime.navigator import NavigatorConfig
 from segmin.nav_eval.runtime.sensor_faults import REASONS
 
 
@@ -95,13 +103,25 @@ def check_out_dir(out: Path, force: bool) -> None:
         raise ValueError(f"--out {out}: folder is not empty (use --force to overwrite its replay outputs)")
 
 
+def _paper_follower(
+    method: str | None, depth_threshold: float | None, mask_closing: int, runtime: RuntimeConfig | None
+) -> FollowerConfig:
+    """The follower config of replay's keywords for the paper's methods (no config given)."""
+    if method is None or depth_threshold is None:
+        raise TypeError("replay needs a follower config, or a method and a depth threshold")
+    navigator = NavigatorConfig(method=method, depth_threshold=depth_threshold, mask_closing=mask_closing)
+    return FollowerConfig(navigator, runtime or RuntimeConfig())
+
+
 def replay(
     model: str | Path,
     rgb: str | Path | None,
     out: str | Path,
     *,
-    method: str,
-    depth_threshold: float,
+    follower: FollowerConfig | None = None,
+    camera: CameraGeometry | None = None,
+    method: str | None = None,
+    depth_threshold: float | None = None,
     mask_closing: int = 0,
     depth: str | Path | None = None,
     fps: float | None = None,
@@ -114,13 +134,17 @@ def replay(
 ) -> ReplayResult:
     """Run the runtime over the sequence and write the outputs (see the module docstring).
 
-    The sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then)."""
+    The runtime is `follower` on `camera` (SegCorridor's; None: the config's intrinsics), or
+    for the paper's methods `method`, `depth_threshold`, `mask_closing` and `runtime`. The
+    sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then)."""
     if str(model) == "oracle":
         raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
-    navigator_config = NavigatorConfig(method=method, depth_threshold=depth_threshold, mask_closing=mask_closing)
+    follower = follower or _paper_follower(method, depth_threshold, mask_closing, runtime)
+    method, depth_threshold = follower.method, follower.navigator.depth_threshold
     has_depth = source.has_depth if source is not None else depth is not None
-    if not has_depth and method == "segmind":
-        raise ValueError("--method segmind needs --depth (depth frames); without depth use segmin (mask alone)")
+    if not has_depth and method in DEPTH_METHODS:
+        raise ValueError(f"--method {method} needs --depth (depth frames); without depth use segmin (mask alone)")
+    navigator = make_navigator(follower, camera)  # SegCorridor without a camera: refused before any frame
     out = Path(out)
     check_out_dir(out, force)
     sequence = _sequence(rgb, depth, fps, timestamps, source)
@@ -129,7 +153,7 @@ def replay(
         from segmin.nav_eval.runtime.shipped_models import resolve_model
 
         segmenter = OnnxSegmenter(resolve_model(model), threads=threads)
-    follower = RowFollower(segmenter, Navigator(navigator_config), runtime)
+    runner = RowFollower(segmenter, navigator, follower.runtime)
     result = ReplayResult(commands=[], files=[], frames=sequence.count)
     if sequence.order is not None:
         result.notes.append(sequence.order)
@@ -139,7 +163,7 @@ def replay(
     for name, t, image, d, bad in sequence.frames:
         non_finite += bad
         try:
-            output = follower.step(image, d, t)
+            output = runner.step(image, d, t)
         except ValueError as exc:
             raise ValueError(f"frame {name}: {exc}") from None
         restarts += output.stopped == "frame_timeout"
@@ -151,11 +175,10 @@ def replay(
             video.append(overlay_panel(image, output, depth_threshold))
     if not result.commands:  # an empty table and no video are no replay: say so rather than "wrote"
         raise ValueError(f"no frame of the {sequence.count} reached the runtime: nothing written")
-    _write_outputs(out, result, video, follower.config.command_hz)
+    _write_outputs(out, result, video, runner.config.command_hz)
     if source is not None:
         result.notes.extend(source.notes())
-    if not has_depth:
-        result.notes.append(f"no depth: {method} ran on the mask alone (every vegetation pixel counts as near)")
+    result.notes.extend(_input_notes(method, has_depth, navigator.inputs.attitude))
     if non_finite:
         result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")
     if fault_stops:
@@ -163,10 +186,20 @@ def replay(
         result.notes.append(f"sensor faults stopped the robot (commands by reason: {counts})")
     if restarts:
         result.notes.append(
-            f"{restarts} gap(s) longer than {follower.config.frame_timeout_s} s between frames: "
+            f"{restarts} gap(s) longer than {runner.config.frame_timeout_s} s between frames: "
             "the runtime stopped and restarted there"
         )
     return result
+
+
+def _input_notes(method: str, has_depth: bool, wants_attitude: bool) -> list[str]:
+    """What the replay ran without: depth (the mask alone), the IMU (level ground)."""
+    notes = []
+    if not has_depth:
+        notes.append(f"no depth: {method} ran on the mask alone (every vegetation pixel counts as near)")
+    if wants_attitude:
+        notes.append(f"no IMU: {method} assumed level ground (its depth points are not levelled)")
+    return notes
 
 
 def _write_outputs(out: Path, result: ReplayResult, video: list[np.ndarray], command_hz: float) -> None:

@@ -20,7 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from segmin.nav_eval.replay.ros_images import camera_from_info
 from segmin.nav_eval.runtime.camera import CameraGeometry
+from segmin.nav_eval.runtime.follower_config import CameraConfig
 
 QUATERNION_NORM_TOLERANCE = 1e-3  # drivers publish unit quaternions to float precision
 
@@ -45,20 +47,5 @@ def geometry_from_camera_info(
     message: Any, topic: str, mount_height: float, tilt_deg: float, mount_forward: float
 ) -> CameraGeometry:
     """The `CameraGeometry` of a `CameraInfo` message with the node's mount (ValueError naming `topic`)."""
-    k = np.asarray(message.k, dtype=float).reshape(-1)
-    if k.size != 9 or not np.isfinite(k).all():
-        raise ValueError(f"{topic}: k is not a finite 3 x 3 matrix")
-    try:
-        return CameraGeometry(
-            width=int(message.width),
-            height=int(message.height),
-            fx=float(k[0]),
-            fy=float(k[4]),
-            cx=float(k[2]),
-            cy=float(k[5]),
-            mount_height=mount_height,
-            tilt_deg=tilt_deg,
-            mount_forward=mount_forward,
-        )
-    except ValueError as exc:
-        raise ValueError(f"{topic}: {exc} (an uncalibrated camera publishes zeros)") from None
+    mount = CameraConfig(mount_height=mount_height, tilt_deg=tilt_deg, mount_forward=mount_forward)
+    return camera_from_info(message, topic, mount)

@@ -88,21 +88,19 @@ class CameraConfig:
         return self.mounted(**{name: getattr(self, name) for name in INTRINSICS})
 
     def mounted(self, *, width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> CameraGeometry:
-        """A camera of the given intrinsics (a CameraInfo's, the simulator's) on this config's mount."""
-        try:
-            return CameraGeometry(
-                width=width,
-                height=height,
-                fx=fx,
-                fy=fy,
-                cx=cx,
-                cy=cy,
-                mount_height=self.mount_height,
-                tilt_deg=self.tilt_deg,
-                mount_forward=self.mount_forward,
-            )
-        except ValueError as exc:  # "camera fx must be ..." -> "fx: camera fx must be ..."
-            raise ValueError(f"{str(exc).split()[1]}: {exc}") from None
+        """A camera of the given intrinsics (a CameraInfo's, the simulator's) on this config's mount
+        (ValueError naming the field, "camera fx must be ...")."""
+        return CameraGeometry(
+            width=width,
+            height=height,
+            fx=fx,
+            fy=fy,
+            cx=cx,
+            cy=cy,
+            mount_height=self.mount_height,
+            tilt_deg=self.tilt_deg,
+            mount_forward=self.mount_forward,
+        )
 
 
 NavigatorChoice = NavigatorConfig | CorridorConfig
