@@ -19,7 +19,7 @@ offset so that each phase's stamps come after the last):
 3. stall: no frames, the clock runs on -> the watchdog stops the robot after frame_timeout_s;
 4. good frames, one colour frame with a wrong encoding, good frames -> an immediate stop, and
    commands again after it (the node alive);
-5. a bad parameter (v_max = -1) -> refused with its reason, the node alive;
+5. a bad parameter (follower.navigator.v_max = -1) -> refused with its reason, the node alive;
 6. ~/enable false -> one stop, then silence.
 
 Writes what it saw as JSON; the test asserts on it. rclpy is imported only here, never by pytest.
@@ -176,7 +176,10 @@ def stall_and_bad_input(driver: Driver, frames: list, result: dict) -> None:
     driver.spin_for(0.3)
     phase["bad_encoding"] = [start, before_bad, after_bad, len(driver.received)]
     value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0)
-    answer = driver.call(driver.set_params, SetParameters.Request(parameters=[ParameterMsg(name="v_max", value=value)]))
+    answer = driver.call(
+        driver.set_params,
+        SetParameters.Request(parameters=[ParameterMsg(name="follower.navigator.v_max", value=value)]),
+    )
     phase["bad_parameter"] = [answer.results[0].successful, answer.results[0].reason]
     driver.spin_for(0.3)
 

@@ -143,3 +143,67 @@ def test_old_nav_config_keys_read_as_the_new_with_one_warning_line(tmp_path, cap
     both.write_text(NEW_FILE + "navigator: {mask_closing: 4}\n")
     with pytest.raises(ConfigError, match=r"navigator \(old\) and follower.navigator both set \['mask_closing'\]"):
         load_nav_config(both)
+
+
+def _replay_follower(*argv: str) -> FollowerConfig:
+    """The follower config of a `segmin replay` command line."""
+    from segmin.app.cli import build_parser
+    from segmin.nav_eval.replay.cli import follower_of
+
+    return follower_of(build_parser().parse_args(["replay", "--model", "m.onnx", "--rgb", "f", "--out", "o", *argv]))
+
+
+def test_the_jackal_file_a_nav_eval_config_and_a_replay_command_line_load_equal_followers() -> None:
+    from segmin.common.shipped import resolve_config
+    from segmin.nav_eval.ros2.params import load_params_file, node_params
+
+    jackal = resolve_config("ros2", "jackal_d435")
+    node = node_params(load_params_file(jackal)[1], jackal.parent).follower
+    nav_eval = load_nav_config(None).follower.config("segmind", 5.0)
+    replay = _replay_follower("--method", "segmind", "navigator.depth_threshold=5")
+    assert node == nav_eval == replay == _replay_follower("--follower", str(jackal))
+    # and they stay equal when the same key changes in each
+    changed = _replay_follower("--depth-threshold", "8", "--command-hz", "10", "method=segcorridor", "navigator.trim=2")
+    assert changed == load_nav_config(
+        None, ["follower.corridor.trim=2", "follower.runtime.command_hz=10"]
+    ).follower.config("segcorridor", 8.0)
+
+
+def test_replay_without_a_depth_cut_or_a_camera_for_segcorridor_is_one_line(tmp_path, capsys) -> None:
+    from segmin.app.cli import main
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    base = ["replay", "--model", "m.onnx", "--rgb", str(frames), "--fps", "30", "--out", str(tmp_path / "o")]
+    assert main(base) == 2
+    assert capsys.readouterr().err.strip() == (
+        "segmin: error: --depth-threshold: the depth cut in metres is needed (paper: 5, 8, 10), or "
+        "navigator.depth_threshold=... or a --follower file"
+    )
+    assert main([*base, "--depth", str(frames), "--method", "segcorridor", "navigator.depth_threshold=5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "camera: segcorridor needs the camera intrinsics" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_nodes_old_flat_parameter_names_read_as_the_new_with_one_warning_line(caplog) -> None:
+    from segmin.nav_eval.ros2 import topics
+    from segmin.nav_eval.ros2.params import node_params
+
+    old = {"method": "segmind", "v_max": 0.8, "segment_hz": 10, "frozen_s": 0.5, "camera_tilt_deg": 12.0}
+    new = {
+        "follower.method": "segmind",
+        "follower.navigator.v_max": 0.8,
+        "follower.runtime.segment_hz": 10,
+        "follower.runtime.checks.frozen_s": 0.5,
+        "follower.camera.tilt_deg": 12.0,
+    }
+    with caplog.at_level(logging.WARNING):
+        expected = node_params(new)
+        assert not caplog.records
+        assert node_params({**old, "controller": "centre_hold"}) == expected  # SegCorridor's, beside SegMinD: dropped
+    (record,) = caplog.records
+    assert "old flat parameter names method, v_max, segment_hz, frozen_s, camera_tilt_deg" in record.getMessage()
+    assert "controller: not segmind's, ignored" in record.getMessage()
+    corridor = node_params({"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO, "trim": 2.0})
+    assert corridor.navigator == CorridorConfig(depth_threshold=5.0, trim=2.0)

@@ -7,6 +7,7 @@ The node under a real rclpy is tested in test_ros2_node.py (`make test-ros2`).
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -19,56 +20,82 @@ from test_sim_bags import _episode
 from segmin.app.cli import main
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.core import LOG_EVERY_S, FollowerCore, Outgoing
-from segmin.nav_eval.ros2.params import DEFAULTS, DESCRIPTIONS, GROUPS, defaults_yaml, load_params_file, node_params
+from segmin.nav_eval.ros2.params import (
+    DEFAULTS,
+    DESCRIPTIONS,
+    GROUPS,
+    as_values,
+    defaults_yaml,
+    describe,
+    load_params_file,
+    node_params,
+)
 from segmin.nav_eval.ros2.phase import CommandPhase
 from segmin.nav_eval.ros2.sensors import attitude_from_imu, geometry_from_camera_info
+from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
 
 # ---- parameters ----------------------------------------------------------------------------
 
 
-def test_the_defaults_file_lists_every_parameter_once_and_reads_back(tmp_path, capsys) -> None:
+@pytest.mark.parametrize("method", ["segmind", "segcorridor"])
+def test_the_defaults_file_lists_every_parameter_once_and_reads_back(tmp_path, capsys, method) -> None:
     grouped = [name for _, names in GROUPS for name in names]
     assert sorted(grouped) == sorted(DEFAULTS) == sorted(DESCRIPTIONS)
-    assert main(["ros2", "params", "--out", str(tmp_path / "p.yaml")]) == 0
+    assert main(["ros2", "params", "--method", method, "--out", str(tmp_path / "p.yaml")]) == 0
     name, values = load_params_file(tmp_path / "p.yaml")
-    assert name == "segmin_row_follower" and values == DEFAULTS
-    params = node_params(values)
-    assert params.navigator == NavigatorConfig(method="segmind", depth_threshold=5.0)
+    info = {"camera_info_topic": topics.COLOUR_INFO} if method == "segcorridor" else {}
+    params = node_params({**values, **info})
+    assert name == "segmin_row_follower" and values == {**as_values(params), **{k: DEFAULTS[k] for k in info}}
+    assert params.follower.method == method and params.navigator.depth_threshold == 5.0
     assert params.node.enabled is False  # a robot must not move because a node came up
-    assert main(["ros2", "params"]) == 0
-    assert capsys.readouterr().out.count("\n") > 2 * len(DEFAULTS)
+    capsys.readouterr()
+    assert main(["ros2", "params", "--method", method]) == 0  # each parameter after its description
+    assert capsys.readouterr().out.count("\n") > 2 * len(values)
 
 
-def test_parameter_names_follow_the_runtime_configs() -> None:
-    navigator = {f.name for f in dataclasses.fields(NavigatorConfig)}
-    assert navigator <= set(DEFAULTS)
+def test_parameter_names_follow_the_follower_config() -> None:
+    """Every field of the method's navigator class is a follower.navigator parameter, and no other."""
+    for method, cls in (("segmin", NavigatorConfig), ("segcorridor", CorridorConfig)):
+        values = as_values(node_params({"follower.method": method, "camera_info_topic": topics.COLOUR_INFO}))
+        navigator = {k.removeprefix("follower.navigator.") for k in values if k.startswith("follower.navigator.")}
+        assert navigator == {f.name for f in dataclasses.fields(cls) if f.init} - {"method"}
+        assert all(describe(k) for k in values)
 
 
 @pytest.mark.parametrize(
     ("values", "message"),
     [
         ({"gain": 1.0}, "parameter gain: unknown"),
-        ({"v_max": -1.0}, "parameter v_max: v_max must be a finite number > 0"),
-        ({"fuse_frames": 2.5}, "parameter fuse_frames: expected int"),
+        ({"follower.navigator.gain": 1.0}, "parameter follower.navigator: unknown key(s) ['gain']"),
+        ({"follower.navigator.v_max": -1.0}, "parameter follower.navigator.v_max: v_max must be a finite number > 0"),
+        ({"follower.navigator.fuse_frames": 2.5}, "parameter follower.navigator.fuse_frames: expected an integer"),
         ({"enabled": "yes"}, "parameter enabled: expected bool"),
-        ({"method": "segmax"}, "parameter method: 'segmax' is not one of"),
-        ({"command_hz": 3}, "parameter segment_hz: segment_hz (20) must be a multiple of command_hz (3)"),
+        ({"follower.method": "segmax"}, "parameter follower.method: 'segmax' is not one of"),
+        (
+            {"follower.runtime.command_hz": 3},
+            "parameter follower.runtime.segment_hz: segment_hz (20) must be a multiple of command_hz (3)",
+        ),
         ({"depth_topic": ""}, "parameter depth_topic: segmind needs depth"),
         ({"slop_s": 0.6}, "parameter slop_s: slop_s must be"),
-        ({"mask_closing": -2}, "parameter mask_closing: mask_closing must be an integer from 0 to 112 px"),
+        (
+            {"follower.navigator.mask_closing": -2},
+            "parameter follower.navigator.mask_closing: mask_closing must be an integer from 0 to 112 px",
+        ),
         ({"command_priority": 99}, "parameter command_priority: command_priority must be 0 (normal scheduling)"),
+        ({"method": "segmin", "follower.method": "segmin"}, "parameter method: also set as follower.method"),
     ],
 )
 def test_bad_parameters_are_named(values, message) -> None:
-    with pytest.raises(ValueError, match=r"^" + message.replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(ValueError, match=r"^" + re.escape(message)):
         node_params(values)
 
 
 def test_parameter_files_the_way_ros_writes_them(tmp_path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text(
-        "/**:\n  ros__parameters:\n    v_max: 1\n    model: m.onnx\n    use_sim_time: true\n    omega_gain: 5e-3\n"
+        "/**:\n  ros__parameters:\n    follower:\n      navigator: {v_max: 1}\n    model: m.onnx\n"
+        "    use_sim_time: true\n    follower.navigator.omega_gain: 5e-3\n"
     )
     name, values = load_params_file(path)
     assert name == "segmin_row_follower"
@@ -330,14 +357,14 @@ def test_the_shipped_jackal_parameter_file_is_complete_and_valid() -> None:
     """Every parameter of the node is in the Jackal file (a new one must be added there too), and
     its values pass the node's checks."""
     from segmin.common.shipped import resolve_config
-    from segmin.nav_eval.ros2.params import DEFAULTS, load_params_file, node_params
+    from segmin.nav_eval.ros2.params import load_params_file, node_params
 
     path = resolve_config("ros2", "jackal_d435")
     name, values = load_params_file(path)
-    assert name == "segmin_row_follower" and set(values) == set(DEFAULTS)
+    assert name == "segmin_row_follower"
     params = node_params(values, path.parent)
     assert params.navigator.method == "segmind" and params.runtime.command_hz == 5
-    assert values["enabled"] is False
+    assert values["enabled"] is False and values == as_values(params)
     assert params.node.model == "vineyards"  # the shipped model: the file drives a robot on day one
 
 
@@ -401,20 +428,24 @@ def test_camera_info_gives_the_intrinsics_and_the_parameters_the_mount() -> None
     ("values", "message"),
     [
         ({}, "parameter camera_info_topic: segcorridor needs the camera intrinsics"),
-        ({"camera_fx": 160.0}, "parameter camera_width: camera width must be an integer >= 1"),
+        ({"follower.camera.fx": 160.0}, "parameter follower.camera.width: width: unset beside the other intrinsics"),
         ({"depth_topic": ""}, "parameter depth_topic: segcorridor needs depth"),
-        ({"camera_info_topic": topics.COLOUR_INFO, "v_max": -1.0}, "parameter v_max: v_max must be"),
+        (
+            {"camera_info_topic": topics.COLOUR_INFO, "follower.navigator.v_max": -1.0},
+            "parameter follower.navigator.v_max: corridor.v_max must be",
+        ),
         ({"camera_info_topic": topics.COLOUR_INFO, "imu_max_age_s": 0.0}, "parameter imu_max_age_s: imu_max_age_s"),
     ],
 )
 def test_segcorridor_refuses_to_start_without_the_camera_intrinsics(values, message) -> None:
     with pytest.raises(ValueError, match=r"^" + message):
-        node_params({"method": "segcorridor", **values})
+        node_params({"follower.method": "segcorridor", **values})
 
 
 def test_the_sloped_rows_settings_reach_segcorridor_and_bad_ones_are_named() -> None:
     sloped = {"controller": "centre_hold", "hold_slope_drift": 0.5, "row_start_max": 2.5, "trim": 2.0}
-    base = {"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO}
+    sloped = {f"follower.navigator.{k}": v for k, v in sloped.items()}
+    base = {"follower.method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO}
     corridor = node_params({**base, **sloped}).navigator
     assert (corridor.controller, corridor.hold_slope_drift, corridor.row_start_max, corridor.trim) == (
         "centre_hold",
@@ -422,15 +453,17 @@ def test_the_sloped_rows_settings_reach_segcorridor_and_bad_ones_are_named() -> 
         2.5,
         2.0,
     )
-    with pytest.raises(ValueError, match="^parameter hold_slope_drift:"):
-        node_params({**base, **sloped, "hold_slope_drift": -1.0})
+    with pytest.raises(ValueError, match="^parameter follower.navigator.hold_slope_drift:"):
+        node_params({**base, **sloped, "follower.navigator.hold_slope_drift": -1.0})
 
 
 def test_segcorridor_takes_its_camera_from_the_parameters_or_the_camera_info_topic() -> None:
-    intrinsics = {"camera_width": 224, "camera_height": 224, "camera_fx": 160.0, "camera_fy": 160.0}
-    params = node_params({"method": "segcorridor", **intrinsics, "camera_cx": 111.5, "camera_cy": 111.5})
+    intrinsics = {"width": 224, "height": 224, "fx": 160.0, "fy": 160.0, "cx": 111.5, "cy": 111.5}
+    params = node_params(
+        {"follower.method": "segcorridor", **{f"follower.camera.{k}": v for k, v in intrinsics.items()}}
+    )
     assert params.camera is not None and params.camera.frame_shape == (224, 224) and params.camera.tilt_deg == 15.0
-    from_topic = node_params({"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO})
+    from_topic = node_params({"follower.method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO})
     assert from_topic.camera is None and from_topic.navigator.method == "segcorridor"
 
 

@@ -26,11 +26,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from bag_helpers import depth_message, image_message, write_bag
 from test_sim_bags import _episode
 
 from segmin.nav_eval.ros2 import topics
-from segmin.nav_eval.ros2.params import defaults_yaml
+from segmin.nav_eval.ros2.params import NODE_NAME, defaults_yaml
 from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
 pytestmark = pytest.mark.ros2
@@ -73,16 +74,17 @@ def confined(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
     )
 
 
-def _params(path: Path, model: Path, **changes: object) -> Path:
-    text = defaults_yaml()
-    values = {"model": str(model), "twist_stamped": True, **changes}
-    lines = []
-    for line in text.splitlines():
-        key = line.strip().split(":")[0]
-        changed = not line.strip().startswith("#") and key in values
-        lines.append(f"    {key}: {json.dumps(values.pop(key))}" if changed else line)
-    lines += [f"    {key}: {json.dumps(value)}" for key, value in values.items()]
-    path.write_text("\n".join(lines) + "\n")
+def _params(path: Path, model: Path, changes: dict[str, object] | None = None, **node: object) -> Path:
+    """The defaults file with the node settings `node` and the (dotted) parameters `changes` set."""
+    text = yaml.safe_load(defaults_yaml())
+    values = text[NODE_NAME]["ros__parameters"]
+    for key, value in {"model": str(model), "twist_stamped": True, **node, **(changes or {})}.items():
+        *sections, leaf = key.split(".")
+        section = values
+        for name in sections:
+            section = section[name]
+        section[leaf] = value
+    path.write_text(yaml.safe_dump(text))
     return path
 
 
@@ -163,7 +165,7 @@ def test_a_wrong_encoding_stops_the_robot_and_the_node_carries_on(drive) -> None
 
 def test_a_bad_parameter_is_refused_and_the_node_lives(drive) -> None:
     successful, reason = drive["phases"]["bad_parameter"]
-    assert not successful and reason.startswith("parameter v_max:"), reason
+    assert not successful and reason.startswith("parameter follower.navigator.v_max:"), reason
     assert drive["alive"] and drive["node_exit"] == 0, drive["node_log"]
 
 
@@ -182,12 +184,12 @@ def test_disabling_stops_the_robot_once_and_then_publishes_nothing(drive) -> Non
 @pytest.mark.parametrize(
     ("change", "needle"),
     [
-        ({"v_max": -1.0}, "parameter v_max: v_max must be a finite number > 0"),
+        ({"follower.navigator.v_max": -1.0}, "parameter follower.navigator.v_max: v_max must be a finite number > 0"),
         ({"gain": 1.0}, "parameter gain: unknown"),
     ],
 )
 def test_a_bad_parameter_file_refuses_to_start_in_one_line(exported, tmp_path, change, needle) -> None:
-    params = _params(tmp_path / "p.yaml", exported[0], **change)
+    params = _params(tmp_path / "p.yaml", exported[0], change)
     result = confined([str(ros_env() / "bin" / "segmin"), "ros2", "follow", "--params", str(params)], timeout=120)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()

@@ -273,8 +273,8 @@ def test_a_depth_cut_beyond_the_sensors_range_is_refused_wherever_it_is_set() ->
     ):
         RowFollower(None, navigator)
     assert RowFollower(None, navigator, RuntimeConfig(checks=SensorChecks(max_depth_m=30.0)))
-    with pytest.raises(ValueError, match=r"^parameter depth_threshold: depth_threshold \(25 m\) is beyond"):
-        node_params({"depth_threshold": 25.0})
+    with pytest.raises(ValueError, match=r"^parameter follower.navigator.depth_threshold: depth_threshold \(25 m\) is"):
+        node_params({"follower.navigator.depth_threshold": 25.0})
     with pytest.raises(
         ValueError, match=r"depth threshold for 'high_trees': .* \(follower.runtime.checks.max_depth_m\)"
     ):

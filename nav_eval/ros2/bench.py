@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from segmin.nav_eval.ros2 import topics
-from segmin.nav_eval.ros2.params import NODE_NAME, defaults_yaml
+from segmin.nav_eval.ros2.params import NODE_NAME, defaults_yaml, flatten
 
 NS = 10**9
 
@@ -180,14 +180,16 @@ def bench_ros2(
     frames = read_frames(bag, colour, depth)
     # The node reads a relative model path from its parameter file's (temporary) folder: give it whole.
     model_value = str(Path(model).resolve()) if Path(model).is_file() else str(model)  # or a shipped name
-    values = {"model": model_value, "threads": threads, "method": method, "depth_threshold": depth_threshold}
-    values |= {"enabled": True, "twist_stamped": True, "colour_topic": colour, "depth_topic": depth}
+    values = {"model": model_value, "threads": threads, "enabled": True, "twist_stamped": True}
+    values |= {"colour_topic": colour, "depth_topic": depth}
     values |= {"publish_on_timer": on_timer, "command_priority": priority, "inference_spin": spin}
-    own = runtime_step_s(frames, values)
+    follower = {"method": method, "navigator": {"depth_threshold": depth_threshold}}
+    own = runtime_step_s(frames, {**values, **flatten({"follower": follower})})
     with tempfile.TemporaryDirectory() as folder:
         params = Path(folder) / "params.yaml"
-        text = yaml.safe_load(defaults_yaml())
+        text = yaml.safe_load(defaults_yaml(method=method))
         text[NODE_NAME]["ros__parameters"].update(values)
+        text[NODE_NAME]["ros__parameters"]["follower"]["navigator"]["depth_threshold"] = depth_threshold
         params.write_text(yaml.safe_dump(text))
         node = subprocess.Popen([sys.executable, "-m", "segmin.app.cli", "ros2", "follow", "--params", str(params)])
         feeder = _Feeder(colour, depth)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.params import NODE_NAME
+from segmin.nav_eval.runtime.methods import METHODS
 
 RCLPY_MISSING = (
     "segmin ros2 follow needs rclpy and the ROS 2 message packages: source the robot's ROS 2 "
@@ -44,7 +45,13 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "params",
         help="write the node's parameter file with every default (commented)",
         description="Writes a ROS 2 parameter file of the node's parameters with their defaults and descriptions "
-        "(to stdout, or --out). Set `model` and `depth_threshold` for your robot and field.",
+        "(to stdout, or --out). Set `model` and `follower.navigator.depth_threshold` for your robot and field.",
+    )
+    params.add_argument(
+        "--method",
+        default="segmind",
+        choices=METHODS,
+        help="the navigation method, which chooses the navigator's parameters (default segmind)",
     )
     params.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
     params.add_argument("--node-name", default=NODE_NAME, help=f"node name of the section (default {NODE_NAME})")
@@ -163,7 +170,7 @@ def _params(args: argparse.Namespace) -> int:
     from segmin.common.atomic import write_text
     from segmin.nav_eval.ros2.params import defaults_yaml
 
-    text = defaults_yaml(args.node_name)
+    text = defaults_yaml(args.node_name, args.method)
     if args.out is None:
         sys.stdout.write(text)
     else:

@@ -53,15 +53,22 @@ from typing import Any
 
 import numpy as np
 
-from segmin.nav_eval.replay.ros_images import ImageMessageError, decode_colour, decode_depth, stamp_seconds
+from segmin.nav_eval.replay.ros_images import (
+    ImageMessageError,
+    camera_from_info,
+    decode_colour,
+    decode_depth,
+    stamp_seconds,
+)
 from segmin.nav_eval.replay.stamp_pairing import StampOrderError, StampPairer
 from segmin.nav_eval.ros2.params import NodeParams
 from segmin.nav_eval.ros2.phase import CommandPhase
-from segmin.nav_eval.ros2.sensors import attitude_from_imu, geometry_from_camera_info
+from segmin.nav_eval.ros2.sensors import attitude_from_imu
 from segmin.nav_eval.runtime.camera import CameraGeometry
-from segmin.nav_eval.runtime.corridor import CorridorConfig, CorridorNavigator
+from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.follower import STOP, FollowerOutput, RowFollower
-from segmin.nav_eval.runtime.navigator import Command, Navigator
+from segmin.nav_eval.runtime.follower_config import make_navigator
+from segmin.nav_eval.runtime.navigator import Command
 
 WATCHDOG_PERIODS = 1.5  # the watchdog speaks after this many command periods of silence
 NUMBERS = re.compile(r"\d+(?:\.\d+)?")  # left out of a warning's kind (stamps, sizes, counts)
@@ -117,28 +124,18 @@ class FollowerCore:
 
     def _new_follower(self) -> RowFollower | None:
         """The runtime of the parameters; None while SegCorridor waits for its camera's CameraInfo."""
-        config = self.params.navigator
-        if not isinstance(config, CorridorConfig):
-            return RowFollower(self.segmenter, Navigator(config), self.params.runtime)
+        needs_camera = isinstance(self.params.navigator, CorridorConfig)
         camera = self.params.camera or self._info_camera
-        return (
-            None
-            if camera is None
-            else RowFollower(self.segmenter, CorridorNavigator(config, camera), self.params.runtime)
-        )
+        if needs_camera and camera is None:
+            return None
+        return RowFollower(self.segmenter, make_navigator(self.params.follower, camera), self.params.runtime)
 
     # ---- SegCorridor's camera and IMU ----------------------------------------------------------
     def on_camera_info(self, message: Any, now: float) -> None:
         """A CameraInfo: SegCorridor's intrinsics (a new runtime when they change)."""
         node = self.params.node
         try:
-            camera = geometry_from_camera_info(
-                message,
-                node.camera_info_topic,
-                node.camera_mount_height,
-                node.camera_tilt_deg,
-                node.camera_mount_forward,
-            )
+            camera = camera_from_info(message, node.camera_info_topic, self.params.follower.camera)
         except ValueError as exc:
             self._reject(str(exc), now)
             return
@@ -183,7 +180,7 @@ class FollowerCore:
         if not isinstance(self.params.navigator, CorridorConfig):
             return None
         node = self.params.node
-        source = "camera_width/camera_height" if self.params.camera is not None else node.camera_info_topic
+        source = "follower.camera.width/height" if self.params.camera is not None else node.camera_info_topic
         camera = self.params.camera or self._info_camera
         if camera is None:
             return f"{source}: no CameraInfo yet (SegCorridor needs the intrinsics)"

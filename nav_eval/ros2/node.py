@@ -19,7 +19,7 @@ multi-threaded executor was measured slower here: on 2 cores its Python dispatch
 callbacks by 5-30 ms and dropped a third of the frames. A parameter set while running is checked as at start-up
 (`params.node_params`): a bad value is refused with its reason, logged, and the robot stopped;
 a good one is applied at the next frame (the runtime restarts: masks and EMA cleared). Topics
-and outputs are read-only after start-up.
+and outputs, and the method (it chooses the navigator's parameters), are read-only after start-up.
 
 rclpy and the message packages are those of the environment: a robot's sourced ROS 2, or the
 community wheels (`.ci/ros_env.sh`). Nothing here is imported by the rest of segmin.
@@ -51,7 +51,7 @@ from std_srvs.srv import SetBool
 
 from segmin.nav_eval.replay.video import overlay
 from segmin.nav_eval.ros2.core import FollowerCore, Outgoing
-from segmin.nav_eval.ros2.params import DESCRIPTIONS, STARTUP_ONLY, NodeParams, as_values, node_params
+from segmin.nav_eval.ros2.params import STARTUP_ONLY, NodeParams, as_values, describe, node_params
 from segmin.nav_eval.ros2.timing import CommandTiming
 from segmin.nav_eval.runtime.follower import FollowerOutput
 
@@ -98,7 +98,7 @@ class RowFollowerNode(Node):
         self._values = as_values(params)  # as declared; a change is checked with the others
         for key, value in self._values.items():
             self.declare_parameter(
-                key, value, ParameterDescriptor(description=DESCRIPTIONS[key], read_only=key in STARTUP_ONLY)
+                key, value, ParameterDescriptor(description=describe(key), read_only=key in STARTUP_ONLY)
             )
         settings = params.node
         self.core = FollowerCore(params, segmenter, self._publish, self.get_logger().warning)
@@ -137,7 +137,8 @@ class RowFollowerNode(Node):
         200 Hz would cost the other methods CPU for nothing)."""
         if self.params.navigator.method != "segcorridor":
             return
-        if settings.camera_info_topic and not settings.intrinsics_given:
+        intrinsics_given = self.params.follower.camera.intrinsics_given
+        if settings.camera_info_topic and not intrinsics_given:
             self.create_subscription(
                 CameraInfo,
                 settings.camera_info_topic,
@@ -151,7 +152,7 @@ class RowFollowerNode(Node):
                 lambda m: self.core.on_imu(m, self._seconds()),
                 SENSOR_QOS,
             )
-        source = "the parameters" if settings.intrinsics_given else f"CameraInfo on {settings.camera_info_topic}"
+        source = "the parameters" if intrinsics_given else f"CameraInfo on {settings.camera_info_topic}"
         imu = f"roll and pitch from {settings.imu_topic}" if settings.imu_topic else "no IMU: level ground"
         self.get_logger().info(f"segcorridor: camera intrinsics from {source}; {imu}")
 

@@ -1,41 +1,60 @@
 """The row-follower node's parameters: names, defaults, checks, and the ROS 2 parameter file.
 
-The navigator's and the runtime's parameters keep the names of `NavigatorConfig`,
-`RuntimeConfig` and its sensor checks' `SensorChecks` (taken from the dataclasses, so they cannot
-drift apart; the checks are flat parameters, ROS has no nested ones); the node adds its own
-(`NodeSettings`: model, topics, pairing, outputs, `enabled`). A parameter file is the standard
-one ROS 2 reads:
+The runtime's parameters are its `FollowerConfig` (nav_eval.runtime.follower_config), under
+`follower.` with the keys nav-eval and `segmin replay --follower` use: `follower.method`,
+`follower.navigator.<field>` (NavigatorConfig's fields, or CorridorConfig's for segcorridor),
+`follower.runtime.<field>`, `follower.runtime.checks.<field>` and `follower.camera.<field>`
+(taken from the dataclasses, so they cannot drift apart). The node adds its own (`NodeSettings`:
+model, topics, pairing, outputs, `enabled`). A parameter file is the standard one ROS 2 reads,
+nested sections standing for dotted names as ROS reads them:
 
     segmin_row_follower:
       ros__parameters:
-        method: segmind
-        ...
+        model: vineyards
+        follower:
+          method: segmind
+          navigator: {depth_threshold: 5.0}
 
 `load_params_file` reads it and `node_params` checks every value (unknown names, wrong types,
 out-of-range values: ValueError naming the parameter) before the node starts; the same check
-answers a `ros2 param set` while it runs. `defaults_yaml` writes the defaults, commented. No ROS
-import: the checks run, and are tested, without rclpy.
+answers a `ros2 param set` while it runs. The method is fixed at start-up: it chooses which
+navigator parameters exist. The flat names of the release before (`method`, `v_max`,
+`segment_hz`, `camera_fx`, ...) are still read, with one deprecation line (`migrate_flat_names`).
+`defaults_yaml` writes the defaults, commented. No ROS import: the checks run, and are tested,
+without rclpy.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from segmin.common.config import parse_yaml
+from segmin.common.config import ConfigError, parse_yaml
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig
 from segmin.nav_eval.runtime.follower import RuntimeConfig
+from segmin.nav_eval.runtime.follower_config import (
+    DEFAULT_METHOD,
+    CameraConfig,
+    FollowerConfig,
+    follower_from_dict,
+    follower_to_dict,
+    navigator_class,
+)
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 from segmin.nav_eval.runtime.navigator import NavigatorConfig
-from segmin.nav_eval.runtime.sensor_faults import SensorChecks, check_depth_range
+from segmin.nav_eval.runtime.sensor_faults import SensorChecks
 from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES
+
+log = logging.getLogger(__name__)
 
 NODE_NAME = "segmin_row_follower"
 # ROS's own parameters a node always has: passed through to rclpy, not checked here.
@@ -65,15 +84,6 @@ class NodeSettings:
     camera_info_topic: str = ""
     imu_topic: str = ""
     imu_max_age_s: float = 0.1
-    camera_width: int = 0
-    camera_height: int = 0
-    camera_fx: float = 0.0
-    camera_fy: float = 0.0
-    camera_cx: float = 0.0
-    camera_cy: float = 0.0
-    camera_mount_height: float = 0.40
-    camera_tilt_deg: float = 15.0
-    camera_mount_forward: float = 0.2
 
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
@@ -91,47 +101,37 @@ class NodeSettings:
         if not (math.isfinite(self.imu_max_age_s) and self.imu_max_age_s > 0):
             raise ValueError(f"imu_max_age_s must be a number of seconds > 0, got {self.imu_max_age_s!r}")
 
-    @property
-    def intrinsics_given(self) -> bool:
-        """The camera intrinsics are parameters (camera_fx etc.), not read from a CameraInfo topic."""
-        return any(getattr(self, f"camera_{name}") for name in ("width", "height", "fx", "fy", "cx", "cy"))
-
-    def camera_geometry(self) -> CameraGeometry:
-        """The camera of the parameters (ValueError naming the parameter when one is missing or wrong)."""
-        try:
-            return CameraGeometry(
-                width=self.camera_width,
-                height=self.camera_height,
-                fx=self.camera_fx,
-                fy=self.camera_fy,
-                cx=self.camera_cx,
-                cy=self.camera_cy,
-                mount_height=self.camera_mount_height,
-                tilt_deg=self.camera_tilt_deg,
-                mount_forward=self.camera_mount_forward,
-            )
-        except ValueError as exc:  # "camera fx must be ..." -> parameter camera_fx
-            name = str(exc).split()[1]
-            raise ValueError(f"camera_{name}: {exc}") from None
-
 
 @dataclass(frozen=True)
 class NodeParams:
-    """Every checked parameter of the node, as the objects the runtime takes.
+    """Every checked parameter of the node: the runtime's `follower` config and the node's own.
 
-    `navigator` is SegCorridor's `CorridorConfig` (its other settings at their defaults) for
-    method segcorridor; `camera` its camera when the intrinsics are parameters (None: from the
-    CameraInfo topic, or a method that needs no camera)."""
+    `navigator` and `runtime` are the follower's; `camera` SegCorridor's camera when the
+    intrinsics are parameters (None: from the CameraInfo topic, or a method that needs no camera)."""
 
-    navigator: NavigatorConfig | CorridorConfig
-    runtime: RuntimeConfig
+    follower: FollowerConfig
     node: NodeSettings
-    camera: CameraGeometry | None = None
+
+    @property
+    def navigator(self) -> NavigatorConfig | CorridorConfig:
+        return self.follower.navigator
+
+    @property
+    def runtime(self) -> RuntimeConfig:
+        return self.follower.runtime
+
+    @property
+    def camera(self) -> CameraGeometry | None:
+        camera = self.follower.camera
+        return camera.geometry() if self.follower.method == "segcorridor" and camera.intrinsics_given else None
 
 
-DESCRIPTIONS: dict[str, str] = {
+# The follower's parameters by field name (the same text for the field of any section that has it);
+# a field without an entry is described by its config class (`describe`).
+FIELD_DESCRIPTIONS: dict[str, str] = {
     "method": f"navigation method: {', '.join(METHODS)} (segmind and segcorridor need depth_topic; segcorridor "
-    "the camera intrinsics: camera_info_topic or camera_fx ... camera_height, and takes the IMU's roll and pitch)",
+    "the camera intrinsics: camera_info_topic or follower.camera.width ... cy, and takes the IMU's roll and pitch); "
+    "it chooses the navigator's parameters, so it is fixed at start-up",
     "depth_threshold": "depth cut d_th in metres (paper: 5 vineyards, 8 pear rows and pergolas, 10 tall trees)",
     "fuse_frames": "masks ORed per command (paper: 3)",
     "mask_closing": "SegMin, SegMinD, SegZeros: each mask closed with a disc of this radius (px at 224 px of image "
@@ -163,6 +163,27 @@ DESCRIPTIONS: dict[str, str] = {
     "max_clock_offset_s": "stop (clock_offset) when a frame's stamp is further than this from the node's clock "
     "(a bag's own times: play it with --clock and set use_sim_time), s",
     "sample_pixels": "the sensor checks read a regular grid of about this many pixels",
+    "width": "SegCorridor's camera intrinsics as parameters (all six set) instead of camera_info_topic: image width, px "
+    "(0: intrinsics from camera_info_topic)",
+    "height": "image height, px",
+    "fx": "focal length in x, px",
+    "fy": "focal length in y, px",
+    "cx": "principal point x, px",
+    "cy": "principal point y, px",
+    "mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
+    "tilt_deg": "SegCorridor: camera tilt up from horizontal, degrees",
+    "mount_forward": "SegCorridor: camera ahead of base_link, m",
+    "controller": "SegCorridor's steering law: pursuit (the default) or centre_hold (for a "
+    "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
+    "hold_slope_drift": "centre_hold on sloped rows: points the robot uphill by this times tan(roll) from the IMU "
+    "against its creep across the slope (0: off; 0.5 for the simulated Jackal; measure your robot's)",
+    "row_start_max": "SegCorridor on gappy rows: a row whose points start beyond this many metres ahead, beside a row "
+    "seen nearer, is left out (inf: off; 2.5 for sloped, gappy rows)",
+    "trim": "SegCorridor's row fit drops points further than this many robust spreads from their row's curve "
+    "(2.5; 2.0 for sloped, gappy rows)",
+}
+# The node's own parameters.
+DESCRIPTIONS: dict[str, str] = {
     "model": "exported .onnx file (a relative path is read from the parameter file's folder) or a shipped "
     "model name (vineyards, trees)",
     "threads": "onnxruntime threads",
@@ -193,60 +214,24 @@ DESCRIPTIONS: dict[str, str] = {
     "node has handled (stepped, waiting for its partner, or refused), so a bag player can feed the node frame by "
     "frame and a monitor can see which frames it dropped",
     "camera_info_topic": "sensor_msgs/CameraInfo of the colour camera: SegCorridor's intrinsics (k, width, height) "
-    "when camera_fx etc. are not set; empty: not subscribed",
+    "when follower.camera's are not set; empty: not subscribed",
     "imu_topic": "sensor_msgs/Imu: roll and pitch from its orientation (REP 103, IMU level with base_link) for "
     "SegCorridor; empty: not subscribed, level ground assumed",
     "imu_max_age_s": "an IMU message older than this at a frame is stale: ignored (level ground), logged, s",
-    "camera_width": "SegCorridor's camera from parameters (all six set) instead of camera_info_topic: image width, px",
-    "camera_height": "image height, px (0: intrinsics from camera_info_topic)",
-    "camera_fx": "focal length in x, px",
-    "camera_fy": "focal length in y, px",
-    "camera_cx": "principal point x, px",
-    "camera_cy": "principal point y, px",
-    "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
-    "camera_tilt_deg": "SegCorridor: camera tilt up from horizontal, degrees",
-    "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
-    "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
-    "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
-    "hold_slope_drift": "centre_hold on sloped rows: points the robot uphill by this times tan(roll) from the IMU "
-    "against its creep across the slope (0: off; 0.5 for the simulated Jackal; measure your robot's)",
-    "row_start_max": "SegCorridor on gappy rows: a row whose points start beyond this many metres ahead, beside a row "
-    "seen nearer, is left out (inf: off; 2.5 for sloped, gappy rows)",
-    "trim": "SegCorridor's row fit drops points further than this many robust spreads from their row's curve "
-    "(2.5; 2.0 for sloped, gappy rows)",
 }
-GROUPS = (
-    ("driving", ("enabled", "method", "model", "depth_threshold", "threads", "inference_spin")),
+GROUPS = (  # the node's own parameters, in the file's order; the follower section comes after them
+    ("driving", ("enabled", "model", "threads", "inference_spin")),
     ("topics", ("colour_topic", "depth_topic", "cmd_vel_topic", "twist_stamped", "base_frame", "slop_s")),
     ("timing", ("publish_on_timer", "command_priority")),
-    ("navigator (NavigatorConfig)", tuple(f.name for f in dataclasses.fields(NavigatorConfig))[2:]),
-    ("runtime (RuntimeConfig)", tuple(f.name for f in dataclasses.fields(RuntimeConfig) if f.name != "checks")),
-    (
-        "sensor checks (SensorChecks): each fault stops the robot",
-        tuple(f.name for f in dataclasses.fields(SensorChecks)),
-    ),
     ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
-    (
-        "SegCorridor: camera, IMU and steering law",
-        ("camera_info_topic", "imu_topic", "imu_max_age_s", "camera_width", "camera_height", "camera_fx")
-        + ("camera_fy", "camera_cx", "camera_cy", "camera_mount_height", "camera_tilt_deg", "camera_mount_forward")
-        + ("controller", "hold_slope_drift", "row_start_max", "trim"),
-    ),
+    ("SegCorridor's inputs: camera intrinsics and IMU", ("camera_info_topic", "imu_topic", "imu_max_age_s")),
 )
-# The file's defaults; depth_threshold has none in NavigatorConfig on purpose: the paper's vineyards'.
-DEFAULTS: dict[str, Any] = {
-    **{f.name: f.default for f in dataclasses.fields(NodeSettings)},
-    **{f.name: f.default for f in dataclasses.fields(NavigatorConfig) if f.default is not dataclasses.MISSING},
-    **{f.name: f.default for f in dataclasses.fields(RuntimeConfig) if f.name != "checks"},
-    **{f.name: f.default for f in dataclasses.fields(SensorChecks)},
-    "method": "segmind",
-    "depth_threshold": 5.0,
-    "controller": "pursuit",
-    "hold_slope_drift": 0.0,
-    "row_start_max": math.inf,
-    "trim": 2.5,
-}
-# Parameters fixed at start-up (subscriptions and publishers are made from them).
+DEFAULTS: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(NodeSettings)}
+# The node's depth cut when none is set (NavigatorConfig has none on purpose): the paper's vineyards'.
+DEFAULT_DEPTH_THRESHOLD = 5.0
+FOLLOWER = "follower"
+# Parameters fixed at start-up (subscriptions and publishers are made from them; the method
+# chooses which navigator parameters exist).
 STARTUP_ONLY = (
     "command_priority",
     "colour_topic",
@@ -258,7 +243,108 @@ STARTUP_ONLY = (
     "publish_frame_acks",
     "camera_info_topic",
     "imu_topic",
+    f"{FOLLOWER}.method",
 )
+SECTION_TITLES = {
+    "runtime": "RuntimeConfig: rates and timing limits",
+    "checks": "SensorChecks: each fault stops the robot",
+    "camera": "CameraConfig: the mount on the robot, and the intrinsics (0: from camera_info_topic)",
+}
+
+
+def _field_names(*classes: type) -> set[str]:
+    return {f.name for cls in classes for f in dataclasses.fields(cls) if f.init}
+
+
+# Every field a follower section may have: a check's message that starts with one names it.
+FOLLOWER_FIELDS = _field_names(NavigatorConfig, CorridorConfig, RuntimeConfig, SensorChecks, CameraConfig)
+
+
+def describe(name: str) -> str:
+    """The description of parameter `name` (the node's, or a follower field's by its last part)."""
+    leaf = name.rpartition(".")[2]
+    if name in DESCRIPTIONS:
+        return DESCRIPTIONS[name]
+    return FIELD_DESCRIPTIONS.get(leaf, f"{leaf}: see the navigator's config class (the follower config reference)")
+
+
+def flatten(raw: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested sections as dotted names, as ROS 2 reads a parameter file (`a: {b: 1}` is `a.b`)."""
+    flat: dict[str, Any] = {}
+    for key, value in raw.items():
+        name = f"{prefix}{key}"
+        flat.update(flatten(value, f"{name}.") if isinstance(value, dict) and value else {name: value})
+    return flat
+
+
+def _nest(values: dict[str, Any]) -> dict[str, Any]:
+    """Dotted names as nested sections (the inverse of `flatten`)."""
+    nested: dict[str, Any] = {}
+    for name, value in values.items():
+        *sections, leaf = name.split(".")
+        node = nested
+        for section in sections:
+            node = node.setdefault(section, {})
+        node[leaf] = value
+    return nested
+
+
+def migrate_flat_names(values: dict[str, Any]) -> dict[str, Any]:
+    """`values` with the flat names of the release before renamed (`method` -> `follower.method`,
+    `v_max` -> `follower.navigator.v_max`, `segment_hz` -> `follower.runtime.segment_hz`,
+    `min_valid_depth` -> `follower.runtime.checks.min_valid_depth`, `camera_fx` ->
+    `follower.camera.fx`) and one warning line naming them. Navigator names of the other method's
+    class (a Jackal file kept SegCorridor's settings beside SegMinD) are dropped, said in the line."""
+    method = values.get("method", values.get(f"{FOLLOWER}.method", DEFAULT_METHOD))
+    try:
+        own = _field_names(navigator_class(method)) - {"method"}
+    except ValueError:
+        own = set()  # refused with its name when the config is built
+    other = _field_names(NavigatorConfig, CorridorConfig) - own - {"method"}
+    runtime, checks, camera = (
+        _field_names(RuntimeConfig) - {"checks"},
+        _field_names(SensorChecks),
+        _field_names(CameraConfig),
+    )
+    renamed: dict[str, Any] = {}
+    moved, dropped = [], []
+    for name, value in values.items():
+        new = None
+        if name == "method":
+            new = f"{FOLLOWER}.method"
+        elif name in own:
+            new = f"{FOLLOWER}.navigator.{name}"
+        elif name in runtime:
+            new = f"{FOLLOWER}.runtime.{name}"
+        elif name in checks:
+            new = f"{FOLLOWER}.runtime.checks.{name}"
+        elif name.startswith("camera_") and name.removeprefix("camera_") in camera:
+            new = f"{FOLLOWER}.camera.{name.removeprefix('camera_')}"
+        if new is None and name in other:
+            dropped.append(name)
+            continue
+        if new is not None and new in values:
+            raise ValueError(f"parameter {name}: also set as {new}; keep the new name only")
+        renamed[new or name] = value
+        if new is not None:
+            moved.append(name)
+    if moved or dropped:
+        log.warning(
+            "old flat parameter names %s read as follower.*%s; they are dropped in the next release",
+            ", ".join(moved),
+            f" ({', '.join(dropped)}: not {method}'s, ignored)" if dropped else "",
+        )
+    return renamed
+
+
+def _parameter_error(text: str) -> str:
+    """A follower config error as the parameter it names ("follower.runtime: segment_hz (20) must
+    ..." -> "parameter follower.runtime.segment_hz: segment_hz (20) must ...")."""
+    where, _, rest = text.partition(": ")
+    field = re.match(r"(?:corridor\.)?(\w+)", rest)
+    if field and field.group(1) in FOLLOWER_FIELDS and not where.endswith(f".{field.group(1)}"):
+        return f"parameter {where}.{field.group(1)}: {rest}"
+    return f"parameter {text}"
 
 
 def _typed(name: str, value: Any) -> Any:
@@ -278,72 +364,64 @@ def _typed(name: str, value: Any) -> Any:
     return value
 
 
-def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
-    """Check `values` (any subset of the parameters; the rest default) and build the configs.
-
-    ValueError names the first bad parameter. A relative `model` is taken from `base`."""
-    unknown = sorted(set(values) - set(DEFAULTS) - set(ROS_PARAMETERS))
-    if unknown:
-        raise ValueError(f"parameter {unknown[0]}: unknown (known: {', '.join(sorted(DEFAULTS))})")
+def _node_settings(values: dict[str, Any], base: Path | None) -> NodeSettings:
+    """The node's own settings of `values` (the rest default); a relative `model` is taken from `base`."""
     merged = {name: _typed(name, values[name]) if name in values else default for name, default in DEFAULTS.items()}
-    if merged["method"] not in METHODS:
-        raise ValueError(f"parameter method: {merged['method']!r} is not one of {', '.join(METHODS)}")
     shipped_name = merged["model"] in SHIPPED_NAMES  # "vineyards": the installed model, not a file here
     if merged["model"] and base is not None and not shipped_name and not Path(merged["model"]).is_absolute():
         merged["model"] = str(base / merged["model"])
-
-    def build(cls: type) -> Any:
-        names = [f.name for f in dataclasses.fields(cls) if f.init]
-        try:
-            return cls(**{name: merged[name] for name in names if name in merged})
-        except ValueError as exc:
-            text = str(exc).removeprefix("corridor.")
-            named = next((n for n in names if text.startswith(n)), None)
-            raise ValueError(f"parameter {named}: {text}" if named else f"parameters: {exc}") from None
-
-    node = build(NodeSettings)
-    merged["checks"] = build(SensorChecks)
     try:
-        check_depth_range(merged["depth_threshold"], merged["checks"])
+        return NodeSettings(**merged)
     except ValueError as exc:
-        raise ValueError(f"parameter depth_threshold: {exc}") from None
-    if merged["method"] == "segcorridor":
-        return NodeParams(build(CorridorConfig), build(RuntimeConfig), node, _corridor_camera(node))
-    params = NodeParams(build(NavigatorConfig), build(RuntimeConfig), node)
-    if params.navigator.method in DEPTH_METHODS and not node.depth_topic:
-        raise ValueError("parameter depth_topic: segmind needs depth (or use segmin, which runs on the mask alone)")
-    return params
+        named = next((n for n in DEFAULTS if str(exc).startswith(n)), None)
+        raise ValueError(f"parameter {named}: {exc}" if named else f"parameters: {exc}") from None
 
 
-def _corridor_camera(node: NodeSettings) -> CameraGeometry | None:
-    """SegCorridor's camera from the parameters, or None when a CameraInfo topic gives it (ValueError
-    when neither does: it cannot place a pixel without the intrinsics)."""
-    if not node.depth_topic:
-        raise ValueError("parameter depth_topic: segcorridor needs depth")
-    if node.intrinsics_given:
-        try:
-            return node.camera_geometry()
-        except ValueError as exc:
-            raise ValueError(f"parameter {exc}") from None
-    if not node.camera_info_topic:
+def _follower(values: dict[str, Any]) -> FollowerConfig:
+    """The follower config of the `follower.*` parameters (the depth cut defaults to the vineyards')."""
+    raw = _nest({k: v for k, v in values.items() if k.startswith(f"{FOLLOWER}.")}).get(FOLLOWER, {})
+    if isinstance(raw.get("navigator", {}), dict):
+        raw["navigator"] = {"depth_threshold": DEFAULT_DEPTH_THRESHOLD, **raw.get("navigator", {})}
+    try:
+        return follower_from_dict(raw, FOLLOWER)
+    except ConfigError as exc:
+        raise ValueError(_parameter_error(str(exc))) from None
+
+
+def node_params(values: dict[str, Any], base: Path | None = None) -> NodeParams:
+    """Check `values` (any subset of the parameters; the rest default) and build the configs.
+
+    ValueError names the first bad parameter. A relative `model` is taken from `base`. The flat
+    names of the release before are read too (`migrate_flat_names`)."""
+    values = migrate_flat_names(values)
+    unknown = sorted(
+        n for n in values if n not in DEFAULTS and n not in ROS_PARAMETERS and not n.startswith(f"{FOLLOWER}.")
+    )
+    if unknown:
+        raise ValueError(f"parameter {unknown[0]}: unknown (known: {', '.join(sorted(DEFAULTS))} and follower.*)")
+    node = _node_settings(values, base)
+    follower = _follower(values)
+    method = follower.method
+    if method in DEPTH_METHODS and not node.depth_topic:
+        alone = " (or use segmin, which runs on the mask alone)" if method == "segmind" else ""
+        raise ValueError(f"parameter depth_topic: {method} needs depth{alone}")
+    if method == "segcorridor" and not follower.camera.intrinsics_given and not node.camera_info_topic:
         raise ValueError(
             "parameter camera_info_topic: segcorridor needs the camera intrinsics: set camera_info_topic "
-            "(sensor_msgs/CameraInfo) or camera_width, camera_height, camera_fx, camera_fy, camera_cx and camera_cy"
+            "(sensor_msgs/CameraInfo) or follower.camera.width, height, fx, fy, cx and cy"
         )
-    return None
+    return NodeParams(follower, node)
 
 
 def as_values(params: NodeParams) -> dict[str, Any]:
-    """The parameters as plain name -> value (what the node declares). SegCorridor's config lacks
-    the paper's navigator-only parameters (mask_closing, smooth_window, omega_gain, zeros_*): they are the defaults."""
-    runtime = {k: v for k, v in dataclasses.asdict(params.runtime).items() if k != "checks"}
-    values = {**DEFAULTS, **dataclasses.asdict(params.node), **runtime, **dataclasses.asdict(params.runtime.checks)}
-    values.update({k: v for k, v in dataclasses.asdict(params.navigator).items() if k in DEFAULTS})
-    return values
+    """The parameters as plain name -> value (what the node declares): the node's own, and the
+    follower's under `follower.` (the navigator's of its method only)."""
+    return {**dataclasses.asdict(params.node), **flatten({FOLLOWER: follower_to_dict(params.follower)})}
 
 
 def load_params_file(path: str | Path) -> tuple[str, dict[str, Any]]:
-    """(node name, parameters) of a ROS 2 parameter file (`name: ros__parameters: {...}`; `/**` allowed)."""
+    """(node name, parameters) of a ROS 2 parameter file (`name: ros__parameters: {...}`; `/**`
+    allowed); nested sections are read as dotted names, as ROS 2 reads them."""
     path = Path(path)
     try:
         data = parse_yaml(path.read_text())  # 1e-3 is a float, as rclpy's own parser reads it
@@ -360,21 +438,37 @@ def load_params_file(path: str | Path) -> tuple[str, dict[str, Any]]:
     ):
         raise ValueError(shape)
     node = NODE_NAME if str(name) in ("/**", "**") else str(name).lstrip("/")
-    return node, dict(section["ros__parameters"])
+    return node, flatten(section["ros__parameters"])
 
 
-def defaults_yaml(node: str = NODE_NAME) -> str:
-    """A parameter file of the defaults, each parameter with its description."""
+def defaults_yaml(node: str = NODE_NAME, method: str = DEFAULT_METHOD) -> str:
+    """A parameter file of the defaults for `method`, each parameter with its description."""
     lines = [
         "# segmin row-follower node: `segmin ros2 follow --params THIS_FILE`.",
-        "# Names are those of NavigatorConfig / RuntimeConfig and the node's own settings.",
+        "# The node's own settings, then the runtime's follower config (the keys of nav-eval's follower",
+        "# section and of `segmin replay --follower`).",
         f"{node}:",
         "  ros__parameters:",
     ]
     for title, names in GROUPS:
         lines.append(f"    # --- {title}")
         for name in names:
-            value = yaml.safe_dump({name: DEFAULTS[name]}, default_flow_style=True).strip()[1:-1]
-            lines.append(f"    # {DESCRIPTIONS[name]}")
-            lines.append(f"    {value}")
+            lines += [f"    # {DESCRIPTIONS[name]}", f"    {_yaml_item(name, DEFAULTS[name])}"]
+    follower = _follower({f"{FOLLOWER}.method": method})
+    lines.append(f"    # --- the runtime ({method}: {type(follower.navigator).__name__} under navigator)")
+    _section_lines(lines, FOLLOWER, follower_to_dict(follower), "    ")
     return "\n".join(lines) + "\n"
+
+
+def _section_lines(lines: list[str], name: str, values: dict[str, Any], indent: str) -> None:
+    """`name:` and its values, nested, each leaf after its description."""
+    lines.append(f"{indent}{name}:" + (f"  # {SECTION_TITLES[name]}" if name in SECTION_TITLES else ""))
+    for key, value in values.items():
+        if isinstance(value, dict):
+            _section_lines(lines, key, value, indent + "  ")
+        else:
+            lines += [f"{indent}  # {describe(key)}", f"{indent}  {_yaml_item(key, value)}"]
+
+
+def _yaml_item(name: str, value: Any) -> str:
+    return yaml.safe_dump({name: value}, default_flow_style=True, width=1 << 16).strip()[1:-1]
