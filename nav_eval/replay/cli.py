@@ -15,13 +15,19 @@ if TYPE_CHECKING:
     from segmin.nav_eval.runtime.camera import CameraGeometry
     from segmin.nav_eval.runtime.follower_config import FollowerConfig
 
-# The flags that set one follower key each: shortcuts, applied before the KEY=VALUE overrides.
-SHORTCUTS = {
-    "method": "method",
-    "depth_threshold": "navigator.depth_threshold",
-    "mask_closing": "navigator.mask_closing",
-    "segment_hz": "runtime.segment_hz",
-    "command_hz": "runtime.command_hz",
+# The flags that set one follower key each (flag: key, type, help): shortcuts, applied before the
+# KEY=VALUE overrides.
+SHORTCUTS: dict[str, tuple[str, type, str]] = {
+    "method": ("method", str, "the navigation method (default: the config's, segmind)"),
+    "depth_threshold": ("navigator.depth_threshold", float, "depth cut d_th in metres (paper: 5, 8, 10)"),
+    "mask_closing": (
+        "navigator.mask_closing",
+        int,
+        "close each mask with a disc of this radius (px at 224 px of width, whatever the frames' size) before the "
+        "fusion (0: the paper's; 8 with the shipped trees model)",
+    ),
+    "segment_hz": ("runtime.segment_hz", int, "segmentation rate (20, the paper's)"),
+    "command_hz": ("runtime.command_hz", int, "command rate, divides the segmentation rate (5)"),
 }
 
 
@@ -68,31 +74,11 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         help="follower config YAML (method, navigator, runtime, camera), or a ROS 2 parameter file with a follower "
         "section such as configs/ros2/jackal_d435.yaml (default: the defaults, method segmind)",
     )
-    replay.add_argument(
-        "--method", default=None, choices=METHODS, help="shortcut for method=... (default: the config's, segmind)"
-    )
-    replay.add_argument(
-        "--depth-threshold",
-        type=float,
-        default=None,
-        help="depth cut d_th in metres (paper: 5, 8, 10); shortcut for navigator.depth_threshold=...",
-    )
-    replay.add_argument(
-        "--mask-closing",
-        type=int,
-        default=None,
-        help="close each mask with a disc of this radius (px at 224 px of width, whatever the frames' size) before "
-        "the fusion (0: the paper's; 8 with the shipped trees model); shortcut for navigator.mask_closing=...",
-    )
-    replay.add_argument(
-        "--segment-hz", type=int, default=None, help="segmentation rate (20, the paper's); runtime.segment_hz=..."
-    )
-    replay.add_argument(
-        "--command-hz",
-        type=int,
-        default=None,
-        help="command rate, divides the segmentation rate (5); runtime.command_hz=...",
-    )
+    for flag, (key, kind, what) in SHORTCUTS.items():
+        choices = METHODS if flag == "method" else None
+        replay.add_argument(
+            f"--{flag.replace('_', '-')}", type=kind, choices=choices, help=f"{what}; shortcut for {key}=..."
+        )
     replay.add_argument(
         "--camera-info-topic",
         default=None,
@@ -112,8 +98,9 @@ def follower_of(args: argparse.Namespace) -> FollowerConfig:
     from segmin.nav_eval.runtime.follower_config import load_follower_config
 
     given = {flag: getattr(args, flag) for flag in SHORTCUTS if getattr(args, flag) is not None}
-    overrides = [f"{SHORTCUTS[flag]}={value}" for flag, value in given.items()] + overrides_of(args)
-    if args.follower is None and not any(o.startswith(f"{SHORTCUTS['depth_threshold']}=") for o in overrides):
+    depth_key = SHORTCUTS["depth_threshold"][0]
+    overrides = [f"{SHORTCUTS[flag][0]}={value}" for flag, value in given.items()] + overrides_of(args)
+    if args.follower is None and not any(o.startswith(f"{depth_key}=") for o in overrides):
         raise ValueError(
             "--depth-threshold: the depth cut in metres is needed (paper: 5, 8, 10), or navigator.depth_threshold=... "
             "or a --follower file"
@@ -121,8 +108,8 @@ def follower_of(args: argparse.Namespace) -> FollowerConfig:
     try:
         return load_follower_config(args.follower, overrides)
     except ConfigError as exc:
-        if "depth_threshold" in given and f"{SHORTCUTS['depth_threshold']}:" in str(exc):
-            detail = str(exc).partition(f"{SHORTCUTS['depth_threshold']}: ")[2]
+        if "depth_threshold" in given and f"{depth_key}:" in str(exc):
+            detail = str(exc).partition(f"{depth_key}: ")[2]
             raise ValueError(f"--depth-threshold {args.depth_threshold:g}: {detail}") from None
         raise
 
