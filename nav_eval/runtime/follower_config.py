@@ -149,6 +149,10 @@ def navigator_from_dict(method: str, raw: Any, where: str = "navigator") -> Navi
         return from_dict(cls, raw, where=where)  # refused, naming `where`
     if "method" in raw:
         raise ConfigError(f"{where}.method: the method is chosen once, by the follower's `method`")
+    fields = navigator_fields(method)
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:  # named with the method: a key of the other navigator is the likely slip
+        raise ConfigError(f"{where}: unknown key(s) {unknown} for method {method}; allowed: {sorted(fields)}")
     # The loader refuses non-finite numbers, but an infinite default means "off" (SegCorridor's
     # row_start_max): that value, written out, reads back.
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
