@@ -70,31 +70,20 @@ the robot frame. From there:
    `trunk_min_points`; the goal is then the middle between the trunks ahead, which also turns a
    heading error out. With one side seen (or both, crossed), the side with more points moved by
    half the running trunk-to-trunk width.
-   With neither (or `trunks: false`), SegMinD steers.
+   With neither, SegMinD steers.
 5. **Pure pursuit.** The goal point is the centreline at x = `lookahead`: (L, y_L) with
    y_L = c(L). The arc through it has curvature kappa = 2 y_L / (L^2 + y_L^2); the bearing
    alpha = atan2(y_L, L) sets the speed as in the paper, v = v_max (1 - (alpha / alpha_max)^2)
    with alpha_max the half field of view, and omega = v_max kappa, clipped; both are smoothed with the
    paper's EMA.
-6. **Holding the centre under slip** (`controller` "drift_observer"; "pursuit", the default,
-   stops at 5). Linearised, pure pursuit is omega = (2 v / L^2) c_0 + (2 v / L) c_1 + 2 v c_2: a
-   law on offset and heading with the bend as feedforward. With actuation latency and wheel noise
-   it is underdamped, and against a steady sideways drift d (a skid-steer robot creeping downhill
-   across a slope) it balances only with a standing offset, L d / v. On row fits (modes "both"
-   and "one_side", whose c_1 is a measured heading) the law adds `heading_gain` atan(c_1) of
-   heading damping, and points the robot against the drift that a `DriftObserver` estimates from
-   the offset's change against what the heading explains (time constant `drift_time`, clamped to
-   `drift_limit`; time steps from the masks' stamps; `stop` and `reset` forget it). Trunk mode
-   (c_1 = 0) and the fallback steer as before. Gains and reasons: docs/reference/equations.md.
-7. **Centre hold** (`controller` "centre_hold", the law for a skid-steer robot). On row fits:
-   pure pursuit to the goal on the short lookahead `hold_lookahead`, plus `hold_heading_gain`
-   atan(c_1), and with `hold_integral_time` T_i > 0 (default 0: off) (2 v / L^2) S / T_i, S the
-   integral of c_0 over the commands' stamps, clamped so that it cancels at most a drift of
-   `drift_limit`; `stop` and `reset` clear it; with `hold_slope_drift` k_s > 0 (default 0: off)
-   (2 v / L + k_h) k_s tan(roll), which points the robot uphill against its creep across a slope,
-   from the IMU's roll. The goal's offset c(L) is the best-measured number
-   of the fit (c_0 alone is an extrapolation whose error is c_1's times 3-4 m), so the law steers on
-   it and takes from c_1 only the extra damping. Trunk mode and the fallback steer as with pursuit.
+6. **Centre hold** (`controller` "centre_hold", the law for a skid-steer robot; "pursuit", the
+   default, stops at 5). On row fits: pure pursuit to the goal on the short lookahead
+   `hold_lookahead`, plus `hold_heading_gain` atan(c_1), and with `hold_slope_drift` k_s > 0
+   (default 0: off) (2 v / L + k_h) k_s tan(roll), which points the robot uphill against its creep
+   across a slope, from the IMU's roll. The goal's offset c(L) is the best-measured number of the
+   fit (c_0 alone is an extrapolation whose error is c_1's times 3-4 m), so the law steers on it
+   and takes from c_1 only the extra damping. Trunk mode and the fallback steer as with pursuit.
+   Gains and reasons: docs/reference/equations.md.
 
 The paper's three methods are unchanged (nav_eval.navigator). `CorridorNavigator` is a
 `MaskNavigator` (nav_eval.runtime.protocols) like the paper's `Navigator`, so the runtime drives
@@ -108,15 +97,15 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from .camera import CameraGeometry
 from .checks import check_depth_threshold, check_positive
-from .control import ClampedIntegral, Command, CommandSmoother, DriftObserver, clip
+from .control import Command, CommandSmoother, clip
 from .navigator import (
     Navigator,
     NavigatorConfig,
@@ -131,11 +120,12 @@ from .navigator import (
 from .protocols import MaskNavigator, NavigatorInputs
 
 MODES = ("both", "one_side", "trunks", "fallback")
-# pursuit: pure pursuit alone (step 5); drift_observer: plus heading damping and the drift
-# observer that hold the centre under slip (step 6)
-# centre_hold: pure pursuit on a short lookahead plus heading damping and an integral of the
-# offset, tuned for the skid-steer robot (step 7)
-CONTROLLERS = ("pursuit", "drift_observer", "centre_hold")
+_DRIFT_OBSERVER_REMOVED = (
+    "the drift_observer controller measured worse than pure pursuit in bends (docs/results/history/segcorridor.md)"
+)
+# pursuit: pure pursuit alone (step 5); centre_hold: pure pursuit on a short lookahead plus heading
+# damping, tuned for the skid-steer robot (step 6)
+CONTROLLERS = ("pursuit", "centre_hold")
 OBSERVED_MODES = ("both", "one_side")  # the modes whose centreline has a measured heading
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
@@ -168,7 +158,6 @@ class CorridorConfig:
     width_memory: float = 0.2
     centre_memory: float = 0.5
     lookahead: float = 2.5
-    trunks: bool = True
     roof_opening: float = 0.5
     roof_opening_reach: float = 2.5
     trunk_h_min: float = 0.3
@@ -182,15 +171,20 @@ class CorridorConfig:
     omega_max: float = 1.0
     ema_lambda: float = 0.5
     controller: str = "pursuit"
-    heading_gain: float = 0.3
-    drift_time: float = 4.0
-    drift_limit: float = 0.05
     hold_lookahead: float = 1.0
     hold_heading_gain: float = 0.6
-    hold_integral_time: float = 0.0
     hold_slope_drift: float = 0.0
     row_start_max: float = math.inf
     method: str = field(default="segcorridor", init=False)
+    # Settings that existed and lost (docs/results/history/segcorridor.md): a config that still
+    # sets one is told so in one line (segmin.common.config.from_dict), not just "unknown key".
+    REMOVED_KEYS: ClassVar[Mapping[str, str]] = {
+        "drift_time": _DRIFT_OBSERVER_REMOVED,
+        "drift_limit": _DRIFT_OBSERVER_REMOVED,
+        "heading_gain": _DRIFT_OBSERVER_REMOVED,
+        "hold_integral_time": "centre_hold's offset integral raised the pear field's error from 0.028 to 0.040-0.053 m",
+        "trunks": "the trunk mode is always on (high trees 0.311 -> 0.053 m)",
+    }
 
     def __post_init__(self) -> None:
         check_depth_threshold(self.depth_threshold)
@@ -223,8 +217,6 @@ class CorridorConfig:
             "trunk_h_max",
             "trunk_max_lateral",
             "roof_opening_reach",
-            "drift_time",
-            "drift_limit",
             "hold_lookahead",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
@@ -255,8 +247,6 @@ class CorridorConfig:
             )
         if self.x_min >= self.trunk_x_max:
             raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.trunk_x_max ({self.trunk_x_max})")
-        if not isinstance(self.trunks, bool):
-            raise ValueError(f"corridor.trunks must be true or false, got {self.trunks!r}")
         if self.x_min >= self.x_max:
             raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.x_max ({self.x_max})")
         if self.h_min >= self.h_max:
@@ -267,11 +257,15 @@ class CorridorConfig:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
 
     def _check_controller(self) -> None:
-        """The steering law's name, the heading gains (0: no heading damping), centre_hold's
-        integral time (0: no integral) and its slope-drift coefficient (0: no slope feedforward)."""
+        """The steering law's name, centre_hold's heading gain (0: no heading damping) and its
+        slope-drift coefficient (0: no slope feedforward)."""
+        if self.controller == "drift_observer":
+            raise ValueError(
+                f"corridor.controller drift_observer was removed: {_DRIFT_OBSERVER_REMOVED}; use centre_hold"
+            )
         if self.controller not in CONTROLLERS:
             raise ValueError(f"corridor.controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
-        for name in ("heading_gain", "hold_heading_gain", "hold_integral_time", "hold_slope_drift"):
+        for name in ("hold_heading_gain", "hold_slope_drift"):
             gain = getattr(self, name)
             if isinstance(gain, bool) or not isinstance(gain, (int, float)) or not (math.isfinite(gain) and gain >= 0):
                 raise ValueError(f"corridor.{name} must be a finite number >= 0, got {gain!r}")
@@ -478,9 +472,6 @@ class CorridorNavigator:
         # placed with the camera; SegMinD's fallback needs depth.
         self.inputs = NavigatorInputs(depth=True, rgb=True, attitude=True, camera=camera)
         self._smoother = CommandSmoother(config.ema_lambda)
-        # A lateral speed above half the top speed is a jump of the fit, not motion.
-        self._observer = DriftObserver(config.drift_time, config.drift_limit, 0.5 * config.v_max)
-        self._offset_integral = ClampedIntegral(self._integral_limit())
         self._fusion = Navigator(
             NavigatorConfig(
                 method="segmind",
@@ -496,12 +487,8 @@ class CorridorNavigator:
 
     # ---- the navigator interface ---------------------------------------------------------------
     def reset(self) -> None:
-        """Forget masks, the centreline, the corridor width, the EMA, the drift estimate, the offset
-        integral and the mode counts."""
+        """Forget masks, the centreline, the corridor width, the EMA and the mode counts."""
         self._fusion.reset()
-        self._observer.reset()
-        self._offset_integral.reset()
-        self._stamp = 0.0  # the newest mask's stamp: the time of the next command
         self._centre: tuple[float, ...] | None = None
         self._width: float | None = None
         self._trunk_width: float | None = None
@@ -538,10 +525,9 @@ class CorridorNavigator:
         return self._command(fused, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
-        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`); its stamp
-        is the time of the next command (the drift observer's time step)."""
+        """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`); `stamp`
+        (its frame time, s) lets `fused_mask(not_before=...)` leave it out once stale."""
         self._fusion.push_mask(mask, stamp)
-        self._stamp = float(stamp)
 
     def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
         """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
@@ -561,13 +547,9 @@ class CorridorNavigator:
         return self._command(mask_b, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def stop(self) -> Command:
-        """An invalid stop; the EMA restarts from rest, the centreline, the drift estimate and the
-        offset integral are forgotten (the robot stands: a drift that comes with rolling is gone
-        until it moves again)."""
+        """An invalid stop; the EMA restarts from rest and the centreline is forgotten."""
         self._smoother.rest()
         self._centre = None
-        self._observer.reset()
-        self._offset_integral.reset()
         return CorridorCommand(v=0.0, omega=0.0, target_column=None, histogram=np.zeros(0), valid=False)
 
     # ---- one command -----------------------------------------------------------------------------
@@ -597,9 +579,6 @@ class CorridorNavigator:
             )
             column = histogram_minimum(histogram)
             v, omega = control_law(column, fused.shape[1], self._fusion.config)
-            # no path seen: the drift estimate and the integral hold still
-            self._observer.forget_track()
-            self._offset_integral.forget_track()
         else:
             if self._centre is not None:  # the row moves little between commands: average out noise
                 memory = config.centre_memory
@@ -611,12 +590,8 @@ class CorridorNavigator:
             lookahead = config.hold_lookahead if holding else config.lookahead
             y_goal = float(polyval(lookahead, centre))
             v, omega = self._pursuit(y_goal, lookahead)
-            if config.controller == "drift_observer":
-                omega = self._drift_observer_law(centre, mode, omega)
-            elif holding:
+            if holding:
                 omega = self._centre_hold_law(centre, omega, attitude)
-            else:
-                self._offset_integral.forget_track()
             column = self.camera.column_of(lookahead, y_goal)
         self.mode_counts[mode] += 1
         v, omega = self._smoother.update(v, omega)
@@ -641,7 +616,7 @@ class CorridorNavigator:
             # Most vegetation in range is overhead: the rows are not walls. Under a roof with an
             # opening along the corridor (a pergola's free band) SegMinD's column follows the
             # opening; under a closed canopy (merged crowns) the trunks give the rows.
-            if not config.trunks or self._roof_opening(y[h >= config.roof_min_height]) >= config.roof_opening:
+            if self._roof_opening(y[h >= config.roof_min_height]) >= config.roof_opening:
                 return None, "fallback"
             return self._trunk_centreline(fused, depth_m, attitude, rgb, self._split_line(fused, depth_m))
         offset = y - polyval(x, self._split_line(fused, depth_m))
@@ -832,55 +807,18 @@ class CorridorNavigator:
             self._ray_grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
         return self._ray_grids[(*shape, s)]
 
-    def _drift_observer_law(self, centre: tuple[float, ...], mode: str, omega: float) -> float:
-        """Pure pursuit's yaw rate plus heading damping and the drift compensation (step 6).
-
-        Only a fit of the rows measures the heading; the trunks' centreline runs along the robot,
-        so in trunk mode pure pursuit steers alone and the observer starts a new track after it."""
-        config = self.config
-        if mode not in OBSERVED_MODES:
-            self._observer.forget_track()
-            return omega
-        heading = math.atan(centre[1])  # of the path, seen from the robot (left > 0)
-        drift = self._observer.update(-centre[0], -heading, self._smoother.v, self._stamp)
-        # With the heading damped by 2 v / L + k_h in all, pointing the robot by the drift angle
-        # -d / v against the drift takes this much yaw rate.
-        heading_damping = 2.0 * config.v_max / config.lookahead + config.heading_gain
-        omega += config.heading_gain * heading - heading_damping * drift / config.v_max
-        return clip(omega, -config.omega_max, config.omega_max)
-
-    def _integral_limit(self) -> float:
-        """The clamp (m s) of `centre_hold`'s integral S = ∫c_0 dt (0 without one): the largest S
-        whose yaw rate (2 v / L²) S / T_i points the robot, centred, against a drift of `drift_limit`.
-
-        Centred (c_0 = 0) and pointed by ψ = -d / v against a drift d, the fit gives c_1 = d / v, so
-        pure pursuit's (2 v / L) c_1 and the damping k_h c_1 turn the robot back; the integral's
-        term must balance them: (2 v / L²) S / T_i = (2 v / L + k_h) d / v."""
-        config = self.config
-        v, lookahead = config.v_max, config.hold_lookahead
-        balance = (2.0 * v / lookahead + config.hold_heading_gain) * config.drift_limit / v
-        return balance * config.hold_integral_time * lookahead * lookahead / (2.0 * v)
-
     def _centre_hold_law(self, centre: tuple[float, ...], omega: float, attitude: tuple[float, float] | None) -> float:
-        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping, the
-        slope feedforward and the integral of the robot's offset (step 7), on a fitted centreline
-        (modes "both", "one_side").
+        """Pure pursuit's yaw rate `omega` (on the short lookahead) plus heading damping and the
+        slope feedforward (step 6), on a fitted centreline (modes "both", "one_side").
 
         The goal's offset c(L) is the best-measured number of the fit (the points lie around it);
         c_0 alone, the offset at the robot, is an extrapolation whose error is the heading's times
         3-4 m, so the law steers on c(L) and adds a small heading term. Across a slope the robot
         creeps downhill at a drift angle k_s tan(roll); the law alone balances that only with a
         standing offset 1.6 k_s tan(roll) m downhill, so `hold_slope_drift` k_s points the robot
-        uphill by that angle from the IMU's roll (`_slope_feedforward`). Only the integral reads
-        c_0: it averages c_0's noise out, but not its bias (4-5 cm in the flat pear field, where it
-        raised the error from 0.028 to 0.040-0.053 m): it is off unless `hold_integral_time` is set
-        (docs/reference/equations.md)."""
+        uphill by that angle from the IMU's roll (`_slope_feedforward`) (docs/reference/equations.md)."""
         config = self.config
-        v, lookahead = config.v_max, config.hold_lookahead
-        integral = self._offset_integral.update(centre[0], self._stamp)
         omega += config.hold_heading_gain * math.atan(centre[1]) + self._slope_feedforward(attitude)
-        if config.hold_integral_time > 0:
-            omega += 2.0 * v / (lookahead * lookahead) * integral / config.hold_integral_time
         return clip(omega, -config.omega_max, config.omega_max)
 
     def _slope_feedforward(self, attitude: tuple[float, float] | None) -> float:
