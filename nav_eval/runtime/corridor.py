@@ -106,6 +106,7 @@ import numpy as np
 from .camera import CameraGeometry
 from .checks import check_depth_threshold, check_positive
 from .control import Command, CommandSmoother, clip
+from .mask_fusion import MaskFusion, validated_mask
 from .navigator import (
     Navigator,
     NavigatorConfig,
@@ -472,15 +473,16 @@ class CorridorNavigator:
         # placed with the camera; SegMinD's fallback needs depth.
         self.inputs = NavigatorInputs(depth=True, rgb=True, attitude=True, camera=camera)
         self._smoother = CommandSmoother(config.ema_lambda)
-        self._fusion = Navigator(
-            NavigatorConfig(
-                method="segmind",
-                depth_threshold=config.depth_threshold,
-                fuse_frames=config.fuse_frames,
-                v_max=config.v_max,
-                omega_max=config.omega_max,
-                ema_lambda=config.ema_lambda,
-            )
+        self._fusion = MaskFusion(config.fuse_frames)
+        # SegMinD's settings for the fallback's column and control law (the paper's constants
+        # beyond the limits and the EMA, which are SegCorridor's).
+        self._fallback = NavigatorConfig(
+            method="segmind",
+            depth_threshold=config.depth_threshold,
+            fuse_frames=config.fuse_frames,
+            v_max=config.v_max,
+            omega_max=config.omega_max,
+            ema_lambda=config.ema_lambda,
         )
         self._ray_grids: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self.reset()
@@ -520,18 +522,18 @@ class CorridorNavigator:
         the image, if any) and return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
         self.push_mask(mask_b, stamp)
-        fused = self._fusion.fused_mask()
+        fused = self._fusion.fused()
         assert fused is not None
         return self._command(fused, depth_m, validated_attitude(attitude), validated_rgb(rgb, depth_m.shape))
 
     def push_mask(self, mask: np.ndarray, stamp: float = 0.0) -> None:
         """Add one mask to the fusion window (the paper's OR of the last `fuse_frames`); `stamp`
         (its frame time, s) lets `fused_mask(not_before=...)` leave it out once stale."""
-        self._fusion.push_mask(mask, stamp)
+        self._fusion.push(validated_mask(mask), stamp)
 
     def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
         """The OR of the window's masks (stale ones left out with `not_before`), None if none."""
-        return self._fusion.fused_mask(not_before)
+        return self._fusion.fused(not_before)
 
     def command(
         self,
@@ -575,10 +577,10 @@ class CorridorNavigator:
                 depth_m,
                 method="segmind",
                 depth_threshold=config.depth_threshold,
-                smooth_window=self._fusion.config.smooth_window,
+                smooth_window=self._fallback.smooth_window,
             )
             column = histogram_minimum(histogram)
-            v, omega = control_law(column, fused.shape[1], self._fusion.config)
+            v, omega = control_law(column, fused.shape[1], self._fallback)
         else:
             if self._centre is not None:  # the row moves little between commands: average out noise
                 memory = config.centre_memory
@@ -766,7 +768,7 @@ class CorridorNavigator:
         line only needs the direction of the free corridor, and the strided grid finds it for a
         fraction of the full histogram's cost (the fallback's command still uses the full one)."""
         s = self.config.stride
-        window = max(1, self._fusion.config.smooth_window // s) | 1  # odd, about the same width in pixels
+        window = max(1, self._fallback.smooth_window // s) | 1  # odd, about the same width in pixels
         column = target_column(
             fused[::s, ::s],
             depth_m[::s, ::s],
