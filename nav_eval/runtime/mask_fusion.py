@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mask_closing import close_mask
+from segmin.common.mask_closing import close_mask
 
 _THRESHOLD_HINT = "threshold it first, e.g. mask = probabilities > 0.5"
 

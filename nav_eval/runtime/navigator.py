@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from segmin.data.canopy_region import check_closing_radius
+from segmin.common.mask_closing import check_closing_radius
 
 from .checks import check_depth_threshold, check_positive
 from .control import Command, CommandSmoother, clip, stop_command
