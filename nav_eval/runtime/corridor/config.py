@@ -16,15 +16,15 @@ from ..checks import check_depth_threshold, check_positive
 _DRIFT_OBSERVER_REMOVED = (
     "the drift_observer controller measured worse than pure pursuit in bends (docs/results/history/segcorridor.md)"
 )
-# pursuit: pure pursuit alone (step 5); centre_hold: pure pursuit on a short lookahead plus heading
-# damping, tuned for the skid-steer robot (step 6)
+# pursuit: pure pursuit alone; centre_hold: pure pursuit on a short lookahead plus heading damping,
+# tuned for the skid-steer robot (corridor.steering)
 CONTROLLERS = ("pursuit", "centre_hold")
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
 
 @dataclass(frozen=True)
 class CorridorConfig:
-    """SegCorridor's parameters (module docstring for their role); distances in metres.
+    """SegCorridor's parameters (their roles: the package's docstring and the equations); distances in metres.
 
     `depth_threshold` is the fallback's (SegMinD's) depth cut and has no default, as in
     `NavigatorConfig`. The defaults were chosen on the five test fields (docs/nav_eval.md).
