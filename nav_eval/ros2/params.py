@@ -206,7 +206,7 @@ DESCRIPTIONS: dict[str, str] = {
     "camera_mount_height": "SegCorridor: camera height above the ground, m (not in CameraInfo)",
     "camera_tilt_deg": "SegCorridor: camera tilt up from horizontal, degrees",
     "camera_mount_forward": "SegCorridor: camera ahead of base_link, m",
-    "controller": "SegCorridor's steering law: pursuit (the default), drift_observer, or centre_hold (for a "
+    "controller": "SegCorridor's steering law: pursuit (the default) or centre_hold (for a "
     "skid-steer robot such as the Jackal: holds the row centre under wheel slip and on cross slopes)",
     "hold_slope_drift": "centre_hold on sloped rows: points the robot uphill by this times tan(roll) from the IMU "
     "against its creep across the slope (0: off; 0.5 for the simulated Jackal; measure your robot's)",

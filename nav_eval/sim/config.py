@@ -244,6 +244,9 @@ def _check_section(section: str, values: dict[str, Any], fuse_frames: int) -> No
             from segmin.nav_eval.runtime.corridor import CorridorConfig as Target
     except ImportError:  # navigator not installed yet: checked when a run builds it
         return
+    from segmin.common.config import check_removed_keys
+
+    check_removed_keys(Target, values, section)  # a key that was removed: says so, in one line
     allowed = {f.name for f in dataclasses.fields(Target)} - {"method", "depth_threshold", "fuse_frames"}
     unknown = sorted(set(values) - allowed)
     if unknown:
