@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from torch.utils.data import Dataset
 
-from segmin.data.canopy_region import canopy_region, check_closing_radius
+from segmin.common.mask_closing import canopy_region, check_closing_radius
 from segmin.data.domains import find_frames
 from segmin.data.frames import DatasetError, Frame
 from segmin.data.readers import load_frame

@@ -93,7 +93,6 @@ def test_bench_navigator_prints_every_method(capsys: pytest.CaptureFixture[str])
         "segmind, mask_closing 8",
         "segcorridor",
         "segcorridor, trunk mode",
-        "segcorridor, drift observer",
         "segcorridor, centre hold",
     ):
         assert re.search(rf"^  {method} +median [0-9.]+ ms  p95 [0-9.]+ ms", out, re.M), out

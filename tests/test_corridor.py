@@ -385,7 +385,6 @@ def test_unknown_corridor_key_is_refused_at_load():
         ({"trunk_h_min": 2.0}, "trunk_h_min"),
         ({"trunk_stride": 0}, "trunk_stride"),
         ({"roof_opening": -1.0}, "roof_opening"),
-        ({"trunks": "yes"}, "trunks"),
         ({"trunk_max_excess_green": float("nan")}, "trunk_max_excess_green"),
         ({"roof_opening_reach": 0.1}, "roof_opening_reach"),
         ({"roof_opening": 6.0}, "roof_opening"),
@@ -512,7 +511,6 @@ def test_under_a_closed_canopy_the_trunks_give_the_centre(offset):
 def test_an_opening_in_the_canopy_hands_the_trunk_scene_to_segmind():
     mask, depth = render_scene(orchard_scene(0.3, opening=1.0), size=SIZE)
     assert orchard_navigator().step(mask, depth).mode == "fallback"
-    assert orchard_navigator(trunks=False).step(*render_scene(orchard_scene(0.3), size=SIZE)).mode == "fallback"
 
 
 def test_green_pixels_are_not_trunks_when_the_image_is_given():

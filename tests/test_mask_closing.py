@@ -111,3 +111,17 @@ def test_the_radius_means_the_same_on_a_wider_camera(scale: int) -> None:
     assert (closed >= mask).all()
     depth = np.full(mask.shape, 2.0, dtype=np.float32)
     assert _navigator(4).step(mask, depth).target_column == pytest.approx(130 * scale - 0.5)  # the corridor's centre
+
+
+def test_every_closing_is_the_one_in_common() -> None:
+    """The label, the simulator and the navigator close with one implementation (and one bound):
+    the old import paths give the very same functions."""
+    from segmin.common import mask_closing as common
+    from segmin.data import canopy_region as label
+    from segmin.nav_eval.runtime import mask_closing as runtime
+    from segmin.nav_eval.sim import mask_closing as sim
+
+    assert label.canopy_region is common.canopy_region is sim.canopy_region
+    assert label.check_closing_radius is common.check_closing_radius
+    assert label.MAX_CLOSING_RADIUS == common.MAX_CLOSING_RADIUS == 112
+    assert runtime.close_mask is common.close_mask and runtime.REFERENCE_WIDTH == 224

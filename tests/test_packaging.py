@@ -136,6 +136,19 @@ def test_every_shipped_data_folder_is_packaged() -> None:
                     assert any(f.match(p) for p in patterns), f"{f} matches no package-data pattern of {name}"
 
 
+def test_every_code_package_is_packaged() -> None:
+    """A new sub-package (a folder with an __init__.py) must be listed in pyproject.toml, or the
+    wheel leaves it out and its imports fail only on a user's machine, never in the checkout."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    for package, folder in setup["package-dir"].items():
+        for init in sorted((root / folder).rglob("__init__.py")):
+            name = ".".join([package, *init.parent.relative_to(root / folder).parts])
+            assert name in setup["packages"], f"{init.parent} is not in [tool.setuptools] packages"
+
+
 def test_the_developers_benchmarks_stay_out_of_the_wheel() -> None:
     """benchmarks/ is the repository's, not the users': no package of the wheel is it or maps to it
     (`.ci/wheel_check.sh` checks the built wheel holds only segmin/)."""

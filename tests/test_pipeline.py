@@ -319,6 +319,40 @@ def test_profiles_are_validated() -> None:
         load_pipeline_config("micro", ["real_eval.dat=x"])
 
 
+def test_the_demo_drives_segcorridor_beside_the_papers_methods() -> None:
+    """A new user's report shows the navigator that beats the paper, with the paper's three."""
+    from segmin.nav_eval.runtime.methods import METHODS
+
+    nav = load_pipeline_config("quick").nav
+    assert nav.methods_for("trees") == nav.methods_for("vineyards") == list(METHODS)
+    assert "segcorridor" in METHODS
+
+
+def test_the_comparison_with_the_paper_sets_segcorridor_beside_segmind() -> None:
+    """Per field, the paper's SegMinD MAE is the bar for our SegMinD and SegCorridor, SegMinD first;
+    the paper's other methods are left to the table, a field without a finished run says so."""
+    from segmin.app.pipeline.report import _comparison
+    from segmin.nav_eval.evaluation.evaluate import RunResult
+
+    def run(field: str, method: str, mae: float, success: bool = True) -> RunResult:
+        return RunResult(field, method, 0, 0, "trees", success, "goal" if success else "collision", mae=mae)
+
+    results = [
+        run("pear_field", "segcorridor", 0.020),
+        run("pear_field", "segmin", 0.010),
+        run("pear_field", "segmind", 0.050),
+        run("high_trees", "segmind", float("nan"), success=False),
+        run("high_trees", "segcorridor", 0.100),
+    ]
+    assert _comparison(results) == [
+        "- pear_field: MAE against the paper's SegMinD 0.031 m: SegMinD 0.050 m, higher (worse), "
+        "1/1 runs succeeded; SegCorridor 0.020 m, lower (better), 1/1 runs succeeded.",
+        "- high_trees: MAE against the paper's SegMinD 0.174 m: SegMinD: 0/1 runs succeeded; "
+        "SegCorridor 0.100 m, lower (better), 1/1 runs succeeded.",
+    ]
+    assert _comparison([run("pear_field", "segmin", 0.010)]) == ["(no SegMinD or SegCorridor runs)"]
+
+
 @pytest.mark.parametrize(
     "profile", sorted(p.stem for p in (Path(__file__).parents[1] / "configs" / "pipeline").glob("*.yaml"))
 )

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Literal
 
 from segmin.common.config import load_config
+from segmin.common.mask_closing import check_closing_radius
 from segmin.data.augment import AugmentConfig
-from segmin.data.canopy_region import check_closing_radius
 from segmin.data.model_input import check_input_side
 from segmin.data.real_sets import check_not_real_data
 from segmin.models.architectures import check_architecture

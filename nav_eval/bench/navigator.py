@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import os
 import time
 from collections.abc import Callable
@@ -53,9 +52,8 @@ def untrained_onnx(folder: Path, size: int = 224) -> Path:
 def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) -> list[dict]:
     """Median and p95 milliseconds per step for each method on the demo's vineyard and tree frames,
     SegCorridor's on a closed canopy over trunks (its trunk mode: another code path) and with the
-    drift observer and the centre-hold law of a slipping robot (stamped frames, so that they observe
-    and integrate), the latter also with its settings for sloped rows; SegMinD also with the masks
-    closed as for the shipped trees model."""
+    centre-hold law of a slipping robot, also with its settings for sloped rows; SegMinD also with
+    the masks closed as for the shipped trees model."""
     frames = [render_scene(scene, size=size, seed=i) for i, scene in enumerate(DEMO_SCENES[:3])]
     mask, depth = render_scene(CLOSED_CANOPY_SCENE, size=size)
     # The image only makes the trunk test pay for its colour check (leaves green, the rest brown:
@@ -70,14 +68,13 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     ] + [
         ("segmind", "segmind, mask_closing 8", frames, "pursuit", CLOSING),
         ("segcorridor", "segcorridor, trunk mode", canopy, "pursuit", {}),
-        ("segcorridor", "segcorridor, drift observer", frames, "drift_observer", {}),
         ("segcorridor", "segcorridor, centre hold", rolled, "centre_hold", {}),
         ("segcorridor", "segcorridor, centre hold, sloped rows", rolled, "centre_hold", SLOPED_ROWS),
     ]
     rows = []
     for method, label, inputs, controller, changes in runs:
         navigator = _navigator(method, size, controller, changes)
-        ms = time_calls(_stepper(navigator, controller), runs=steps, warmup=warmup, inputs=inputs) * 1e3
+        ms = time_calls(_stepper(navigator), runs=steps, warmup=warmup, inputs=inputs) * 1e3
         rows.append(
             {
                 "method": method,
@@ -92,14 +89,9 @@ def bench_navigator(*, size: int = 224, steps: int = 3000, warmup: int = 200) ->
     return rows
 
 
-def _stepper(navigator: Navigator | CorridorNavigator, controller: str) -> Callable[[tuple], object]:
-    """One step on a frame; with a slip law the frames are stamped at the commands' 5 Hz
-    (unstamped, it would observe or integrate nothing and cost less than on a robot)."""
-    if controller == "pursuit":
-        return lambda frame: navigator.step(*frame)
-    assert isinstance(navigator, CorridorNavigator)
-    stamps = itertools.count(0.0, 0.2)
-    return lambda frame: navigator.step(*frame, stamp=next(stamps))
+def _stepper(navigator: Navigator | CorridorNavigator) -> Callable[[tuple], object]:
+    """One step on a frame: (mask, depth), and for SegCorridor (attitude, rgb) where given."""
+    return lambda frame: navigator.step(*frame)
 
 
 def _navigator(

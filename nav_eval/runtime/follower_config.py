@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from segmin.common.config import ConfigError, apply_overrides, from_dict, read_yaml, to_dict
+from segmin.common.config import ConfigError, apply_overrides, check_removed_keys, from_dict, read_yaml, to_dict
 
 from .camera import CameraGeometry
 from .corridor import CorridorConfig, CorridorNavigator
@@ -149,6 +149,7 @@ def navigator_from_dict(method: str, raw: Any, where: str = "navigator") -> Navi
         return from_dict(cls, raw, where=where)  # refused, naming `where`
     if "method" in raw:
         raise ConfigError(f"{where}.method: the method is chosen once, by the follower's `method`")
+    check_removed_keys(cls, raw, where)  # a setting that was removed: says so, and why
     fields = navigator_fields(method)
     unknown = sorted(set(raw) - set(fields))
     if unknown:  # named with the method: a key of the other navigator is the likely slip

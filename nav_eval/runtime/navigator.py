@@ -35,11 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from segmin.data.canopy_region import check_closing_radius
+from segmin.common.mask_closing import check_closing_radius
 
 from .checks import check_depth_threshold, check_positive
 from .control import Command, CommandSmoother, clip, stop_command
-from .mask_closing import close_mask
+from .mask_fusion import MaskFusion, validated_mask
 from .methods import DEPTH_METHODS, PAPER_METHODS
 from .protocols import NavigatorInputs
 
@@ -254,13 +254,12 @@ class Navigator:
         self.config = config
         self.inputs = NavigatorInputs(depth=config.method in DEPTH_METHODS)
         self._smoother = CommandSmoother(config.ema_lambda)
+        self._fusion = MaskFusion(config.fuse_frames, config.mask_closing)
         self.reset()
 
     def reset(self) -> None:
         """Forget past masks, the SegZeros track and the EMA (the robot is at rest)."""
-        self._masks: np.ndarray | None = None
-        self._stamps = np.full(self.config.fuse_frames, -np.inf)
-        self._count = 0
+        self._fusion.reset()
         self._smoother.rest()
         self._zeros_target: float | None = None
 
@@ -271,7 +270,7 @@ class Navigator:
     def step(self, mask: np.ndarray, depth: np.ndarray) -> Command:
         """Take one mask + depth frame and return the smoothed command."""
         mask_b, depth_m = _validated_frame(mask, depth)
-        self._push(mask_b, 0.0)
+        self._fusion.push(mask_b, 0.0)
         fused = self.fused_mask()
         assert fused is not None  # the mask just pushed is in the window
         return self._command(fused, depth_m)
@@ -282,35 +281,12 @@ class Navigator:
         `stamp` is the mask's frame time in seconds, used only by `fused_mask(not_before=...)`
         to leave out stale masks. A mask of another size than the window's starts a new window.
         """
-        self._push(_validated_mask(mask), stamp)
-
-    def _push(self, mask_b: np.ndarray, stamp: float) -> None:
-        n = self.config.fuse_frames
-        mask_b = close_mask(mask_b, self.config.mask_closing)  # the mask itself when 0
-        if self._masks is None or self._masks.shape[1:] != mask_b.shape:
-            self._masks = np.zeros((n, *mask_b.shape), dtype=bool)
-            self._stamps[:] = -np.inf
-            self._count = 0
-        self._masks[self._count % n] = mask_b
-        self._stamps[self._count % n] = float(stamp)
-        self._count += 1
+        self._fusion.push(validated_mask(mask), stamp)
 
     def fused_mask(self, not_before: float | None = None) -> np.ndarray | None:
         """Logical OR of the masks in the window; with `not_before`, only those stamped at or
         after it (stale masks are left out). None when no mask qualifies."""
-        if self._masks is None or self._count == 0:
-            return None
-        if not_before is None:
-            filled = min(self._count, self.config.fuse_frames)
-            window = self._masks if filled == self.config.fuse_frames else self._masks[:filled]
-        else:
-            # Slots never filled are stamped -inf, so they only pass a not_before of -inf, and
-            # then they add nothing to the OR (they are all False).
-            keep = self._stamps >= not_before
-            if not keep.any():
-                return None
-            window = self._masks if keep.all() else self._masks[keep]
-        return np.asarray(window.any(axis=0))  # an array (numpy's stubs also allow a scalar)
+        return self._fusion.fused(not_before)
 
     def command(
         self,
@@ -387,17 +363,6 @@ class Navigator:
 # ---------------------------------------------------------------------------------------------
 
 
-def _validated_mask(mask: np.ndarray) -> np.ndarray:
-    """Check a mask's shape and values; return it as bool (no depth needed, so pushing a mask
-    into the fusion window allocates nothing)."""
-    mask = np.asarray(mask)
-    if mask.ndim != 2:
-        raise ValueError(f"mask must be a 2-D h x w array, got shape {mask.shape}")
-    if mask.size == 0:
-        raise ValueError(f"mask must not be empty, got shape {mask.shape}")
-    return _bool_mask(mask)
-
-
 def validated_rgb(rgb: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray | None:
     """The image as an H x W x 3 uint8 array of the depth frame's size, or None; ValueError otherwise
     (SegCorridor's trunk test reads its colour; the runtime checks it when the frame arrives)."""
@@ -428,50 +393,13 @@ def validated_attitude(attitude: object) -> tuple[float, float] | None:
 
 def _validated_frame(mask: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Check shapes and dtypes; return a bool mask and float32 metres."""
-    mask_b = _validated_mask(mask)
+    mask_b = validated_mask(mask)
     depth = np.asarray(depth)
     if depth.ndim != 2:
         raise ValueError(f"depth must be a 2-D h x w array, got shape {depth.shape}")
     if mask_b.shape != depth.shape:
         raise ValueError(f"mask and depth must have the same shape, got mask {mask_b.shape} and depth {depth.shape}")
     return mask_b, to_metres(depth)
-
-
-_THRESHOLD_HINT = "threshold it first, e.g. mask = probabilities > 0.5"
-
-
-def _bool_mask(mask: np.ndarray) -> np.ndarray:
-    """A bool mask from bool, {0, 1} or {0, 255} integers; anything else is refused.
-
-    `mask != 0` on a probability map would call every pixel above 0 vegetation and steer on a
-    silently wrong mask. Two reductions (min, max) keep the check cheap (other integer types
-    than uint8 pay one more pass for a 0/255 mask).
-    """
-    if mask.dtype == bool:
-        return mask
-    if not np.issubdtype(mask.dtype, np.integer):
-        raise ValueError(
-            f"mask dtype is {mask.dtype}: expected bool or an integer 0/1 or 0/255 mask "
-            f"(a probability map? {_THRESHOLD_HINT})"
-        )
-    if mask.dtype == np.uint8:
-        # Seen as int8, 255 is -1: {0, 1} spans 0..1 and {0, 255} spans -1..0, and any other
-        # byte widens the span, so min and max alone decide.
-        signed = mask.view(np.int8)
-        low, high = int(signed.min()), int(signed.max())
-        if low >= 0 and high <= 1:
-            return mask.view(bool)
-        if low >= -1 and high <= 0:
-            return mask != 0
-        low, high = int(mask.min()), int(mask.max())
-    else:
-        low, high = int(mask.min()), int(mask.max())
-        if low >= 0 and (high <= 1 or (high == 255 and np.count_nonzero(mask) == np.count_nonzero(mask == 255))):
-            return mask != 0
-    raise ValueError(
-        f"mask values range over {low}..{high}: expected only 0/1 or 0/255 "
-        f"(a label or probability map? {_THRESHOLD_HINT})"
-    )
 
 
 def _check_method(method: str) -> None:

@@ -59,7 +59,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
 
 
 def run_eval_seg(args: argparse.Namespace) -> int:
-    from segmin.data.canopy_region import check_closing_radius
+    from segmin.common.mask_closing import check_closing_radius
     from segmin.data.real_sets import shipped_real_data
     from segmin.nav_eval.runtime.shipped_models import looks_like_name, resolve_model
     from segmin.nav_eval.seg_eval.results import check_out_dir, write_results

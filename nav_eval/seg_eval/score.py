@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from segmin.common.mask_closing import canopy_region, check_closing_radius
 from segmin.common.seg_metrics import confusion
 from segmin.data.agriseg_loader import DatasetError, Frame, find_frames, load_frame
-from segmin.data.canopy_region import canopy_region, check_closing_radius
 from segmin.nav_eval.seg_eval.blank_frames import blank_frame_shares
 from segmin.nav_eval.seg_eval.predictor import Predictor, load_predictor
 from segmin.nav_eval.seg_eval.sheet import SHEET_MAX_ROWS, contact_sheet, sheet_picks, sheet_row

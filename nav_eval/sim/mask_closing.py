@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from segmin.data.canopy_region import canopy_region, check_closing_radius
+from segmin.common.mask_closing import canopy_region, check_closing_radius
 from segmin.nav_eval.sim.config import Perception
 from segmin.nav_eval.sim.protocols import FrameSegmenter, SimFrame
 

@@ -109,6 +109,7 @@ def from_dict(cls: type[T], raw: dict[str, Any], *, where: str = "config") -> T:
     """
     if not isinstance(raw, dict):
         raise ConfigError(f"{where}: expected a mapping, got {type(raw).__name__}")
+    check_removed_keys(cls, raw, where)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(raw) - set(fields))
     if unknown:
@@ -128,6 +129,17 @@ def from_dict(cls: type[T], raw: dict[str, Any], *, where: str = "config") -> T:
         return cls(**kwargs)
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{where}: {exc}") from exc
+
+
+def check_removed_keys(cls: type, raw: dict[str, Any], where: str) -> None:
+    """ConfigError naming the first key of `raw` that `cls` once had and dropped.
+
+    A dataclass lists such keys in a `REMOVED_KEYS` class attribute (key -> why it went). An old
+    config file that still sets one then gets one line that says the key was removed and why,
+    instead of "unknown key" and a list of the allowed ones that no longer holds it."""
+    removed: dict[str, str] = getattr(cls, "REMOVED_KEYS", {})
+    for key in sorted(set(raw) & set(removed)):
+        raise ConfigError(f"{where}.{key} was removed ({removed[key]}): delete it from the config")
 
 
 def load_config(cls: type[T], path: str | Path | None, overrides: list[str] | tuple[str, ...] = ()) -> T:
