@@ -368,6 +368,13 @@ def test_built_by_the_evaluation_with_the_config_section():
     assert nav.camera.width == 224 and nav.camera.mount_height == pytest.approx(0.40)
 
 
+@pytest.mark.parametrize("key", ["trunk_stride", "significance", "roof_min_height"])
+def test_a_setting_now_fixed_is_named_with_its_value_at_load(key):
+    """The estimator's inner settings are constants now: an old config that sets one is told so."""
+    with pytest.raises(ValueError, match=rf"corridor.*{key}.*now fixed at"):
+        load_nav_config(overrides=[f"corridor.{key}=2"])
+
+
 def test_unknown_corridor_key_is_refused_at_load():
     with pytest.raises(ValueError, match="corridor: unknown key"):
         load_nav_config(overrides=["corridor.look_ahead=3"])
@@ -382,13 +389,8 @@ def test_unknown_corridor_key_is_refused_at_load():
         ({"stride": 0}, "stride"),
         ({"ema_lambda": 1.5}, "ema_lambda"),
         ({"min_points": 2.5}, "min_points"),
-        ({"trunk_h_min": 2.0}, "trunk_h_min"),
-        ({"trunk_stride": 0}, "trunk_stride"),
         ({"roof_opening": -1.0}, "roof_opening"),
-        ({"trunk_max_excess_green": float("nan")}, "trunk_max_excess_green"),
-        ({"roof_opening_reach": 0.1}, "roof_opening_reach"),
         ({"roof_opening": 6.0}, "roof_opening"),
-        ({"trunk_x_max": 0.4}, "trunk_x_max"),
         ({"row_start_max": 0.3}, "row_start_max"),
         ({"row_start_max": float("nan")}, "row_start_max"),
         ({"row_start_max": True}, "row_start_max"),
@@ -405,11 +407,10 @@ def test_bad_settings_name_the_field(changes, field):
         # Both rows need min_points each of the at most max_points kept points.
         ({"min_points": 301}, {"min_points": 300}, r"corridor.min_points \(301\).*corridor.max_points \(600\)"),
         ({"max_points": 59}, {"max_points": 60}, r"corridor.min_points \(30\).*corridor.max_points \(59\)"),
-        # A row's points span at most x_max - x_min (0.5..8.0 m by default).
-        ({"min_span": 7.6}, {"min_span": 7.5}, r"corridor.min_span \(7.6\).*0.5..8.0"),
-        ({"x_max": 1.4}, {"x_max": 1.5}, r"corridor.min_span \(1.0\).*0.5..1.4"),
-        # At or below h_min every kept point is roof: no row fit, ever.
-        ({"roof_min_height": 0.1}, {"roof_min_height": 0.11}, r"corridor.roof_min_height \(0.1\).*h_min \(0.1\)"),
+        # A row's points must span 1 m along x, within x_min..x_max (0.5..8.0 m by default).
+        ({"x_max": 1.4}, {"x_max": 1.5}, r"corridor.x_min..x_max \(0.5..1.4\) is shorter than the 1.0 m"),
+        # The roof starts at 1.5 m: with h_min there every kept point is roof, no row fit, ever.
+        ({"h_min": 1.5}, {"h_min": 1.45}, r"corridor.h_min \(1.5\) must be below 1.5 m, where the roof starts"),
     ],
 )
 def test_limits_that_leave_no_row_ever_seen_are_refused(refused, accepted, message):

@@ -21,6 +21,39 @@ _DRIFT_OBSERVER_REMOVED = (
 CONTROLLERS = ("pursuit", "centre_hold")
 ROOF_BIN = 0.25  # metres: the lateral bins of the roof-opening test
 
+# The estimator's inner settings: fixed, not configured. Each was chosen on the five test fields
+# and no shipped config or robot default sets another (docs/results/history/segcorridor.md); their
+# roles are in docs/reference/equations.md (SegCorridor). A config that still sets one is told so.
+MAX_LATERAL = 3.5  # m: vegetation points kept within this of the split line (before the width is known)
+ROOF_SHARE = 0.6  # share of points above ROOF_MIN_HEIGHT that makes the canopy a roof
+ROOF_MIN_HEIGHT = 1.5  # m: a point above this is roof
+MIN_SPAN = 1.0  # m: a row is seen when its points span this far along x
+TRIM_ITERATIONS = 2  # rounds of trimming points far from their row's curve, then refitting
+SIGNIFICANCE = 3.0  # standard errors both rows' curvature must exceed for the quadratic
+WIDTH_MEMORY = 0.2  # weight of a new corridor width in its running estimate
+ROOF_OPENING_REACH = 2.5  # m: how far to each side the roof's opening is looked for
+TRUNK_H_MIN, TRUNK_H_MAX = 0.3, 1.3  # m: the height band where trunks and posts are looked for
+TRUNK_X_MAX = 12.0  # m: trunks and posts are looked for up to this far ahead
+TRUNK_STRIDE = 2  # px: every n-th pixel (both directions) of the trunk search
+TRUNK_MAX_LATERAL = 6.0  # m: trunk points kept within this of the split line (before the width is known)
+TRUNK_MAX_EXCESS_GREEN = 10.0  # a trunk pixel is not green: 2G - R - B at most this
+_FIXED = {
+    "max_lateral": MAX_LATERAL,
+    "roof_share": ROOF_SHARE,
+    "roof_min_height": ROOF_MIN_HEIGHT,
+    "min_span": MIN_SPAN,
+    "trim_iterations": TRIM_ITERATIONS,
+    "significance": SIGNIFICANCE,
+    "width_memory": WIDTH_MEMORY,
+    "roof_opening_reach": ROOF_OPENING_REACH,
+    "trunk_h_min": TRUNK_H_MIN,
+    "trunk_h_max": TRUNK_H_MAX,
+    "trunk_x_max": TRUNK_X_MAX,
+    "trunk_stride": TRUNK_STRIDE,
+    "trunk_max_lateral": TRUNK_MAX_LATERAL,
+    "trunk_max_excess_green": TRUNK_MAX_EXCESS_GREEN,
+}
+
 
 @dataclass(frozen=True)
 class CorridorConfig:
@@ -36,29 +69,15 @@ class CorridorConfig:
     x_max: float = 8.0
     h_min: float = 0.1
     h_max: float = 4.0
-    max_lateral: float = 3.5
-    roof_share: float = 0.6
-    roof_min_height: float = 1.5
     stride: int = 3
     min_points: int = 30
     max_points: int = 600
-    min_span: float = 1.0
     trim: float = 2.5
-    trim_iterations: int = 2
     degree: int = 2
-    significance: float = 3.0
-    width_memory: float = 0.2
     centre_memory: float = 0.5
     lookahead: float = 2.5
     roof_opening: float = 0.5
-    roof_opening_reach: float = 2.5
-    trunk_h_min: float = 0.3
-    trunk_h_max: float = 1.3
-    trunk_x_max: float = 12.0
-    trunk_stride: int = 2
     trunk_min_points: int = 15
-    trunk_max_lateral: float = 6.0
-    trunk_max_excess_green: float = 10.0
     v_max: float = 0.5
     omega_max: float = 1.0
     ema_lambda: float = 0.5
@@ -76,6 +95,7 @@ class CorridorConfig:
         "heading_gain": _DRIFT_OBSERVER_REMOVED,
         "hold_integral_time": "centre_hold's offset integral raised the pear field's error from 0.028 to 0.040-0.053 m",
         "trunks": "the trunk mode is always on (high trees 0.311 -> 0.053 m)",
+        **{key: f"now fixed at {value} (segmin.nav_eval.runtime.corridor.config)" for key, value in _FIXED.items()},
     }
 
     def __post_init__(self) -> None:
@@ -87,28 +107,19 @@ class CorridorConfig:
             "stride",
             "min_points",
             "max_points",
-            "trim_iterations",
-            "trunk_stride",
             "trunk_min_points",
         ):
             value = getattr(self, name)
-            low = 0 if name == "trim_iterations" else 1
+            low = 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"corridor.{name} must be an integer >= {low}, got {value!r}")
         for name in (
             "x_max",
             "h_max",
-            "max_lateral",
-            "roof_min_height",
-            "min_span",
             "trim",
             "lookahead",
             "v_max",
             "omega_max",
-            "trunk_x_max",
-            "trunk_h_max",
-            "trunk_max_lateral",
-            "roof_opening_reach",
             "hold_lookahead",
         ):
             check_positive(f"corridor.{name}", getattr(self, name))
@@ -119,32 +130,24 @@ class CorridorConfig:
                 f"(inf: every row is fitted), got {self.row_start_max!r}"
             )
         self._check_controller()
-        if not (math.isfinite(self.significance) and self.significance >= 0.0):
-            raise ValueError(f"corridor.significance must be a finite number >= 0, got {self.significance!r}")
-        for name in ("x_min", "h_min", "trunk_h_min", "trunk_max_excess_green"):
+        for name in ("x_min", "h_min"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"corridor.{name} must be finite, got {getattr(self, name)!r}")
-        if self.trunk_h_min >= self.trunk_h_max:
+        if not (math.isfinite(self.roof_opening) and 0.0 <= self.roof_opening <= 2 * ROOF_OPENING_REACH):
             raise ValueError(
-                f"corridor.trunk_h_min ({self.trunk_h_min}) must be below corridor.trunk_h_max ({self.trunk_h_max})"
+                f"corridor.roof_opening must be within [0, {2 * ROOF_OPENING_REACH}] m (twice the "
+                f"{ROOF_OPENING_REACH} m searched each side), got {self.roof_opening!r}"
             )
-        if self.roof_opening_reach < ROOF_BIN:
+        if self.x_min >= TRUNK_X_MAX:
             raise ValueError(
-                f"corridor.roof_opening_reach must be at least {ROOF_BIN} m (one bin), got {self.roof_opening_reach!r}"
+                f"corridor.x_min ({self.x_min}) must be below {TRUNK_X_MAX} m, where trunks are looked for"
             )
-        if not (math.isfinite(self.roof_opening) and 0.0 <= self.roof_opening <= 2 * self.roof_opening_reach):
-            raise ValueError(
-                f"corridor.roof_opening must be within [0, 2 x roof_opening_reach] = "
-                f"[0, {2 * self.roof_opening_reach}] m, got {self.roof_opening!r}"
-            )
-        if self.x_min >= self.trunk_x_max:
-            raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.trunk_x_max ({self.trunk_x_max})")
         if self.x_min >= self.x_max:
             raise ValueError(f"corridor.x_min ({self.x_min}) must be below corridor.x_max ({self.x_max})")
         if self.h_min >= self.h_max:
             raise ValueError(f"corridor.h_min ({self.h_min}) must be below corridor.h_max ({self.h_max})")
         self._check_rows_can_be_seen()
-        for name in ("ema_lambda", "width_memory", "centre_memory", "roof_share"):
+        for name in ("ema_lambda", "centre_memory"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"corridor.{name} must be in (0, 1], got {getattr(self, name)!r}")
 
@@ -170,13 +173,13 @@ class CorridorConfig:
                 f"corridor.min_points ({self.min_points}) is more than half of corridor.max_points "
                 f"({self.max_points}): both rows need min_points each of the at most max_points points kept"
             )
-        if self.min_span > self.x_max - self.x_min:
+        if self.x_max - self.x_min < MIN_SPAN:
             raise ValueError(
-                f"corridor.min_span ({self.min_span}) is longer than the range corridor.x_min..x_max "
-                f"({self.x_min}..{self.x_max}) that a row's points span at most"
+                f"corridor.x_min..x_max ({self.x_min}..{self.x_max}) is shorter than the {MIN_SPAN} m "
+                "a row's points must span to be seen"
             )
-        if self.roof_min_height <= self.h_min:
+        if self.h_min >= ROOF_MIN_HEIGHT:
             raise ValueError(
-                f"corridor.roof_min_height ({self.roof_min_height}) must be above corridor.h_min ({self.h_min}): "
+                f"corridor.h_min ({self.h_min}) must be below {ROOF_MIN_HEIGHT} m, where the roof starts: "
                 "every kept point would be roof, and no row would be fitted"
             )

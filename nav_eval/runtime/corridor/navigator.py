@@ -24,7 +24,17 @@ from ..navigator import (
     validated_rgb,
 )
 from ..protocols import MaskNavigator, NavigatorInputs
-from .config import CorridorConfig
+from .config import (
+    MAX_LATERAL,
+    MIN_SPAN,
+    ROOF_MIN_HEIGHT,
+    ROOF_OPENING_REACH,
+    ROOF_SHARE,
+    SIGNIFICANCE,
+    TRIM_ITERATIONS,
+    WIDTH_MEMORY,
+    CorridorConfig,
+)
 from .rays import StridedRays
 from .row_fit import fit_parallel_rows, polyval
 from .steering import centre_hold, pursuit
@@ -195,12 +205,12 @@ class CorridorNavigator:
         """Coefficients of the centreline and the mode that found it (None, "fallback" without one)."""
         config = self.config
         x, y, h = self._row_points(fused, depth_m, attitude)
-        overhead = int(np.count_nonzero(h >= config.roof_min_height))
-        if overhead >= config.min_points and overhead >= config.roof_share * h.shape[0]:
+        overhead = int(np.count_nonzero(h >= ROOF_MIN_HEIGHT))
+        if overhead >= config.min_points and overhead >= ROOF_SHARE * h.shape[0]:
             # Most vegetation in range is overhead: the rows are not walls. Under a roof with an
             # opening along the corridor (a pergola's free band) SegMinD's column follows the
             # opening; under a closed canopy (merged crowns) the trunks give the rows.
-            if roof_opening(y[h >= config.roof_min_height], config.roof_opening_reach) >= config.roof_opening:
+            if roof_opening(y[h >= ROOF_MIN_HEIGHT], ROOF_OPENING_REACH) >= config.roof_opening:
                 return None, "fallback"
             return self._trunks.centreline(fused, depth_m, attitude, rgb, self._split_line(fused, depth_m))
         offset = y - polyval(x, self._split_line(fused, depth_m))
@@ -208,7 +218,7 @@ class CorridorNavigator:
         # 1.5 w): in tight rows and through gaps they would pull the fit. Before w is known, the
         # nearest walls give it (`_first_reach`).
         low = h <= config.h_max
-        reach = self._first_reach(offset[low]) if self._width is None else min(config.max_lateral, self._width)
+        reach = self._first_reach(offset[low]) if self._width is None else min(MAX_LATERAL, self._width)
         near = (np.abs(offset) <= reach) & low
         rows = {"left": near & (offset > 0), "right": near & (offset <= 0)}
         points = {name: (x[chosen], y[chosen]) for name, chosen in rows.items()}
@@ -220,9 +230,9 @@ class CorridorNavigator:
             fit = fit_parallel_rows(
                 [points[name] for name in seen],
                 trim=config.trim,
-                iterations=config.trim_iterations,
+                iterations=TRIM_ITERATIONS,
                 degree=config.degree,
-                significance=config.significance,
+                significance=SIGNIFICANCE,
             )
             if fit is None or min(fit.kept) >= config.min_points:
                 break
@@ -232,7 +242,7 @@ class CorridorNavigator:
             return None, "fallback"
         if len(seen) == 2 and fit.offsets[0] > fit.offsets[1]:
             width = fit.offsets[0] - fit.offsets[1]
-            memory = config.width_memory
+            memory = WIDTH_MEMORY
             self._width = width if self._width is None else (1 - memory) * self._width + memory * width
             return ((fit.offsets[0] + fit.offsets[1]) / 2.0, *fit.shape), "both"
         if self._width is None:
@@ -250,7 +260,7 @@ class CorridorNavigator:
         the bordering row's far side is nearer as long as its canopy is thinner than the free width.
         Without this, rows seen through gaps (30 % missing vines) set the first width at 2.6 m
         instead of 1.3, and the fits drifted across the corridor (docs/nav_eval.md)."""
-        limit = self.config.max_lateral
+        limit = MAX_LATERAL
         left, right = offset[(offset > 0) & (offset <= limit)], -offset[(offset <= 0) & (offset >= -limit)]
         if min(left.shape[0], right.shape[0]) < self.config.min_points:
             return limit
@@ -294,7 +304,7 @@ class CorridorNavigator:
 
     def _enough(self, x: np.ndarray) -> bool:
         """Whether a row's points can support a fit: `min_points` of them spanning `min_span` in x."""
-        return x.shape[0] >= self.config.min_points and float(x.max() - x.min()) >= self.config.min_span
+        return x.shape[0] >= self.config.min_points and float(x.max() - x.min()) >= MIN_SPAN
 
     def _row_points(
         self, fused: np.ndarray, depth_m: np.ndarray, attitude: tuple[float, float] | None

@@ -11,7 +11,17 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import CameraGeometry
-from .config import ROOF_BIN, CorridorConfig
+from .config import (
+    ROOF_BIN,
+    TRUNK_H_MAX,
+    TRUNK_H_MIN,
+    TRUNK_MAX_EXCESS_GREEN,
+    TRUNK_MAX_LATERAL,
+    TRUNK_STRIDE,
+    TRUNK_X_MAX,
+    WIDTH_MEMORY,
+    CorridorConfig,
+)
 from .rays import StridedRays
 from .row_fit import polyval
 
@@ -53,13 +63,13 @@ class TrunkFinder:
         """Under a roof: the centreline between the trunks (and posts) of the two rows, from the
         non-vegetation pixels standing `trunk_h_min`-`trunk_h_max` above the ground."""
         config = self.config
-        pixel_index, rays = self.rays.grid(fused.shape, config.trunk_stride)
-        chosen = np.flatnonzero(~fused[:: config.trunk_stride, :: config.trunk_stride])
+        pixel_index, rays = self.rays.grid(fused.shape, TRUNK_STRIDE)
+        chosen = np.flatnonzero(~fused[::TRUNK_STRIDE, ::TRUNK_STRIDE])
         if rgb is not None:  # bark and posts are not green; leaves the mask missed are
             rows, cols = np.divmod(pixel_index[chosen], fused.shape[1])
             colour = rgb[rows, cols].astype(np.float32)
             excess_green = 2.0 * colour[:, 1] - colour[:, 0] - colour[:, 2]
-            chosen = chosen[excess_green <= config.trunk_max_excess_green]
+            chosen = chosen[excess_green <= TRUNK_MAX_EXCESS_GREEN]
         z = depth_m.ravel()[pixel_index[chosen]]
         valid = np.flatnonzero(z > 0)
         ray_columns = np.take(rays, chosen[valid], axis=1)
@@ -70,11 +80,11 @@ class TrunkFinder:
         x, y, h = self.camera.points_on_rays(ray_columns, z[valid])
         if attitude is not None:
             x, y, _ = self.camera.level(x, y, h, attitude)
-        ok = (x >= config.x_min) & (x <= config.trunk_x_max) & (h >= config.trunk_h_min) & (h <= config.trunk_h_max)
+        ok = (x >= config.x_min) & (x <= TRUNK_X_MAX) & (h >= TRUNK_H_MIN) & (h <= TRUNK_H_MAX)
         x, y = x[ok], y[ok]
         offset = y - polyval(x, split)
         # Once the trunk-to-trunk width w is known, the next rows' trunks (at 1.5 w) are left out.
-        reach = config.trunk_max_lateral if self.width is None else min(config.trunk_max_lateral, self.width)
+        reach = TRUNK_MAX_LATERAL if self.width is None else min(TRUNK_MAX_LATERAL, self.width)
         near = np.abs(offset) <= reach
         # A trunk or two a side give no reliable heading: the centreline is taken along the robot
         # (the goal is then the middle between the trunks ahead, which also turns out a heading error).
@@ -87,7 +97,7 @@ class TrunkFinder:
                 sides[name] = float(np.median(y[chosen_side]))
         if len(sides) == 2 and sides["left"] > sides["right"]:
             width = sides["left"] - sides["right"]
-            memory = config.width_memory
+            memory = WIDTH_MEMORY
             self.width = width if self.width is None else (1 - memory) * self.width + memory * width
             return ((sides["left"] + sides["right"]) / 2.0, *shape), "trunks"
         if len(sides) >= 1 and self.width is not None:
