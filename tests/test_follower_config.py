@@ -207,3 +207,5 @@ def test_the_nodes_old_flat_parameter_names_read_as_the_new_with_one_warning_lin
     assert "controller: not segmind's, ignored" in record.getMessage()
     corridor = node_params({"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO, "trim": 2.0})
     assert corridor.navigator == CorridorConfig(depth_threshold=5.0, trim=2.0)
+    with pytest.raises(ValueError, match=r"^parameter follower.navigator.trunks was removed \(the trunk mode"):
+        node_params({"method": "segcorridor", "camera_info_topic": topics.COLOUR_INFO, "trunks": True})

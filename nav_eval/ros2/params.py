@@ -289,6 +289,11 @@ def _nest(values: dict[str, Any]) -> dict[str, Any]:
     return nested
 
 
+def _navigator_names(cls: type) -> set[str]:
+    """A navigator config's keys, and those it removed (so that the config names them as removed)."""
+    return _field_names(cls) - {"method"} | set(getattr(cls, "REMOVED_KEYS", {}))
+
+
 def migrate_flat_names(values: dict[str, Any]) -> dict[str, Any]:
     """`values` with the flat names of the release before renamed (`method` -> `follower.method`,
     `v_max` -> `follower.navigator.v_max`, `segment_hz` -> `follower.runtime.segment_hz`,
@@ -297,10 +302,10 @@ def migrate_flat_names(values: dict[str, Any]) -> dict[str, Any]:
     class (a Jackal file kept SegCorridor's settings beside SegMinD) are dropped, said in the line."""
     method = values.get("method", values.get(f"{FOLLOWER}.method", DEFAULT_METHOD))
     try:
-        own = _field_names(navigator_class(method)) - {"method"}
+        own = _navigator_names(navigator_class(method))
     except ValueError:
         own = set()  # refused with its name when the config is built
-    other = _field_names(NavigatorConfig, CorridorConfig) - own - {"method"}
+    other = (_navigator_names(NavigatorConfig) | _navigator_names(CorridorConfig)) - own
     runtime, checks, camera = (
         _field_names(RuntimeConfig) - {"checks"},
         _field_names(SensorChecks),
