@@ -812,6 +812,7 @@ def test_a_run_starts_its_chain_at_a_stage_with_a_model_made_before(
     assert [(s["stage"], s["start"], s["kept"]) for s in card["stages"]] == [
         ("train/vineyards/tree_edges", str(onnx), "given")
     ]
+    assert card["stages"][0]["start_sha256"] == hashlib.sha256(onnx.read_bytes()).hexdigest()
     assert card["real_photos"]["looks"] == {"before": 3, "this_model": 1}
     markdown = (out / "release" / "vineyards.md").read_text()
     assert "a test set looked at 3 times while this model's recipe was made and once for this model" in markdown

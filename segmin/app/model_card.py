@@ -104,7 +104,7 @@ def card_markdown(card: dict[str, Any]) -> str:
     if len(card.get("stages") or []) > 1:
         lines += ["", "## Training stages", ""]
         lines += [
-            f"{i}. `{st['stage']}`: from {st['start']}, {st['epochs']} epochs, seed {st['seed']}, kept `{st['kept']}` (validation IoU "
+            f"{i}. `{st['stage']}`: from {st['start']}{_sha(st)}, {st['epochs']} epochs, seed {st['seed']}, kept `{st['kept']}` (validation IoU "
             f"{format_figure(st['val_iou'])}), {_duration(st['seconds'])}; {st['frames']} frames from "
             f"{_world_list(st['worlds'])}"
             for i, st in enumerate(card["stages"], 1)
@@ -184,6 +184,11 @@ def _chain_seconds(run_dir: Path, keys: list[str]) -> float | None:
     return sum(times) if times else None
 
 
+def _sha(stage: dict[str, Any]) -> str:
+    """(sha256 abcd...) after a given stage's model, for people."""
+    return f" (sha256 `{stage['start_sha256'][:16]}`)" if stage.get("start_sha256") else ""
+
+
 def _looks(real: dict[str, Any]) -> str:
     """How often the photo set was looked at, for the card's line (cards from before it was kept: nothing)."""
     looks = real.get("looks")
@@ -203,6 +208,8 @@ def _stage_entry(run_dir: Path, key: str, outputs: dict[str, Any], worlds: list[
         "stage": key,
         # A fine-tuning stage starts from a checkpoint inside the run: named by its path in the run.
         "start": Path(start).relative_to(run).as_posix() if start.startswith(run) else start,
+        # A stage given by start_from: the exact model file it started from.
+        **({"start_sha256": outputs["model_sha256"]} if outputs.get("model_sha256") else {}),
         "epochs": outputs.get("epochs"),
         "seed": outputs.get("seed"),
         "kept": outputs.get("kept"),

@@ -16,6 +16,17 @@ from segmin.common.outputs import make_dirs
 GIVEN_CHECKPOINT = "given.pt"
 
 
+def given_model_file(start: StartFrom) -> Path:
+    """The file `start.model` names (a shipped name resolved to its ONNX), checked to exist."""
+    from segmin.nav_eval.runtime.shipped_models import resolve_model
+
+    model = Path(start.model)
+    path = model if model.suffix.lower() == ".pt" else resolve_model(start.model)
+    if not path.is_file():
+        raise FileNotFoundError(f"start_from.model {start.model}: no such file")
+    return path
+
+
 def given_stage(start: StartFrom, train_config: Any, frames_root: Path, folder: Path, log) -> dict[str, Any]:
     """Write `start.model` as the stage's checkpoint and score it on the held-out frames.
 
@@ -25,6 +36,7 @@ def given_stage(start: StartFrom, train_config: Any, frames_root: Path, folder: 
     domains), the distribution the model was trained on. A .pt (a segmin checkpoint or a whole
     network's state dict) is taken as it is and must fit the stage's architecture exactly.
     """
+    from segmin.app.pipeline.cache import file_digest
     from segmin.app.pipeline.stages import held_out_eval
     from segmin.common.machine import machine_summary
 
@@ -40,6 +52,8 @@ def given_stage(start: StartFrom, train_config: Any, frames_root: Path, folder: 
         "best_val_iou": None,  # no validation epochs: its held-out figures are in `held_out`
         "best_val_pixel_acc": None,
         "backbone_weights": source,  # where the stage's model came from, for the card's chain
+        # Which file exactly: a shipped name names whatever is shipped when the run starts.
+        "model_sha256": file_digest(given_model_file(start)),
         "image_size": train_config.image_size,
         "architecture": train_config.architecture,
         "seed": None,
@@ -88,9 +102,8 @@ def _read_state(path: Path) -> dict[str, Any]:
 def _converted(start: StartFrom, train_config: Any, frames_root: Path, log) -> dict[str, Any]:
     """An ONNX model's network as a state dict, with BatchNorm measured on the stage's frames."""
     from segmin.export.to_torch import check_conversion, network_from_onnx
-    from segmin.nav_eval.runtime.shipped_models import resolve_model
 
-    path = resolve_model(start.model)
+    path = given_model_file(start)
     network, frames = network_from_onnx(
         path, frames_root, start.calibration_frames, domains=list(train_config.data.domains)
     )

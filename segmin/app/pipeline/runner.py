@@ -205,15 +205,11 @@ class PipelineRunner:
         """A stage `start_from` gives (its input hash, its outputs): the model's checkpoint and its
         held-out figures, redone when the model file, the frames or the stage's config change."""
         from segmin.app.pipeline.cache import file_digest
-        from segmin.app.pipeline.given_stage import given_stage
-        from segmin.nav_eval.runtime.shipped_models import resolve_model
+        from segmin.app.pipeline.given_stage import given_model_file, given_stage
 
         start = step.given
         assert start is not None
-        model = Path(start.model)
-        source = model if model.suffix.lower() == ".pt" else resolve_model(start.model)
-        if not source.is_file():
-            raise FileNotFoundError(f"start_from.model {start.model}: no such file")
+        source = given_model_file(start)
         key_hash = hash_inputs("given", render_hash, to_dict(start), file_digest(source), to_dict(train_config))
         outputs = self._stage(
             "train",
