@@ -9,7 +9,15 @@ TinyRenderer's formula (ambient + (diffuse * max(0, n.l) + specular) * light col
 texel times the body's tint, truncated to integers), with nearest, repeating texture lookups
 (images uploaded bottom row first, as TinyRenderer reads them).
 Depth is the planar distance itself, interpolated per pixel, and a second float target carries
-the body id, so depth and mask need no decoding. Not drawn: TinyRenderer's shadows.
+the body id, so depth and mask need no decoding.
+
+Shadows are TinyRenderer's model, drawn the same way (`light_clip_matrix`): a first pass draws every
+body's planar depth seen from the sun (at `lightDistance` along the light direction, looking at the
+world origin through the camera's own perspective, into a map of the camera's size, both faces);
+the colour pass looks each fragment up in that map (nearest texel, clamped at the edges) and scales
+its direct light (diffuse + specular, not ambient) by 0.8 where something lies nearer the sun.
+Like TinyRenderer's, the light's pass keeps only what lies between the camera's near and far planes
+from the sun: with the sun further than `camera.far` from the scene, nothing is shadowed.
 
 A frame whose colour nobody reads (`shoot_depth_ids`: a learner's mask + depth observations) is
 drawn by a second program with no texture or light and one float target: the same vertices and
@@ -28,6 +36,7 @@ import contextlib
 import functools
 import importlib
 import importlib.util
+import math
 import os
 from typing import Any
 
@@ -39,6 +48,7 @@ from segmin.data.synth.world import World
 _VERTEX_SHADER = """
 #version 330
 uniform mat4 clip_from_world;
+uniform mat4 sun_clip_from_world;
 uniform vec4 depth_row;  // planar depth = dot(depth_row, (p, 1))
 in vec3 in_pos;
 in vec3 in_nrm;
@@ -46,11 +56,13 @@ in vec2 in_uv;
 out vec3 v_nrm;
 out vec2 v_uv;
 out float v_depth;
+out vec4 v_sun_clip;
 void main() {
     gl_Position = clip_from_world * vec4(in_pos, 1.0);
     v_nrm = in_nrm;
     v_uv = in_uv;
     v_depth = dot(depth_row, vec4(in_pos, 1.0));
+    v_sun_clip = sun_clip_from_world * vec4(in_pos, 1.0);
 }
 """
 
@@ -64,17 +76,30 @@ uniform vec3 light_colour;
 uniform vec3 terms;  // ambient, diffuse, specular coefficients
 uniform vec3 backward;  // world direction from the scene towards the camera (eye-space +z)
 uniform float shininess;
+uniform bool shadows;
+uniform sampler2D sun_depth;  // (planar depth from the sun, body + 1; 0 = nothing) per texel
+uniform vec2 sun_clip_z;  // the sun projection's clip z = x * planar depth - y
 in vec3 v_nrm;
 in vec2 v_uv;
 in float v_depth;
+in vec4 v_sun_clip;
 layout(location = 0) out vec4 colour;
 layout(location = 1) out vec2 depth_and_body;
+float sunlight() {  // TinyRenderer's test: 0.8 where something lies nearer the sun, else 1
+    ivec2 size = textureSize(sun_depth, 0);
+    vec2 window = vec2(size) * 0.5 * (v_sun_clip.xy / v_sun_clip.w + 1.0);
+    vec2 nearest = texelFetch(sun_depth, ivec2(clamp(window, vec2(0.0), vec2(size - 1))), 0).xy;
+    if (nearest.y == 0.0) return 1.0;
+    float occluder = sun_clip_z.x * nearest.x - sun_clip_z.y;
+    return -occluder < -0.5 * (v_sun_clip.z + v_sun_clip.w) + 0.05 ? 1.0 : 0.8;
+}
 void main() {
     vec3 n = normalize(v_nrm);
     float diffuse = max(0.0, dot(n, light_dir));
     float specular = pow(max(dot(normalize(2.0 * dot(n, light_dir) * n - light_dir), backward), 0.0), shininess);
     vec3 base = floor(texture(texels, v_uv).rgb * 255.0 + 0.5) * tint;
-    vec3 lit = terms.x * base + (terms.y * diffuse + terms.z * specular) * base * light_colour;
+    float direct = shadows ? sunlight() : 1.0;
+    vec3 lit = terms.x * base + direct * (terms.y * diffuse + terms.z * specular) * base * light_colour;
     colour = vec4(min(floor(lit), 255.0) / 255.0, 1.0);
     depth_and_body = vec2(v_depth, body + 1.0);
 }
@@ -179,6 +204,35 @@ def clip_matrix(camera: CameraModel, pose: np.ndarray) -> tuple[np.ndarray, np.n
     return project @ camera_from_world, camera_from_world[2]
 
 
+def light_clip_matrix(camera: CameraModel, light: dict) -> tuple[np.ndarray, np.ndarray]:
+    """TinyRenderer's view of the scene from the sun: world-to-clip matrix and the planar-depth row.
+
+    The eye sits `lightDistance` along the (normalised) light direction, looks at the world origin
+    with z up, through the camera's own OpenGL perspective (vertical field of view, aspect, near,
+    far: the matrix `Renderer.set_camera` gives pybullet), as TinyRenderer's shadow pass does."""
+    direction = np.asarray(light["lightDirection"], float)
+    eye = direction / np.linalg.norm(direction) * float(light["lightDistance"])
+    forward = -eye / np.linalg.norm(eye)
+    side = np.cross(forward, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    up = np.cross(side, forward)
+    view = np.eye(4)
+    view[0, :3], view[1, :3], view[2, :3] = side, up, -forward
+    view[:3, 3] = -view[:3, :3] @ eye
+    near, far = camera.near, camera.far
+    tan_v = math.tan(math.radians(camera.vfov_deg) / 2)
+    aspect = math.tan(math.radians(camera.hfov_deg) / 2) / tan_v
+    project = np.array(
+        [
+            [1 / (tan_v * aspect), 0.0, 0.0, 0.0],
+            [0.0, 1 / tan_v, 0.0, 0.0],
+            [0.0, 0.0, (far + near) / (near - far), 2 * far * near / (near - far)],
+            [0.0, 0.0, -1.0, 0.0],
+        ]
+    )
+    return project @ view, -view[2]
+
+
 class GlRasteriser:
     """One world's meshes and textures in GL buffers; draws the bodies it is given from a pose."""
 
@@ -216,6 +270,10 @@ class GlRasteriser:
             self.textures[tid] = tex
         self.blank = ctx.texture((1, 1), 3, bytes([255, 255, 255]))
         self._targets: dict[tuple[int, int, bool], Any] = {}
+        self._sun_targets: dict[tuple[int, int], tuple[Any, Any]] = {}
+        self.all_bodies = sorted(self.ranges)
+        self.program["texels"].value = 0
+        self.program["sun_depth"].value = 1
 
     def _target(self, width: int, height: int, colour: bool):
         """The framebuffer of a frame size: colour, (depth, body) and a depth buffer, or without colour."""
@@ -243,6 +301,51 @@ class GlRasteriser:
         program["depth_row"].value = tuple(depth_row)
         return fbo
 
+    def _sun_target(self, width: int, height: int):
+        """The sun's depth map of a frame size (a float texture the colour pass reads) and its framebuffer."""
+        key = (width, height)
+        if key not in self._sun_targets:
+            import moderngl
+
+            ctx = self.ctx
+            texture = ctx.texture((width, height), 2, dtype="f4")
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            fbo = ctx.framebuffer(color_attachments=[texture], depth_attachment=ctx.depth_renderbuffer((width, height)))
+            self._sun_targets[key] = (texture, fbo)
+        return self._sun_targets[key]
+
+    def _sun_pass(self, camera: CameraModel, light: dict) -> np.ndarray:
+        """Draw every body (shown or not, all levels of detail, both faces: TinyRenderer's shadow pass
+        draws all it holds) as the sun sees it into the sun's depth map, bound to texture unit 1;
+        returns the sun's world-to-clip matrix."""
+        ctx = self.ctx
+        texture, fbo = self._sun_target(camera.width, camera.height)
+        fbo.use()
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        clip, depth_row = light_clip_matrix(camera, light)
+        # TinyRenderer fills the map at whole window coordinates, GL at pixel centres: half a texel over.
+        shift = np.eye(4)
+        shift[0, 3], shift[1, 3] = 1 / camera.width, 1 / camera.height
+        self.ids_program["clip_from_world"].write((shift @ clip).T.astype("f4").tobytes())
+        self.ids_program["depth_row"].value = tuple(depth_row)
+        self._draw_ids(self.all_bodies)
+        texture.use(1)
+        return clip
+
+    def _draw_ids(self, bodies: list[int]) -> None:
+        """The bodies through the depth + ids program: one indirect multi-draw, or one call per body."""
+        if self.multi_draw and self.command_buffer is not None and bodies:
+            commands = self.commands[: len(bodies)]
+            commands[:, [2, 0]] = [self.ranges[b] for b in bodies]
+            self.command_buffer.write(commands.tobytes())
+            self.ids_vao.render_indirect(self.command_buffer, count=len(bodies))
+        else:
+            for b in bodies:
+                first, count = self.ranges[b]
+                self.ids_vao.render(first=first, vertices=count)
+
     def _front_to_back(self, pose: np.ndarray, bodies: list[int]) -> list[int]:
         """`bodies` nearest first: the depth test then skips most hidden fragments' shading."""
         if not bodies:
@@ -258,9 +361,17 @@ class GlRasteriser:
         bodies: list[int],
         rgba: dict[int, list[float]],
         texture: dict[int, int],
+        shadow: bool = False,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none)."""
+        """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none);
+        `shadow` draws TinyRenderer's shadows (module docstring)."""
         prog = self.program
+        prog["shadows"].value = shadow
+        if shadow:
+            sun_clip = self._sun_pass(camera, light)
+            prog["sun_clip_from_world"].write(sun_clip.T.astype("f4").tobytes())
+            near, far = camera.near, camera.far
+            prog["sun_clip_z"].value = ((far + near) / (far - near), 2 * far * near / (far - near))
         fbo = self._begin(prog, camera, pose, colour=True)
         direction = np.asarray(light["lightDirection"], float)
         prog["light_dir"].value = tuple(direction / np.linalg.norm(direction))
@@ -284,16 +395,7 @@ class GlRasteriser:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Planar depth and body ids as `shoot` gives them, without colour (module docstring)."""
         fbo = self._begin(self.ids_program, camera, pose, colour=False)
-        ordered = self._front_to_back(pose, bodies)
-        if self.multi_draw and self.command_buffer is not None and ordered:
-            commands = self.commands[: len(ordered)]
-            commands[:, [2, 0]] = [self.ranges[b] for b in ordered]
-            self.command_buffer.write(commands.tobytes())
-            self.ids_vao.render_indirect(self.command_buffer, count=len(ordered))
-        else:
-            for b in ordered:
-                first, count = self.ranges[b]
-                self.ids_vao.render(first=first, vertices=count)
+        self._draw_ids(self._front_to_back(pose, bodies))
         return _depth_and_ids(fbo, 0, camera.width, camera.height)
 
 

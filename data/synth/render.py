@@ -10,8 +10,9 @@ skip the distance cut. Where nothing was hit, a sky (gradient plus clouds) is co
 depth is 0 (no return).
 
 `render.backend` picks the rasteriser: `tiny` (TinyRenderer, the reference) or `gl` (OpenGL through
-EGL, `gl_raster.py`), which draws the same meshes and needs no alpha changes in pybullet; culling,
-level of detail, sky, haze and exposure are this module's for both.
+EGL, `gl_raster.py`), which draws the same meshes, and TinyRenderer's shadows by TinyRenderer's
+model, and needs no alpha changes in pybullet; culling, level of detail, sky, haze and exposure are
+this module's for both.
 """
 
 from __future__ import annotations
@@ -408,16 +409,7 @@ class Renderer:
         pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
         stats = self._cull(pose)
         look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
-        rgb: np.ndarray | None
-        if self.raster is None:
-            rgb, depth, ids = self._shoot(pose, look)
-        else:  # no shadows: the frame's stats say so
-            look["shadow"] = False
-            bodies = self.bodies[self.state].tolist()
-            if colour:
-                rgb, depth, ids = self.raster.shoot(cam, pose, look["light"], bodies, self.rgba, self.texture)
-            else:
-                rgb, (depth, ids) = None, self.raster.shoot_depth_ids(cam, pose, bodies)
+        rgb, depth, ids = self.rasterise(pose, look, colour)
         mask = np.take(self.veg_lut, ids + 1, mode="clip")  # one pass (ids of bodies outside the table: clipped)
         rgb = self._colour(rgb, pose, rng, look, ids, depth) if colour and rgb is not None else None
         if noisy_depth and cam.depth_noise_enabled:
@@ -464,6 +456,21 @@ class Renderer:
             sun = sun_pixel(pose, look["light"]["lightDirection"], self.camera) if look["low_sun"] == "ahead" else None
             rgb = apply_glare(rgb, ~hit, sun, look["glare"], rng)
         return rgb
+
+    def rasterise(
+        self, pose: np.ndarray, look: dict, colour: bool = True
+    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """The backend's raw image of the bodies shown now (after `_cull(pose)`) in `look`'s light and
+        shadow: RGB (None without `colour`; TinyRenderer always draws it), planar depth and body ids,
+        before sky, haze and exposure. The render-agreement bench compares backends through it."""
+        if self.raster is None:
+            return self._shoot(pose, look)
+        bodies = self.bodies[self.state].tolist()
+        if not colour:
+            return None, *self.raster.shoot_depth_ids(self.camera, pose, bodies)
+        return self.raster.shoot(
+            self.camera, pose, look["light"], bodies, self.rgba, self.texture, shadow=bool(look["shadow"])
+        )
 
     def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """TinyRenderer's image from `pose` in `look`'s light: RGB, planar depth (0 where nothing was
