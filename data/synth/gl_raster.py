@@ -33,6 +33,7 @@ context starts.
 from __future__ import annotations
 
 import contextlib
+import ctypes.util
 import functools
 import importlib
 import importlib.util
@@ -158,6 +159,32 @@ def _opened_context():
     return open_context(), os.getpid()
 
 
+class NoHeadlessGl(OSError):
+    """No OpenGL 3.3 context through EGL opens in this process (no library, driver or device):
+    one line saying what to install; `reason` is what the driver said."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(
+            "render.backend=gl found no headless OpenGL 3.3 through EGL (install Mesa's libegl1 and "
+            f"libgl1-mesa-dri, or use render.backend=tiny): {reason}"
+        )
+        self.reason = reason
+
+
+@functools.cache
+def headless_gl_problem() -> str | None:
+    """Why OpenGL through EGL cannot load here, or None where its libraries are found (what
+    `render.backend=auto` asks). Found without opening a context: a process that has opened one can
+    no longer fork workers that render (`_context`), and an env built only for its spaces (Gymnasium's
+    async vectors build one in the parent) must not spoil its workers."""
+    if importlib.util.find_spec("moderngl") is None:
+        return "moderngl is not installed (the [sim] extra)"
+    for library, variable in (("EGL", "GLCONTEXT_LINUX_LIBEGL"), ("GL", "GLCONTEXT_LINUX_LIBGL")):
+        if not (os.environ.get(variable) or ctypes.util.find_library(library)):  # what glcontext loads
+            return f"no lib{library} found (Mesa's libegl1 and libgl1-mesa-dri provide it)"
+    return None
+
+
 def open_context():
     """A new headless EGL context; a missing EGL or driver becomes one line saying what to install."""
     os.environ.setdefault("LP_NUM_THREADS", "1")
@@ -168,10 +195,7 @@ def open_context():
         # moderngl's stub types each `**settings` value as a dict; the backend name is a string.
         ctx = moderngl.create_context(standalone=True, backend="egl", require=330)  # type: ignore[arg-type]
     except Exception as err:  # moderngl raises plain Exceptions for a missing library or display
-        raise OSError(
-            "render.backend=gl found no headless OpenGL 3.3 through EGL (install Mesa's libegl1 and "
-            f"libgl1-mesa-dri, or use render.backend=tiny): {err}"
-        ) from None
+        raise NoHeadlessGl(str(err)) from None
     ctx.gc_mode = "auto"  # buffers of a world go with its renderer
     return ctx
 
