@@ -67,6 +67,21 @@ def test_shadows_darken_direct_light_only_with_the_sun_within_the_far_plane(bull
     assert (dark[shaded] >= direct_dark[shaded]).all()  # the ambient term stays
 
 
+def test_the_gl_backend_skips_a_sun_pass_that_sees_nothing_and_draws_the_same(bullet_client, monkeypatch):
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    renderer = Renderer(world, SMALL, backend="gl")
+    pose = renderer.render(*world.gap_pose(world.eval_gap, 1.0)).camera_pose
+    sun = [0.5, 0.3, 0.81]
+    raster = renderer.raster
+    assert raster is not None
+    assert not raster._sun_sees_something(SMALL, sun_look(sun, 100.0)["light"])
+    assert raster._sun_sees_something(SMALL, sun_look(sun, 40.0)["light"])
+    skipped, _, _ = renderer.rasterise(pose, sun_look(sun, 100.0))
+    monkeypatch.setattr(raster, "_sun_sees_something", lambda *_: True)
+    drawn, _, _ = renderer.rasterise(pose, sun_look(sun, 100.0))
+    assert skipped is not None and np.array_equal(skipped, drawn)
+
+
 def test_the_gl_backend_draws_shadow_frames(bullet_client):
     """`render.shadow_probability` picks the frames with shadows in the gl backend too."""
     spec = spec_from_dict(tiny(render={"shadow_probability": 1.0}, sky={"overcast_probability": 0.0}))

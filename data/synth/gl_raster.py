@@ -296,6 +296,11 @@ class GlRasteriser:
         self._targets: dict[tuple[int, int, bool], Any] = {}
         self._sun_targets: dict[tuple[int, int], tuple[Any, Any]] = {}
         self.all_bodies = sorted(self.ranges)
+        # Every body's vertices lie within this sphere: the sun's pass is skipped where none of them
+        # lies between the sun's near and far planes (the worlds' own sun), drawing nothing either way.
+        self.bounds = np.array(
+            [_bounding_sphere(m.vertices) for chunk in world.chunks for m in chunk.meshes if len(m.vertices)]
+        ).reshape(-1, 4)
         self.program["texels"].value = 0
         self.program["sun_depth"].value = 1
 
@@ -337,6 +342,14 @@ class GlRasteriser:
             fbo = ctx.framebuffer(color_attachments=[texture], depth_attachment=ctx.depth_renderbuffer((width, height)))
             self._sun_targets[key] = (texture, fbo)
         return self._sun_targets[key]
+
+    def _sun_sees_something(self, camera: CameraModel, light: dict) -> bool:
+        """Whether any body may lie between the near and far planes of the sun's view (its pass,
+        and so every shadow, is empty otherwise)."""
+        _, depth_row = light_clip_matrix(camera, light)
+        depth = self.bounds[:, :3] @ depth_row[:3] + depth_row[3]
+        radius = self.bounds[:, 3]
+        return bool(((depth + radius >= camera.near) & (depth - radius <= camera.far)).any())
 
     def _sun_pass(self, camera: CameraModel, light: dict) -> np.ndarray:
         """Draw every body (shown or not, all levels of detail, both faces: TinyRenderer's shadow pass
@@ -390,6 +403,7 @@ class GlRasteriser:
         """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none);
         `shadow` draws TinyRenderer's shadows (module docstring)."""
         prog = self.program
+        shadow = shadow and self._sun_sees_something(camera, light)
         prog["shadows"].value = shadow
         if shadow:
             sun_clip = self._sun_pass(camera, light)
@@ -428,6 +442,12 @@ def _depth_and_ids(fbo, attachment: int, width: int, height: int) -> tuple[np.nd
     zid = np.frombuffer(fbo.read(components=2, attachment=attachment, dtype="f4"), np.float32)
     zid = zid.reshape(height, width, 2)
     return zid[..., 0].copy(), zid[..., 1].astype(np.int32) - 1
+
+
+def _bounding_sphere(vertices: np.ndarray) -> tuple[float, float, float, float]:
+    """Centre of the vertices' box and the largest distance from it: a sphere holding them all."""
+    centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+    return (*centre.tolist(), float(np.linalg.norm(vertices - centre, axis=1).max()))
 
 
 def _pack(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, tuple[int, int]]]:
