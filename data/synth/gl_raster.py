@@ -153,6 +153,12 @@ def _context():
     return ctx
 
 
+def opened_in_this_process() -> bool:
+    """Whether this process (or the one it was forked from) has opened its OpenGL context: a
+    worker forked from it now could not render with gl, so it must be spawned."""
+    return _opened_context.cache_info().currsize > 0
+
+
 @functools.cache
 def _opened_context():
     """The context this process opened first, and the process id that opened it."""
