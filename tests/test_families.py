@@ -10,6 +10,7 @@ import math
 
 import pytest
 import yaml
+from sweep_helpers import TINY, assert_refused_before_any_run
 
 from segmin.app.cli import main
 from segmin.data.synth.spec import load_world_spec
@@ -19,8 +20,6 @@ from segmin.nav_eval.runtime.corridor.config import CorridorConfig
 from segmin.nav_eval.sweeps.families import run_families
 from segmin.nav_eval.sweeps.family_report import FamilyRun, choose, judge, summarise_families, t_critical, t_interval
 from segmin.nav_eval.sweeps.family_spec import WORLD_SEED_STRIDE, load_family_spec, plan_families
-
-TINY = ["run.length_m=1.0", "perception.width=64", "perception.height=64", "run.time_limit_s=12"]
 
 
 def _run(setting: str, family: str, world_seed: int, mae: float, success: bool = True) -> FamilyRun:
@@ -131,15 +130,7 @@ def _spec(tmp_path, **fields) -> str:
     ],
 )
 def test_a_bad_family_spec_fails_in_one_line_before_any_run(tmp_path, capsys, fields, words) -> None:
-    spec = _spec(tmp_path, **fields)
-    out = tmp_path / "out"
-    assert main(["robustness", spec, "--out", str(out), "--no-progress"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert spec in err, err
-    for word in words:
-        assert word in err, (word, err)
-    assert not out.exists()
+    assert_refused_before_any_run(_spec(tmp_path, **fields), tmp_path / "out", capsys, words)
 
 
 def test_the_shipped_comparison_loads_and_validates() -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from segmin.common.cli_args import add_executor_options, add_overrides, executor_of, overrides_of
 
@@ -44,18 +45,7 @@ def _robustness(args: argparse.Namespace) -> int:
 
     if is_family_spec(args.spec):
         return _families(args)
-    outcome = run_sweep(
-        args.spec,
-        args.out,
-        model=args.model,
-        runs=args.runs,
-        workers=args.workers,
-        overrides=overrides_of(args),
-        force=args.force,
-        progress=not args.no_progress,
-        plots=not args.no_plots,
-        executor=executor_of(args),
-    )
+    outcome = run_sweep(args.spec, args.out, plots=not args.no_plots, **_run_options(args))
     methods = outcome.plan.spec.methods
     print("| parameter | " + " | ".join(methods) + " |\n" + "|---" * (1 + len(methods)) + "|")
     for name, per_method in breaks(outcome.plan, outcome.rows).items():
@@ -68,22 +58,25 @@ def _families(args: argparse.Namespace) -> int:
     from segmin.nav_eval.sweeps.families import run_families
     from segmin.nav_eval.sweeps.family_report import choose
 
-    outcome = run_families(
-        args.spec,
-        args.out,
-        model=args.model,
-        runs=args.runs,
-        workers=args.workers,
-        overrides=overrides_of(args),
-        force=args.force,
-        progress=not args.no_progress,
-        executor=executor_of(args),
-    )
+    outcome = run_families(args.spec, args.out, **_run_options(args))
     for method in outcome.plan.spec.methods:
         for robot, setting in choose(outcome.rows, outcome.verdicts, method).items():
             print(f"{method}, {robot}: {setting or 'no setting meets every target'}")
     print(f"runs: {outcome.executed} executed, {outcome.reused} reused; outputs: {args.out}/summary.md, families.csv")
     return _errored(outcome.errored)
+
+
+def _run_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The options both kinds of sweep take from the command line."""
+    return {
+        "model": args.model,
+        "runs": args.runs,
+        "workers": args.workers,
+        "overrides": overrides_of(args),
+        "force": args.force,
+        "progress": not args.no_progress,
+        "executor": executor_of(args),
+    }
 
 
 def _errored(errored: list) -> int:

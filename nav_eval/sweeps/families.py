@@ -20,7 +20,7 @@ from segmin.nav_eval.evaluation.evaluate import Job, RunResult, run_seed
 from segmin.nav_eval.sim.factories import field_label
 from segmin.nav_eval.sweeps.family_report import FamilyRun, Verdict, judge, summarise_families, write_family_outputs
 from segmin.nav_eval.sweeps.family_spec import FamilyPlan, load_family_spec, plan_families
-from segmin.nav_eval.sweeps.keyed_runs import prepare_runs, run_key, run_keyed_jobs, write_world
+from segmin.nav_eval.sweeps.keyed_runs import prepare_runs, run_key, run_keyed_jobs, with_command_line, write_world
 
 
 @dataclasses.dataclass
@@ -50,10 +50,7 @@ def run_families(
     """Run (or resume) the family comparison `spec_path` into `out_dir`; `model` and `runs`
     replace the spec's."""
     spec, path = load_family_spec(spec_path)
-    try:
-        spec = dataclasses.replace(spec, **{k: v for k, v in (("model", model), ("runs", runs)) if v is not None})
-    except ValueError as exc:
-        raise ValueError(f"--runs: {exc}") from exc
+    spec = with_command_line(spec, model, runs)
     plan = plan_families(spec, str(path), overrides)
     out, model_id = prepare_runs(spec.model, workers, out_dir)
     with writer_lock(out / ".sweep.lock", f"families {out}"):
@@ -76,9 +73,7 @@ def run_families(
         ]
         rows = summarise_families(family_runs, {name: s.robot for name, s in spec.settings.items()})
         verdicts = judge(rows, spec.paper_method, field_label(spec.flat_reference), spec.sloped_within)
-        write_family_outputs(
-            out, plan, rows, verdicts, executed=ran.executed, reused=ran.reused, errored=len(ran.errored)
-        )
+        write_family_outputs(out, plan, rows, verdicts, ran)
     return FamilyOutcome(plan, rows, verdicts, ran.executed, ran.reused, ran.errored)
 
 

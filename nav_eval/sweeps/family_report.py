@@ -29,6 +29,7 @@ import numpy as np
 from segmin.common.atomic import write_text
 from segmin.nav_eval.evaluation.metrics import mean_std
 from segmin.nav_eval.sweeps.family_spec import WORLD_SEED_STRIDE, FamilyPlan, paper_mae
+from segmin.nav_eval.sweeps.keyed_runs import KeyedOutcome
 from segmin.nav_eval.sweeps.report import rows_csv
 
 # Two-sided 95 % critical values of Student's t, t_{0.975, df}, for df = 1..30 (standard tables).
@@ -177,13 +178,7 @@ def _mm(value: float) -> str:
 
 
 def families_markdown(
-    plan: FamilyPlan,
-    rows: list[dict[str, Any]],
-    verdicts: dict[tuple[str, str], Verdict],
-    *,
-    executed: int,
-    reused: int,
-    errored: int,
+    plan: FamilyPlan, rows: list[dict[str, Any]], verdicts: dict[tuple[str, str], Verdict], ran: KeyedOutcome
 ) -> str:
     """summary.md: per method, a table of families x settings (mean [95 % interval] mm, runs
     won), the targets beside, then each setting's verdict and the choice per robot."""
@@ -193,8 +188,8 @@ def families_markdown(
         "",
         f"Families {', '.join(dict.fromkeys(m.family for m in plan.members))}, {spec.world_seeds} worlds each "
         f"(the recipe's seed + k x {WORLD_SEED_STRIDE}); {spec.runs} seeded run(s) per world, setting and "
-        f"method; model `{spec.model}`, {config.run.length_m:g} m per run. Runs this call: {executed} executed, "
-        f"{reused} reused" + (f", {errored} raised (not counted)" if errored else "") + ".",
+        f"method; model `{spec.model}`, {config.run.length_m:g} m per run. Runs this call: {ran.executed} executed, "
+        f"{ran.reused} reused" + (f", {len(ran.errored)} raised (not counted)" if ran.errored else "") + ".",
         "",
         "MAE in mm: the mean of the world means [95 % t interval over the worlds], then runs that "
         f"succeeded. Target: the paper's {spec.paper_method} MAE (Table 3, Gazebo) where the paper has the "
@@ -243,14 +238,8 @@ def write_family_outputs(
     plan: FamilyPlan,
     rows: list[dict[str, Any]],
     verdicts: dict[tuple[str, str], Verdict],
-    *,
-    executed: int,
-    reused: int,
-    errored: int,
+    ran: KeyedOutcome,
 ) -> None:
     """families.csv and summary.md."""
     write_text(out / "families.csv", rows_csv(rows, CSV_COLUMNS))
-    write_text(
-        out / "summary.md",
-        families_markdown(plan, rows, verdicts, executed=executed, reused=reused, errored=errored),
-    )
+    write_text(out / "summary.md", families_markdown(plan, rows, verdicts, ran))

@@ -21,7 +21,7 @@ from typing import Any, Literal
 from segmin.common.config import ConfigError, from_dict, read_yaml, to_dict
 from segmin.common.shipped import resolve_config
 from segmin.nav_eval.evaluation.report import PAPER_TABLE3, TABLE_METRICS
-from segmin.nav_eval.runtime.methods import METHODS
+from segmin.nav_eval.sweeps.spec import check_runs
 
 # The spec key that makes a sweep file a family comparison rather than a parameter sweep.
 FAMILIES_KEY = "families"
@@ -67,13 +67,7 @@ class FamilySpec:
             raise ValueError(
                 f"world_seeds: must be >= 2 (a family's interval needs two worlds), got {self.world_seeds}"
             )
-        bad = [m for m in self.methods if m not in METHODS]
-        if bad or not self.methods:
-            raise ValueError(f"methods: unknown {bad}; choose from {list(METHODS)}")
-        if self.runs < 1:
-            raise ValueError(f"runs: must be >= 1, got {self.runs}")
-        if self.seed < 0:
-            raise ValueError(f"seed: must be >= 0, got {self.seed}")
+        check_runs(self.methods, self.runs, self.seed)
         if self.paper_method not in {method for _, method in PAPER_TABLE3}:
             raise ValueError(f"paper_method: the paper's Table 3 has no {self.paper_method!r}")
         if not self.sloped_within > 0:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any, TypeVar
 
 import yaml
 
@@ -22,6 +23,17 @@ from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs
 from segmin.nav_eval.evaluation.run_store import RUNS_FOLDER, digest, model_identity, store_run, stored_runs
 from segmin.nav_eval.sim.config import NavEvalConfig
 from segmin.nav_eval.sim.factories import make_segmenter
+
+S = TypeVar("S", bound=Any)
+
+
+def with_command_line(spec: S, model: str | None, runs: int | None) -> S:
+    """`spec` (a sweep spec dataclass) with `--model` and `--runs` in place of its own where given;
+    its own checks run again, so a bad `--runs` is named as the flag."""
+    try:
+        return dataclasses.replace(spec, **{k: v for k, v in (("model", model), ("runs", runs)) if v is not None})
+    except ValueError as exc:
+        raise ValueError(f"--runs: {exc}") from exc
 
 
 def prepare_runs(model: str, workers: int, out_dir: str | Path) -> tuple[Path, str]:

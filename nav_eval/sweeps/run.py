@@ -22,7 +22,7 @@ from typing import Any
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
 from segmin.nav_eval.evaluation.evaluate import Job, RunResult, run_seed
-from segmin.nav_eval.sweeps.keyed_runs import prepare_runs, run_key, run_keyed_jobs, write_world
+from segmin.nav_eval.sweeps.keyed_runs import prepare_runs, run_key, run_keyed_jobs, with_command_line, write_world
 from segmin.nav_eval.sweeps.report import summarise_sweep, write_sweep_outputs
 from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, load_sweep, plan_sweep, variant_file_name
 
@@ -53,10 +53,7 @@ def run_sweep(
 ) -> SweepOutcome:
     """Run (or resume) the sweep `spec_path` into `out_dir`; `model` and `runs` replace the spec's."""
     spec, path = load_sweep(spec_path)
-    try:
-        spec = dataclasses.replace(spec, **{k: v for k, v in (("model", model), ("runs", runs)) if v is not None})
-    except ValueError as exc:
-        raise ValueError(f"--runs: {exc}") from exc
+    spec = with_command_line(spec, model, runs)
     plan = plan_sweep(spec, str(path), overrides)
     out, model_id = prepare_runs(spec.model, workers, out_dir)
     with writer_lock(out / ".sweep.lock", f"sweep {out}"):
