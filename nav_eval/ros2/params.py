@@ -37,6 +37,7 @@ from typing import Any
 import yaml
 
 from segmin.common.config import ConfigError, parse_yaml
+from segmin.nav_eval.replay.imu import IMU_MAX_AGE_S
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig
@@ -83,7 +84,7 @@ class NodeSettings:
     publish_frame_acks: bool = False
     camera_info_topic: str = ""
     imu_topic: str = ""
-    imu_max_age_s: float = 0.1
+    imu_max_age_s: float = IMU_MAX_AGE_S
 
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
