@@ -421,7 +421,7 @@ def test_each_frame_takes_the_newest_imu_sample_at_or_before_it_and_a_stale_one_
     from segmin.nav_eval.ros2 import topics
     from segmin.nav_eval.ros2.params import NodeSettings
 
-    assert (DEFAULT_IMU_TOPIC, IMU_MAX_AGE_S) == (topics.IMU, NodeSettings().imu_max_age_s)
+    assert (topics.IMU, NodeSettings().imu_max_age_s) == (DEFAULT_IMU_TOPIC, IMU_MAX_AGE_S)
     track = ImuTrack("/imu")
     for t, roll in ((1.0, 0.1), (0.5, 0.05), (1.2, 0.2)):
         track.add(t, _imu_message(roll))
