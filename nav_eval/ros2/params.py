@@ -160,7 +160,8 @@ FIELD_DESCRIPTIONS: dict[str, str] = {
     "white_level": "a pixel whose every channel is at least this is white (0-255)",
     "blank_share": "stop (image_black / image_white) when at least this share of the sampled pixels is black "
     "(white); 0: off",
-    "frozen_s": "stop (image_frozen) when the sampled pixels stay identical this long while driving, s",
+    "frozen_s": "stop (image_frozen, depth_frozen) when the sampled image or depth pixels stay identical this long "
+    "while driving, s",
     "max_clock_offset_s": "stop (clock_offset) when a frame's stamp is further than this from the node's clock "
     "(a bag's own times: play it with --clock and set use_sim_time), s",
     "sample_pixels": "the sensor checks read a regular grid of about this many pixels",
