@@ -236,3 +236,24 @@ def test_what_is_in_the_way_of_a_bag_is_named_before_any_run(tmp_path, capsys, m
     }[obstacle]
     assert expected in err and "\n" not in err
     assert ran == [] and not (out / "results.json").exists()
+
+
+def test_a_resumed_nav_eval_redoes_the_runs_of_a_model_replaced_at_the_same_path(tmp_path, caplog, monkeypatch):
+    """The run store knows a model by its file's sha256, not its path: a new export written over
+    the old one redoes every run, and the log says why, once; the same file again redoes none."""
+    from segmin.nav_eval.evaluation import evaluate
+
+    model, out = tmp_path / "model.onnx", tmp_path / "out"
+    model.write_bytes(b"the first export")
+    monkeypatch.setattr(evaluate, "preflight", lambda *args: None)  # no real graph: the runs are stand-ins
+    ran: list[int] = []
+    monkeypatch.setattr(evaluate.Worker, "run", lambda self, job: ran.append(job.run) or _driven(job))
+    command = ["nav-eval", "--model", str(model), "--out", str(out), *FAST[:4], "--runs", "2", *FAST[6:]]
+    assert main(command) == 0 and ran == [0, 1]
+    caplog.clear()
+    assert main(command) == 0 and ran == [0, 1]  # same file: both runs kept
+    assert "changed" not in caplog.text
+    model.write_bytes(b"a new export at the same path")
+    assert main(command) == 0 and ran == [0, 1, 0, 1]
+    why = [record.getMessage() for record in caplog.records if "changed since the kept runs" in record.getMessage()]
+    assert len(why) == 1 and str(model) in why[0] and "the 2 finished run(s) of the old file are redone" in why[0]

@@ -404,3 +404,31 @@ def test_a_live_pairer_bounds_what_waits() -> None:
     for i in range(5):
         pairer.add_colour(i / 30, i)
     assert pairer.dropped_colour == 3
+
+
+def _imu_message(roll: float, covariance0: float = 0.0):
+    from types import SimpleNamespace
+
+    half = roll / 2
+    orientation = SimpleNamespace(x=np.sin(half), y=0.0, z=0.0, w=np.cos(half))
+    return SimpleNamespace(orientation=orientation, orientation_covariance=[covariance0] + [0.0] * 8)
+
+
+def test_each_frame_takes_the_newest_imu_sample_at_or_before_it_and_a_stale_one_is_level_ground() -> None:
+    """As the node: a sample after the frame is not used, one older than imu_max_age_s is stale
+    (level ground, counted), a message without orientation is skipped (counted), stamps in any order."""
+    from segmin.nav_eval.replay.imu import DEFAULT_IMU_TOPIC, IMU_MAX_AGE_S, ImuTrack
+    from segmin.nav_eval.ros2 import topics
+    from segmin.nav_eval.ros2.params import NodeSettings
+
+    assert (topics.IMU, NodeSettings().imu_max_age_s) == (DEFAULT_IMU_TOPIC, IMU_MAX_AGE_S)
+    track = ImuTrack("/imu")
+    for t, roll in ((1.0, 0.1), (0.5, 0.05), (1.2, 0.2)):
+        track.add(t, _imu_message(roll))
+    track.add(1.1, _imu_message(0.3, covariance0=-1.0))
+    assert track.at(1.0)[0] == pytest.approx(0.1) and track.at(1.09)[0] == pytest.approx(0.1)
+    assert track.at(0.55)[0] == pytest.approx(0.05)
+    assert track.at(0.4) is None and track.at(1.2 + IMU_MAX_AGE_S + 1e-6) is None and track.stale == 2
+    notes = track.notes()
+    assert "1 message(s) of /imu ignored (first: /imu: the IMU gives no orientation" in notes[0]
+    assert notes[1].startswith("2 frame(s) had no /imu sample within 0.1 s")

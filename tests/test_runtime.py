@@ -47,8 +47,16 @@ def _follower(fuse: int = 3, method: str = "segmin", **runtime) -> tuple[RowFoll
 DEPTH = np.full((H, W), 2.0, dtype=np.float32)
 
 
+def _depth(i: int) -> np.ndarray:
+    """DEPTH as a depth camera delivers it: a reading that changes a little every frame (a
+    repeated depth frame is a sensor fault), all within the depth cut as DEPTH."""
+    depth = DEPTH.copy()
+    depth[0, 0] += 1e-4 * i
+    return depth
+
+
 def _drive(follower: RowFollower, frames: int, hz: float = 30.0, start: int = 0):
-    return [follower.step(_rgb(i), DEPTH, i / hz) for i in range(start, start + frames)]
+    return [follower.step(_rgb(i), _depth(i), i / hz) for i in range(start, start + frames)]
 
 
 def test_30_hz_frames_give_20_hz_masks_and_5_hz_commands_fusing_the_last_3() -> None:
@@ -93,12 +101,12 @@ def test_mask_futures_are_waited_for_only_at_the_next_command_with_the_same_comm
     """A background segmenter's masks between commands join the window at the command, in order:
     the commands are those of masks given at once, and the follower never waits earlier."""
     follower, segmenter = _follower(fuse=3)
-    immediate = [follower.step(_rgb(i), DEPTH, i / 30, mask=segmenter.segment(_rgb(i))) for i in range(61)]
+    immediate = [follower.step(_rgb(i), _depth(i), i / 30, mask=segmenter.segment(_rgb(i))) for i in range(61)]
     follower, segmenter = _follower(fuse=3)
     asked: list[int] = []
     for i, reference in enumerate(immediate):
         future = _WatchedFuture(segmenter.segment(_rgb(i)), asked, i)
-        out = follower.step(_rgb(i), DEPTH, i / 30, mask=future)
+        out = follower.step(_rgb(i), _depth(i), i / 30, mask=future)
         assert out.fresh == reference.fresh, i
         same = (out.command.v, out.command.omega, out.command.target_column)
         assert same == (reference.command.v, reference.command.omega, reference.command.target_column), i
@@ -129,7 +137,7 @@ def test_a_gap_in_frames_stops_the_robot_and_restarts_the_runtime() -> None:
     assert follower.command_at(last_t + 0.1).v == outputs[-1].command.v > 0
     stop = follower.command_at(last_t + 0.6)  # frame_timeout_s = 0.5 by default
     assert (stop.v, stop.omega, stop.valid) == (0.0, 0.0, False)
-    after = follower.step(_rgb(40), DEPTH, last_t + 1.0)
+    after = follower.step(_rgb(40), _depth(40), last_t + 1.0)
     assert after.stopped == "frame_timeout" and after.fresh
     # The EMA restarted from rest: one step of lambda = 0.5 towards the raw command.
     fresh = Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0, fuse_frames=3, smooth_window=1))
@@ -139,22 +147,22 @@ def test_a_gap_in_frames_stops_the_robot_and_restarts_the_runtime() -> None:
 def test_stale_masks_are_not_fused() -> None:
     # A 2 Hz camera: the commands at 0.2 s and 0.4 s use frame 0's mask, 0.4 s of age is stale.
     follower, _ = _follower(max_mask_age_s=0.3, frame_timeout_s=1.0)
-    follower.step(_rgb(0), DEPTH, 0.0)
-    out = follower.step(_rgb(1), DEPTH, 0.5)
+    follower.step(_rgb(0), _depth(0), 0.0)
+    out = follower.step(_rgb(1), _depth(1), 0.5)
     assert out.stopped == "stale_masks" and not out.command.valid and out.command_t == pytest.approx(0.4)
-    again = follower.step(_rgb(2), DEPTH, 0.6)  # fresh masks again (0.5 s and 0.6 s)
+    again = follower.step(_rgb(2), _depth(2), 0.6)  # fresh masks again (0.5 s and 0.6 s)
     assert again.fresh and again.command.valid
 
 
 def test_bad_timestamps_are_clear_errors() -> None:
     follower, _ = _follower()
-    follower.step(_rgb(0), DEPTH, 1.0)
+    follower.step(_rgb(0), _depth(0), 1.0)
     with pytest.raises(ValueError, match="not after the previous frame"):
-        follower.step(_rgb(1), DEPTH, 0.9)
+        follower.step(_rgb(1), _depth(1), 0.9)
     with pytest.raises(ValueError, match="not after the previous frame"):
-        follower.step(_rgb(1), DEPTH, 1.0)
+        follower.step(_rgb(1), _depth(1), 1.0)
     with pytest.raises(ValueError, match="finite"):
-        follower.step(_rgb(1), DEPTH, float("nan"))
+        follower.step(_rgb(1), _depth(1), float("nan"))
     with pytest.raises(ValueError, match="depth is 3x8"):
         follower.step(_rgb(1), np.ones((8, 3), np.float32), 1.1)
 
@@ -188,7 +196,7 @@ def test_a_navigator_is_given_what_it_declares_and_nothing_more(declared: Naviga
     navigator = _Recorder(declared)
     follower = RowFollower(FrameIndexSegmenter(), navigator)
     for i in range(7):
-        follower.step(_rgb(i), DEPTH, i / 30, attitude=(0.01, -0.02))
+        follower.step(_rgb(i), _depth(i), i / 30, attitude=(0.01, -0.02))
     assert navigator.given
     for attitude, rgb in navigator.given:
         assert (attitude == (0.01, -0.02)) if declared.attitude else attitude is None
@@ -204,7 +212,7 @@ def test_declared_depth_is_required_whatever_the_method() -> None:
 def test_a_follower_without_a_segmenter_needs_the_masks() -> None:
     follower = RowFollower(None, Navigator(NavigatorConfig(method="segmin", depth_threshold=5.0)))
     with pytest.raises(ValueError, match="came without a mask, and this follower has no segmenter"):
-        follower.step(_rgb(0), DEPTH, 0.0)
+        follower.step(_rgb(0), _depth(0), 0.0)
 
 
 def test_depth_is_optional_for_segmin_and_required_for_segmind() -> None:

@@ -42,6 +42,11 @@ def _depth(metres: float = 2.0) -> np.ndarray:
     return np.full((H, W), metres, dtype=np.float32)
 
 
+def _live_depth(i: int) -> np.ndarray:
+    """2 m with a depth camera's noise (a millimetre or so, new every frame)."""
+    return _depth() + np.random.default_rng(i).normal(0.0, 0.001, size=(H, W)).astype(np.float32)
+
+
 def _follower(method: str = "segmind", **checks: object) -> RowFollower:
     navigator = Navigator(NavigatorConfig(method=method, depth_threshold=5.0, smooth_window=1))
     return RowFollower(GreenSegmenter(), navigator, RuntimeConfig(checks=SensorChecks(**checks)))
@@ -57,7 +62,7 @@ def _drive(follower: RowFollower, frames: list[tuple], start: int, now_offset: f
 
 
 def _good(n: int, start: int) -> list[tuple]:
-    return [(_rows(start + k), _depth()) for k in range(n)]
+    return [(_rows(start + k), _live_depth(start + k)) for k in range(n)]
 
 
 def _first_fresh(outputs: list[FollowerOutput]) -> FollowerOutput:
@@ -98,9 +103,9 @@ def _follower_detail(bad: list[tuple], reason: str) -> str:
 
 
 def test_realsense_zero_millimetres_stop_the_robot_too() -> None:
-    good = np.full((H, W), 2000, dtype=np.uint16)
+    good = [(_rows(k), (_live_depth(k) * 1000).astype(np.uint16)) for k in range(30)]  # noisy millimetres
     follower = _follower()
-    assert _drive(follower, [(_rows(k), good) for k in range(30)], 0)[-1].command.valid
+    assert _drive(follower, good, 0)[-1].command.valid
     bad = _drive(follower, [(_rows(k), np.zeros((H, W), np.uint16)) for k in range(30, 40)], 30)
     assert bad[-1].stopped == "depth_invalid" and not bad[-1].command.valid
 
@@ -121,7 +126,7 @@ def test_black_and_white_images_stop_the_robot() -> None:
     _check_stop_then_resume(_follower(), [(white, _depth()) for _ in range(30)], "image_white")
     # A dark but lit scene is no fault.
     dim = (_rows(0) // 4).astype(np.uint8)
-    assert _drive(_follower(method="segmin"), [(dim + k % 2, _depth()) for k in range(30)], 0)[-1].stopped is None
+    assert _drive(_follower(method="segmin"), [(dim + k % 2, _live_depth(k)) for k in range(30)], 0)[-1].stopped is None
 
 
 def test_a_frozen_image_stops_a_driving_robot_but_not_a_standing_one() -> None:
@@ -133,6 +138,23 @@ def test_a_frozen_image_stops_a_driving_robot_but_not_a_standing_one() -> None:
     follower = _follower()
     _drive(follower, [(frozen, _depth(np.nan)) for _ in range(60)], 0)
     assert set(follower.faults) == {"depth_invalid"}
+
+
+def test_a_frozen_depth_stream_under_a_live_image_stops_a_driving_robot_but_not_a_standing_one() -> None:
+    """A driver that repeats its last depth frame while colour stays live: stale depth, a stop
+    naming depth_frozen after frozen_s; NaN readings repeated are repeated too (NaN-safe)."""
+    stale = _live_depth(99)
+    stale[:4] = np.nan  # no return from the top rows, as from the sky
+    bad = [(_rows(30 + k), stale) for k in range(30)]
+    stop = _check_stop_then_resume(_follower(), bad, "depth_frozen", within=0.3)
+    assert stop.t - 30 / HZ > 0.25
+    assert "the sampled depth pixels have not changed for 0.2" in _follower_detail(bad, "depth_frozen")
+    held = _follower()
+    for k in range(30):  # driving off: a still scene, no stop
+        held.step(_rows(k), stale, k / HZ, driving=False)
+    assert held.faults == {}
+    without = _follower(method="segmin")  # a navigator run without depth: nothing to judge
+    assert _drive(without, [(_rows(k), None) for k in range(30)], 0)[-1].stopped is None
 
 
 def test_a_robot_whose_driving_is_off_sees_its_still_scene_without_a_frozen_stop() -> None:
@@ -249,6 +271,7 @@ def test_every_reason_comes_from_a_hand_built_frame() -> None:
         "black": [(np.zeros((H, W, 3), np.uint8), _depth())] * 3,
         "white": [(np.full((H, W, 3), 255, np.uint8), _depth())] * 3,
         "frozen": [(frozen, _depth())] * 20,
+        "frozen depth": [(_rows(30 + k), _depth()) for k in range(20)],
     }
     seen = set()
     for frames in cases.values():
@@ -258,7 +281,7 @@ def test_every_reason_comes_from_a_hand_built_frame() -> None:
     follower = _follower()
     _drive(follower, _good(3, 0), 0, now_offset=5.0)
     seen.add(follower.sensor_fault[0])
-    assert seen == set(REASONS) and len(REASONS) == 7
+    assert seen == set(REASONS) and len(REASONS) == 8
     with pytest.raises(ValueError, match="checks must be a SensorChecks"):
         RuntimeConfig(checks={"frozen_s": 1.0})  # type: ignore[arg-type]
 

@@ -45,8 +45,27 @@ class _ImageFrames(FrameSegmenter):
         return np.asarray(self.segmenter.segment(frame.rgb), dtype=bool)
 
 
-def _episode(segmenter, method: str = "segmind", bag: Path | None = None):
-    world = FakeWorld()
+class SlopedWorld(FakeWorld):
+    """FakeWorld's rows on the constant slope of a shipped sloped world (its terrain.slope, without
+    the roughness): the robot drives rolled across it, and its IMU says so. The stand-in renderer
+    still draws level frames: the runtime's attitude is what differs."""
+
+    def __init__(self, name: str = "slope_vineyard_s8") -> None:
+        from segmin.data.synth.spec import load_world_spec
+
+        super().__init__()
+        self.slope = np.asarray(load_world_spec(name).terrain.slope, dtype=float)
+
+    def terrain_height(self, x, y):
+        return self.slope[0] * np.asarray(x, dtype=float) + self.slope[1] * np.asarray(y, dtype=float)
+
+    def terrain_normal(self, x, y):
+        normal = np.array([-self.slope[0], -self.slope[1], 1.0])
+        return normal / np.linalg.norm(normal)
+
+
+def _episode(segmenter, method: str = "segmind", bag: Path | None = None, world: FakeWorld | None = None):
+    world = world or FakeWorld()
     config = _config(length_m=LENGTH_M)
     renderer = FakeRenderer(world)
     simulator = RowEnv(world, renderer, config)
@@ -166,6 +185,48 @@ def test_segcorridor_replays_the_bag_with_the_camera_of_its_camera_info(tmp_path
         bag_camera(tmp_path / "run", topics.IMU, follower.camera)
     with pytest.raises(ValueError, match=r"no topic '/nope' \(--camera-info-topic.*the bag has: /camera"):
         bag_camera(tmp_path / "run", "/nope", follower.camera)
+
+
+def test_segcorridor_replays_a_sloped_run_with_the_bags_imu(tmp_path, capsys) -> None:
+    """On a sloped row (slope_vineyard_s8's cross slope) SegCorridor levels its points with the
+    IMU's roll and pitch: replayed with the bag's /imu/data, each frame with the newest sample at
+    or before it, its commands are the simulator's, bit for bit; on level ground they are not."""
+    from segmin.nav_eval.replay.bags import bag_imu
+
+    bag = tmp_path / "run"
+    episode, _ = _episode(GreenSegmenter(), method="segcorridor", bag=bag, world=SlopedWorld())
+    follower = follower_config("segcorridor", 5.0, _config(length_m=LENGTH_M))
+    camera = bag_camera(bag, topics.COLOUR_INFO, follower.camera)
+    imu = bag_imu(bag, topics.IMU, named=False)
+    assert imu is not None and min(abs(roll) for roll, _ in imu.attitudes) > 0.05
+
+    def commands(imu, out: str):
+        source = bag_frames(bag, topics.COLOUR, topics.DEPTH)
+        result = replay(
+            "m.onnx",
+            None,
+            tmp_path / out,
+            follower=follower,
+            camera=camera,
+            source=source,
+            imu=imu,
+            segmenter=GreenSegmenter(),
+        )
+        return [(v, w, c) for _, v, w, c, _ in result.commands], result.notes
+
+    expected = [(v, w, c) for _, v, w, c in episode.commands]
+    levelled, notes = commands(imu, "imu")
+    assert len(expected) > 5 and levelled == expected
+    assert not any("IMU" in note or topics.IMU in note for note in notes) and imu.stale == 0
+    level, notes = commands(None, "level")
+    assert level != expected and any("no IMU: segcorridor assumed level ground" in note for note in notes)
+    assert bag_imu(bag, "/nope", named=False) is None  # a bag without the default topic: level ground
+    argv = ["replay", "--model", "m.onnx", "--bag", str(bag), "--rgb-topic", topics.COLOUR, "--depth-topic"]
+    argv += [topics.DEPTH, "--method", "segcorridor", "--depth-threshold", "5", "--out", str(tmp_path / "cli")]
+    for topic, problem in (("/nope", "is not in the bag"), (topics.ODOM, "holds nav_msgs/msg/Odometry, not")):
+        assert main([*argv, "--imu-topic", topic]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--imu-topic {topic} {problem}" in err[0]
 
 
 def test_the_round_trip_holds_with_the_onnx_model(exported, tmp_path) -> None:

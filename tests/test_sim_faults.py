@@ -63,6 +63,7 @@ def test_each_fault_spoils_the_frames_of_its_window_only() -> None:
         SimFault("zero_depth", 2.0, 1.0),
         SimFault("black_frame", 3.0, 1.0),
         SimFault("frozen_frame", 4.5, 1.0),
+        SimFault("frozen_depth", 6.0, 1.0),
     ]
     spoil = FaultInjector(faults, seed=0)
     clean = spoil(_frame(0), 0.5)
@@ -77,6 +78,9 @@ def test_each_fault_spoils_the_frames_of_its_window_only() -> None:
     frozen = spoil(_frame(9), 4.5)
     assert (frozen.rgb == 8).all() and (frozen.depth == 10.0).all()  # the frame delivered before
     assert spoil(_frame(5), 5.5).rgb[0, 0, 0] == 5  # the window ends at start + duration
+    stale = spoil(_frame(6), 6.2)  # frozen depth: the image and the mask live, the depth before
+    assert (stale.rgb == 6).all() and (stale.depth == 7.0).all() and spoil(_frame(4), 6.9).depth[0, 0] == 7.0
+    assert spoil(_frame(2), 7.0).depth[0, 0] == 4.0
     half = FaultInjector([SimFault("depth_dropout", 0.0, 1.0, share=0.5)], seed=1)(_frame(0), 0.0)
     assert 0.3 < np.isnan(half.depth).mean() < 0.7
 
@@ -100,15 +104,16 @@ def test_fault_metrics_measure_the_stop_the_blind_distance_and_the_restart() -> 
     assert fault_metrics([SimFault("zero_depth", 2.0, 1.2), later], trajectory, driving) == metrics
 
 
-@pytest.mark.parametrize("kind", ["black_frame", "zero_depth"])
-def test_a_simulated_fault_stops_the_robot_within_0_3_m_and_it_drives_on(kind: str) -> None:
+@pytest.mark.parametrize(("kind", "stop_s"), [("black_frame", 0.2), ("zero_depth", 0.2), ("frozen_depth", 0.3)])
+def test_a_simulated_fault_stops_the_robot_within_0_3_m_and_it_drives_on(kind: str, stop_s: float) -> None:
+    """Within a command (0.2 s), or for a frozen stream within frozen_s (0.25 s) and a frame."""
     world = FakeWorld()
     config = dataclasses.replace(_config(length_m=3.0), faults=[SimFault(kind, 2.0, 1.0)])
     simulator = RowEnv(world, FakeRenderer(world), config)
     episode = run_episode(simulator, make_follower("segmind", 5.0, config), OracleSegmenter(), seed=3)
     assert episode.reason == "success", episode.reason
     metrics = fault_metrics(config.faults, episode.trajectory, episode.driving)
-    assert metrics["fault_stop_s"] <= 0.2 and metrics["fault_blind_m"] < 0.3 and metrics["fault_resume_s"] <= 0.5
+    assert metrics["fault_stop_s"] <= stop_s and metrics["fault_blind_m"] < 0.3 and metrics["fault_resume_s"] <= 0.5
     stopped = [t for t, driving in episode.driving if not driving and t > 0.5]
     assert stopped and min(stopped) >= 2.0 and max(stopped) < 3.5
 

@@ -34,7 +34,14 @@ from segmin.common.config import from_dict, to_dict
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.outputs import check_output_dir
 from segmin.nav_eval.evaluation.metrics import METRIC_KEYS, compute_metrics
-from segmin.nav_eval.evaluation.run_store import RUNS_FOLDER, digest, model_identity, store_run, stored_runs
+from segmin.nav_eval.evaluation.run_store import (
+    RUNS_FOLDER,
+    digest,
+    model_identity,
+    model_sha256,
+    store_run,
+    stored_runs,
+)
 from segmin.nav_eval.runtime.methods import METHODS, STATISTIC_COLUMNS
 from segmin.nav_eval.runtime.shipped_models import resolve_model
 from segmin.nav_eval.sim.config import NavEvalConfig, load_nav_config
@@ -410,6 +417,7 @@ def run_evaluation(
                 jobs.append(Job(f, m, r, run_seed(seed, f, r), path, bag_path))
     meta = {
         "model": str(model),
+        "model_sha256": model_sha256(str(model)),  # what the runs were of (a path may get a new file)
         "fields": [field_label(f) for f in field_list],
         "methods": method_list,
         "runs": runs,
@@ -420,7 +428,7 @@ def run_evaluation(
     keys = _run_keys(jobs, str(model), meta["config"]) if out is not None else {}
     finished: dict[str, RunResult] = {}
     if out is not None and resume:
-        _check_same_evaluation(out, meta)
+        _say_if_the_model_changed(out, _check_same_evaluation(out, meta), meta)
         finished = stored_runs(out / RUNS_FOLDER, keys.values(), RunResult.from_stored)
     elif out is not None:  # starting over: a later resume must not pick up runs from before
         shutil.rmtree(out / RUNS_FOLDER, ignore_errors=True)
@@ -471,14 +479,19 @@ def _run_keys(jobs: list[Job], model: str, config: dict[str, Any]) -> dict[int, 
     }
 
 
-def _check_same_evaluation(out: Path, meta: dict[str, Any]) -> None:
-    """`out` holds no nav-eval results, or this same evaluation's (stopped part-way, resumed):
-    another evaluation's results are not overwritten without --force."""
+# What may differ in a resumed evaluation: the worker count, and the model's file at the same
+# path (its runs are keyed by the content, so those of the old file are redone, said once).
+RESUMABLE_META = ("workers", "model_sha256")
+
+
+def _check_same_evaluation(out: Path, meta: dict[str, Any]) -> dict[str, Any] | None:
+    """`out` holds no nav-eval results (None), or this same evaluation's (stopped part-way,
+    resumed: its results.json returned); another evaluation's results are not overwritten without --force."""
     from segmin.nav_eval.evaluation.report import RESULT_FILES
 
     existing = [name for name in RESULT_FILES if (out / name).exists()]
     if not existing:
-        return
+        return None
     try:
         earlier = json.loads((out / "results.json").read_text())
     except (OSError, ValueError):
@@ -486,12 +499,30 @@ def _check_same_evaluation(out: Path, meta: dict[str, Any]) -> None:
     if not isinstance(earlier, dict):
         why = "no readable results.json to resume from"
     else:
-        differs = [k for k in meta if k != "workers" and _plain(earlier.get(k)) != _plain(meta[k])]
+        differs = [k for k in meta if k not in RESUMABLE_META and _plain(earlier.get(k)) != _plain(meta[k])]
         if not differs:
-            return
+            return earlier
         why = f"another evaluation: its {differs[0]} differs"
     raise ValueError(
         f"{out}: already holds nav-eval results ({', '.join(existing)}; {why}); use --force to overwrite them"
+    )
+
+
+def _say_if_the_model_changed(out: Path, earlier: dict[str, Any] | None, meta: dict[str, Any]) -> None:
+    """One log line when the model's file at the same path is not the one of the runs kept in
+    `out` (its sha256 differs): why every kept run is done again."""
+    before = None if earlier is None else earlier.get("model_sha256")
+    if before is None or before == meta["model_sha256"]:
+        return
+    rows = earlier.get("rows", []) if earlier is not None else []
+    log.info(
+        "%s: model %s changed since the kept runs (sha256 %s..., now %s...): the %d finished run(s) of the old file "
+        "are redone",
+        out,
+        meta["model"],
+        str(before)[:12],
+        str(meta["model_sha256"])[:12],
+        len(rows) if isinstance(rows, list) else 0,
     )
 
 

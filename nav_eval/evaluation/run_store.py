@@ -28,11 +28,18 @@ def digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def model_identity(model: str) -> str:
-    """'oracle', or the exported file's content hash (a moved file keeps its runs, a new one does not)."""
+def model_sha256(model: str) -> str | None:
+    """The sha256 of the model's file (a path or a shipped name, resolved); None for 'oracle', a name."""
     if model == "oracle":
-        return model
-    return "onnx:" + hashlib.sha256(resolve_model(model).read_bytes()).hexdigest()[:16]
+        return None
+    return hashlib.sha256(resolve_model(model).read_bytes()).hexdigest()
+
+
+def model_identity(model: str) -> str:
+    """'oracle', or the exported file's content hash: a moved file keeps its runs, a new file
+    written over the old one at the same path does not."""
+    sha256 = model_sha256(model)
+    return model if sha256 is None else "onnx:" + sha256[:16]
 
 
 def store_run(folder: Path, key: str, result: Any, *, trajectory: bool = False) -> None:

@@ -16,7 +16,11 @@ when `--bag` is used.
 
 SegCorridor places its pixels with the camera's intrinsics: `bag_camera` reads them from the
 bag's first `CameraInfo` on `--camera-info-topic` (by default the colour topic's sibling
-`camera_info`, as camera drivers publish it).
+`camera_info`, as camera drivers publish it). `bag_imu` reads its IMU (`sensor_msgs/Imu` on
+`--imu-topic`, the node's `/imu/data` by default) for SegCorridor's roll and pitch: each frame
+takes the newest sample stamped at or before it (`replay.imu`). A bag without the default topic
+is replayed on level ground, as before; a topic named with `--imu-topic` that the bag lacks,
+holds no message or holds another type stops the replay, naming it.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from segmin.nav_eval.replay.imu import ImuTrack
 from segmin.nav_eval.replay.ros_images import (
     ImageMessageError,
     camera_from_info,
@@ -41,6 +46,7 @@ from segmin.nav_eval.runtime.follower_config import CameraConfig
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+IMU_TYPE = "sensor_msgs/msg/Imu"
 DEFAULT_SLOP_S = 0.01  # RealSense colour and aligned depth differ by a few ms; frames are 33 ms apart
 
 
@@ -104,6 +110,35 @@ def bag_camera(path: str | Path, topic: str, mount: CameraConfig) -> CameraGeome
         for connection, _, raw in reader.messages(connections=connections):
             return camera_from_info(reader.deserialize(raw, connection.msgtype), topic, mount)
         raise ValueError(f"--bag {path}: --camera-info-topic {topic} has no messages")
+    finally:
+        reader.close()
+
+
+def bag_imu(path: str | Path, topic: str, *, named: bool) -> ImuTrack | None:
+    """The bag's IMU on `topic`; None when the topic was not `named` (the default) and the bag
+    has no message of it (level ground then). ValueError naming the topic when a `named` one is
+    absent or empty, and when the topic holds another type."""
+    path = Path(path)
+    reader = open_bag(path)
+    try:
+        info = reader.topics.get(topic)
+        count = sum(c.msgcount for c in reader.connections if c.topic == topic)
+        if info is not None and info.msgtype != IMU_TYPE:
+            raise ValueError(
+                f"--bag {path}: --imu-topic {topic} holds {info.msgtype}, not {IMU_TYPE}; "
+                f"the bag has: {_topics_line(reader)}"
+            )
+        if count == 0:
+            if not named:
+                return None
+            what = "has no messages" if info is not None else "is not in the bag"
+            raise ValueError(f"--bag {path}: --imu-topic {topic} {what}; the bag has: {_topics_line(reader)}")
+        track = ImuTrack(topic)
+        connections = [c for c in reader.connections if c.topic == topic]
+        for connection, _, raw in reader.messages(connections=connections):
+            message = reader.deserialize(raw, connection.msgtype)
+            track.add(stamp_seconds(message), message)
+        return track
     finally:
         reader.close()
 

@@ -11,6 +11,7 @@ from segmin.common.cli_args import add_overrides, overrides_of
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 
 if TYPE_CHECKING:
+    from segmin.nav_eval.replay.imu import ImuTrack
     from segmin.nav_eval.replay.run import FrameSource
     from segmin.nav_eval.runtime.camera import CameraGeometry
     from segmin.nav_eval.runtime.follower_config import FollowerConfig
@@ -42,7 +43,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "[sim] extra). Without depth SegMin runs on the mask alone; SegMinD and SegCorridor need depth. The runtime is set "
         "up by a follower config (--follower FILE, then KEY=VALUE overrides such as navigator.depth_threshold=8: the "
         "keys of nav-eval's follower section and of the ROS 2 node's follower parameters); SegCorridor takes the "
-        "camera from the bag's CameraInfo or from the config's camera section.",
+        "camera from the bag's CameraInfo or from the config's camera section, and its roll and pitch from the "
+        "bag's IMU.",
     )
     replay.add_argument("--model", required=True, help="exported .onnx file or a shipped model name (vineyards, trees)")
     source = replay.add_mutually_exclusive_group(required=True)
@@ -83,6 +85,13 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "--camera-info-topic",
         default=None,
         help="with --bag, SegCorridor: the CameraInfo topic of its intrinsics (default: camera_info beside --rgb-topic)",
+    )
+    replay.add_argument(
+        "--imu-topic",
+        default=None,
+        help="with --bag, SegCorridor: the sensor_msgs/Imu topic whose roll and pitch level its depth points, each "
+        "frame with the newest sample at or before it, as the node does (default: /imu/data when the bag has it, "
+        "else level ground)",
     )
     replay.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     replay.add_argument("--out", type=Path, required=True, help="output folder (must be empty unless --force)")
@@ -126,6 +135,21 @@ def _bag_camera(args: argparse.Namespace, follower: FollowerConfig) -> CameraGeo
     return bag_camera(args.bag, args.camera_info_topic or camera_info_topic(args.rgb_topic), follower.camera)
 
 
+def _bag_imu(args: argparse.Namespace, follower: FollowerConfig) -> ImuTrack | None:
+    """SegCorridor's IMU from the bag: --imu-topic, or the node's default topic when the bag has
+    it (None: level ground); None for the paper's methods, which take no attitude."""
+    if args.imu_topic is not None and args.bag is None:
+        raise ValueError("--imu-topic goes with --bag")
+    if follower.method != "segcorridor" or args.bag is None:
+        if args.imu_topic is not None:
+            raise ValueError(f"--imu-topic: {follower.method} takes no IMU (only segcorridor levels its points)")
+        return None
+    from segmin.nav_eval.replay.bags import bag_imu
+    from segmin.nav_eval.replay.imu import DEFAULT_IMU_TOPIC
+
+    return bag_imu(args.bag, args.imu_topic or DEFAULT_IMU_TOPIC, named=args.imu_topic is not None)
+
+
 def _bag_source(args: argparse.Namespace, method: str) -> FrameSource | None:
     """The bag's `FrameSource` for --bag (None without); the bag-only options are checked here."""
     if args.bag is None:
@@ -159,6 +183,7 @@ def _replay(args: argparse.Namespace) -> int:
         follower=follower,
         camera=_bag_camera(args, follower),
         source=_bag_source(args, follower.method),
+        imu=_bag_imu(args, follower),
         depth=args.depth,
         fps=args.fps,
         timestamps=args.timestamps,

@@ -27,7 +27,9 @@ SegCorridor need depth and are refused.
 The runtime is configured by a `FollowerConfig` (nav_eval.runtime.follower_config: `--follower`
 and `KEY=VALUE`), built into its navigator by the runtime's `make_navigator`, as nav-eval and
 the ROS 2 node build theirs. SegCorridor needs the camera: a bag's CameraInfo (`camera`) or the
-config's own intrinsics. It replays without the IMU: level ground is assumed (said in the summary).
+config's own intrinsics, and levels its depth points with the IMU's roll and pitch when given
+one (`imu`: a bag's, `replay.imu.ImuTrack`, each frame with the newest sample at or before its
+stamp, as the node and the simulator do); without one it assumes level ground (said in the summary).
 
 No torch, pybullet or matplotlib at import: this runs on the bare robot install.
 """
@@ -44,6 +46,7 @@ import numpy as np
 
 from segmin.common.atomic import write_text
 from segmin.common.outputs import check_output_dir
+from segmin.nav_eval.replay.imu import ImuTrack
 from segmin.nav_eval.replay.sequence import RecordedSequence, read_sequence
 from segmin.nav_eval.replay.video import overlay, write_video
 from segmin.nav_eval.runtime.camera import CameraGeometry
@@ -131,12 +134,14 @@ def replay(
     threads: int = 2,
     segmenter: Any = None,
     source: FrameSource | None = None,
+    imu: ImuTrack | None = None,
 ) -> ReplayResult:
     """Run the runtime over the sequence and write the outputs (see the module docstring).
 
-    The runtime is `follower` on `camera` (SegCorridor's; None: the config's intrinsics), or
-    for the paper's methods `method`, `depth_threshold`, `mask_closing` and `runtime`. The
-    sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then)."""
+        The runtime is `follower` on `camera` (SegCorridor's; None: the config's intrinsics), or
+        for the paper's methods `method`, `depth_threshold`, `mask_closing` and `runtime`. The
+        sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then); `imu`
+    gives the attitude at each frame to a navigator that levels its points (SegCorridor)."""
     if str(model) == "oracle":
         raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
     follower = follower or _paper_follower(method, depth_threshold, mask_closing, runtime)
@@ -160,10 +165,11 @@ def replay(
     video: list[np.ndarray] = []
     non_finite, restarts = 0, 0
     fault_stops: Counter[str] = Counter()  # commands stopped by a sensor fault, by reason
+    levels = imu if navigator.inputs.attitude else None  # the paper's methods take no attitude
     for name, t, image, d, bad in sequence.frames:
         non_finite += bad
         try:
-            output = runner.step(image, d, t)
+            output = runner.step(image, d, t, attitude=None if levels is None else levels.at(t))
         except ValueError as exc:
             raise ValueError(f"frame {name}: {exc}") from None
         restarts += output.stopped == "frame_timeout"
@@ -178,7 +184,7 @@ def replay(
     _write_outputs(out, result, video, runner.config.command_hz)
     if source is not None:
         result.notes.extend(source.notes())
-    result.notes.extend(_input_notes(method, has_depth, navigator.inputs.attitude))
+    result.notes.extend(_input_notes(method, has_depth, navigator.inputs.attitude, levels))
     if non_finite:
         result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")
     if fault_stops:
@@ -192,14 +198,15 @@ def replay(
     return result
 
 
-def _input_notes(method: str, has_depth: bool, wants_attitude: bool) -> list[str]:
-    """What the replay ran without: depth (the mask alone), the IMU (level ground)."""
+def _input_notes(method: str, has_depth: bool, wants_attitude: bool, imu: ImuTrack | None) -> list[str]:
+    """What the replay ran without: depth (the mask alone), the IMU (level ground: no IMU, or
+    frames without a fresh sample)."""
     notes = []
     if not has_depth:
         notes.append(f"no depth: {method} ran on the mask alone (every vegetation pixel counts as near)")
-    if wants_attitude:
+    if wants_attitude and imu is None:
         notes.append(f"no IMU: {method} assumed level ground (its depth points are not levelled)")
-    return notes
+    return notes + (imu.notes() if imu is not None else [])
 
 
 def _write_outputs(out: Path, result: ReplayResult, video: list[np.ndarray], command_hz: float) -> None:

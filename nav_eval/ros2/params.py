@@ -37,6 +37,7 @@ from typing import Any
 import yaml
 
 from segmin.common.config import ConfigError, parse_yaml
+from segmin.nav_eval.replay.imu import IMU_MAX_AGE_S
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.runtime.camera import CameraGeometry
 from segmin.nav_eval.runtime.corridor import CorridorConfig
@@ -83,7 +84,7 @@ class NodeSettings:
     publish_frame_acks: bool = False
     camera_info_topic: str = ""
     imu_topic: str = ""
-    imu_max_age_s: float = 0.1
+    imu_max_age_s: float = IMU_MAX_AGE_S
 
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
@@ -159,7 +160,8 @@ FIELD_DESCRIPTIONS: dict[str, str] = {
     "white_level": "a pixel whose every channel is at least this is white (0-255)",
     "blank_share": "stop (image_black / image_white) when at least this share of the sampled pixels is black "
     "(white); 0: off",
-    "frozen_s": "stop (image_frozen) when the sampled pixels stay identical this long while driving, s",
+    "frozen_s": "stop (image_frozen, depth_frozen) when the sampled image or depth pixels stay identical this long "
+    "while driving, s",
     "max_clock_offset_s": "stop (clock_offset) when a frame's stamp is further than this from the node's clock "
     "(a bag's own times: play it with --clock and set use_sim_time), s",
     "sample_pixels": "the sensor checks read a regular grid of about this many pixels",

@@ -210,7 +210,7 @@ class RowFollower:
             self._t0 = t
         command = self._command
         moving = command.valid and (command.v != 0.0 or command.omega != 0.0) and driving is not False
-        self._sensors.on_frame(rgb, t, None if now is None else _seconds(now, "follower clock"), moving)
+        self._sensors.on_frame(rgb, t, None if now is None else _seconds(now, "follower clock"), moving, depth)
         fault = self._sensors.reason
         if fault is not None and command.valid:  # at once, not at the next command
             self._command = self.navigator.stop()

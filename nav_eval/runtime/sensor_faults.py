@@ -19,11 +19,17 @@ longer exists; frames stamped on another clock make the runtime's timing meaning
 - `image_frozen`: the sampled pixels stay identical for longer than `frozen_s` while the robot is
   commanded to move (a real camera's noise changes some pixels every frame; a standing robot may
   see a still scene in a simulator). Once flagged it holds until the pixels change.
+- `depth_frozen`: the same for the depth frame, judged on the same sampled pixels (NaN equal to
+  NaN: a repeated frame without readings is repeated too): a driver that repeats its last depth
+  frame while colour stays live would have the robot steer on stale depth. Judged on frames
+  that carry an image and depth (a real depth camera's noise changes some readings every frame).
 - `clock_offset`: a frame's stamp is further than `max_clock_offset_s` from the follower's clock
   (`RowFollower.step(now=...)`, the node's clock): a bag's own times played against the wall clock.
 
 Checks read a regular grid of about `sample_pixels` pixels (strided), so they cost well under a
-millisecond per frame at any camera size. numpy only (the bare robot install).
+millisecond per frame at any camera size (the frozen-depth check adds one strided copy and one
+comparison of about `sample_pixels` floats: about 0.05 ms per frame,
+docs/results/history/benchmarks.md). numpy only (the bare robot install).
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ REASONS = (
     "image_black",
     "image_white",
     "image_frozen",
+    "depth_frozen",
     "depth_invalid",
     "depth_invalid_left",
     "depth_invalid_right",
@@ -63,7 +70,9 @@ class SensorChecks:
     black_level: int = 10  # a pixel is black when every channel is at most this
     white_level: int = 245  # ... white when every channel is at least this
     blank_share: float = 0.98  # share of black (white) pixels that makes the image black (white)
-    frozen_s: float = 0.25  # identical pixels for longer than this, while moving: frozen (0.12 m at 0.5 m/s)
+    frozen_s: float = (
+        0.25  # identical pixels (image or depth) for longer than this, while moving: frozen (0.12 m at 0.5 m/s)
+    )
     max_clock_offset_s: float = 0.5  # frame stamp vs the follower's clock
     sample_pixels: int = 4096  # about this many pixels read per check (a regular grid)
 
@@ -181,31 +190,60 @@ def clock_fault(t: float, now: float, checks: SensorChecks) -> tuple[str, str] |
     )
 
 
+class FrozenStream:
+    """One stream's frozen check (`image_frozen`, `depth_frozen`): its last sample and since when
+    it has not changed while the robot moved."""
+
+    def __init__(self, reason: str, what: str) -> None:
+        self.reason, self.what = reason, what
+        self._last: np.ndarray | None = None
+        self._unchanged_since = 0.0
+
+    def judge(self, sample: np.ndarray, t: float, moving: bool, frozen_s: float, active: dict[str, str]) -> None:
+        """Update `active` with this stream's fault for `sample` at `t` (NaN equals NaN)."""
+        changed = self._last is None or not np.array_equal(sample, self._last, equal_nan=sample.dtype.kind == "f")
+        if changed:
+            self._last = sample.copy()
+            self._unchanged_since = t
+            active.pop(self.reason, None)
+        elif self.reason in active:
+            return  # held until the pixels change
+        elif not moving:
+            self._unchanged_since = t  # a standing robot may see a still scene
+        elif t - self._unchanged_since > frozen_s:
+            active[self.reason] = (
+                f"the sampled {self.what} have not changed for {t - self._unchanged_since:.2f} s while driving "
+                f"(frozen_s {frozen_s:g})"
+            )
+
+
 class SensorFaults:
     """The faults that hold now (reason -> detail), updated per frame and per command.
 
-    Image and clock faults are judged on every frame that carries them, the depth faults at each
-    command (on the fused mask and the newest depth). `frozen` keeps the last sample and since
-    when it has not changed while the robot moved."""
+    Image and clock faults (and a frozen depth stream) are judged on every frame that carries
+    them, the depth faults at each command (on the fused mask and the newest depth)."""
 
     def __init__(self, checks: SensorChecks) -> None:
         self.checks = checks
         self.reset()
 
     def reset(self) -> None:
-        """Forget every fault and the frozen-image memory (a restart)."""
+        """Forget every fault and the frozen-frame memory (a restart)."""
         self.active: dict[str, str] = {}
-        self._last_sample: np.ndarray | None = None
-        self._unchanged_since = 0.0
+        self._frozen_image = FrozenStream("image_frozen", "pixels")
+        self._frozen_depth = FrozenStream("depth_frozen", "depth pixels")
 
     @property
     def reason(self) -> str | None:
         """The first fault that holds, in `REASONS` order, or None."""
         return next((reason for reason in REASONS if reason in self.active), None)
 
-    def on_frame(self, rgb: np.ndarray | None, t: float, now: float | None, moving: bool) -> None:
-        """Judge a frame's image (when it has one) and stamp (when the clock `now` is given: a
-        frame without it is not judged on the clock); `moving`: the command in force moves the robot."""
+    def on_frame(
+        self, rgb: np.ndarray | None, t: float, now: float | None, moving: bool, depth: np.ndarray | None = None
+    ) -> None:
+        """Judge a frame's image and depth (when it has an image: a frame without one is no
+        camera frame) and stamp (when the clock `now` is given: a frame without it is not judged
+        on the clock); `moving`: the command in force moves the robot."""
         self._set("clock_offset", None if now is None else clock_fault(t, now, self.checks))
         if rgb is None:
             return
@@ -215,29 +253,18 @@ class SensorFaults:
         blank = blank_image_fault(sample, self.checks) if sample.ndim == 3 and sample.dtype == np.uint8 else None
         self._set("image_black", blank if blank is not None and blank[0] == "image_black" else None)
         self._set("image_white", blank if blank is not None and blank[0] == "image_white" else None)
-        self._judge_frozen(sample, t, moving)
+        self._frozen_image.judge(sample, t, moving, self.checks.frozen_s, self.active)
+        if depth is None:
+            self.active.pop("depth_frozen", None)
+        else:
+            depth_sample = np.asarray(depth)[::step, ::step]  # the image's grid (depth is aligned to it)
+            self._frozen_depth.judge(depth_sample, t, moving, self.checks.frozen_s, self.active)
 
     def on_command(self, mask: np.ndarray, depth_m: np.ndarray | None) -> None:
         """Judge the depth the command reads (None: a navigator run without depth, nothing to judge)."""
         found = None if depth_m is None else depth_fault(mask, depth_m, self.checks)
         for reason in ("depth_invalid", "depth_invalid_left", "depth_invalid_right"):
             self._set(reason, found if found is not None and found[0] == reason else None)
-
-    def _judge_frozen(self, sample: np.ndarray, t: float, moving: bool) -> None:
-        changed = self._last_sample is None or not np.array_equal(sample, self._last_sample)
-        if changed:
-            self._last_sample = sample.copy()
-            self._unchanged_since = t
-            self.active.pop("image_frozen", None)
-        elif "image_frozen" in self.active:
-            return  # held until the pixels change
-        elif not moving:
-            self._unchanged_since = t  # a standing robot may see a still scene
-        elif t - self._unchanged_since > self.checks.frozen_s:
-            self.active["image_frozen"] = (
-                f"the sampled pixels have not changed for {t - self._unchanged_since:.2f} s while driving "
-                f"(frozen_s {self.checks.frozen_s:g})"
-            )
 
     def _set(self, reason: str, found: tuple[str, str] | None) -> None:
         if found is None:

@@ -133,7 +133,7 @@ class RenderSettings:
     backend: Literal["tiny", "gl"] | None = None
 
 
-FAULT_KINDS = ("depth_dropout", "zero_depth", "frozen_frame", "black_frame")
+FAULT_KINDS = ("depth_dropout", "zero_depth", "frozen_frame", "frozen_depth", "black_frame")
 REGIONS = ("all", "left", "right")
 
 

@@ -6,6 +6,8 @@ Each `SimFault` spoils the camera frames the robot receives for a window of the 
   of `region` (all, left or right image half), drawn from the run's seed;
 - `zero_depth`: depth 0 (a RealSense's "no reading") on `region`;
 - `frozen_frame`: the last frame before the fault repeated (image, depth and mask), a stalled driver;
+- `frozen_depth`: the last depth frame before the fault repeated while the image (and the mask)
+  stay live, a depth driver stalled behind a live colour stream;
 - `black_frame`: a black image (a covered lens); the oracle's mask is then empty too, as a
   segmenter's would be.
 
@@ -30,8 +32,9 @@ MOVING_SPEED = 0.01  # m/s: below this the robot stands (blind distance ends the
 
 
 def faults_read_colour(faults: list[SimFault]) -> bool:
-    """Whether a fault spoils the image: the runtime must then get it to see the fault."""
-    return any(f.kind in ("frozen_frame", "black_frame") for f in faults)
+    """Whether the runtime must get the image to see a fault: one that spoils the image, and a
+    frozen depth stream (the runtime judges the frames that carry an image)."""
+    return any(f.kind in ("frozen_frame", "frozen_depth", "black_frame") for f in faults)
 
 
 class FaultInjector:
@@ -47,6 +50,9 @@ class FaultInjector:
         fault = next((f for f in self.faults if f.active(t)), None)
         if fault is not None and fault.kind == "frozen_frame":
             return self._last if self._last is not None else frame
+        if fault is not None and fault.kind == "frozen_depth":
+            self._last = frame if self._last is None else dataclasses.replace(frame, depth=self._last.depth)
+            return self._last
         self._last = frame if fault is None else self._spoil(frame, fault)
         return self._last
 
