@@ -13,8 +13,7 @@ physics tick), and the observation is the next camera frame. The simulator itsel
   masks H x W, t 0-d, float64 actions) for one more release. `obs_keys` picks the entries (also
   `mask`, the oracle vegetation mask as uint8 0/1 H x W x 1, for learning from masks;
   `model_mask`, the mask a segmentation model makes of the colour frame, with `model`) and
-  `size` the camera's
-  (height, width): a learner that wants mask + depth at the model's size renders fewer pixels and
+  `size` the camera's (height, width): a learner that wants mask + depth at the model's size renders fewer pixels and
   no colour (without `rgb` the frame is asked without colour: the gl backend then draws depth and
   body ids only, and no backend composes sky or exposure; TinyRenderer has no depth-only pass);
 - model: a shipped model name (`"vineyards"`, `"trees"`) or an exported ONNX file: the env then
