@@ -220,7 +220,7 @@ class RowFollowEnv(gymnasium.Env):
         robot = nav_config.robot
         every = observation_spaces(height, width, legacy=self.legacy_observation)
         self.observation_space = spaces.Dict({key: every[key] for key in self.obs_keys})
-        action_dtype = np.float64 if self.legacy_observation else np.float32
+        action_dtype = np.dtype(np.float64 if self.legacy_observation else np.float32)
         limits = np.array([robot.max_v, robot.max_omega], dtype=action_dtype)
         self.action_space = spaces.Box(-limits, limits, dtype=action_dtype)
         usable = [mode for mode in RENDER_MODES if mode != "human" or human_view_unavailable() is None]
