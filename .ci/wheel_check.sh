@@ -5,7 +5,9 @@
 #      and an ONNX export of a tiny untrained model;
 #   3. bare `pip install <wheel>` (the robot runtime): navigator + segmenter on that ONNX file (also by a
 #      shipped name, `segmin models list`),
-#      `segmin navigate-demo --no-figure`, and the one-line error of a command that needs an extra.
+#      `segmin navigate-demo --no-figure`, and the one-line error of a command that needs an extra;
+#   4. the robot install for ROS 2 Humble's Python: the wheel admits 3.10, and the dependencies of
+#      `pip install segmin` and `segmin[ros]` resolve for 3.10 from the registry (binary wheels only).
 # Prints the wheel size, the lean install's size and its import time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -87,5 +89,26 @@ for _ in range(5):
     subprocess.run([sys.executable, "-c", code], check=True)
     walls.append(time.perf_counter() - start)
 print(f"lean import (navigator + segmenter + onnxruntime, fresh interpreter): median {statistics.median(walls):.2f} s of 5")
+PY
+
+echo "== robot install on Python 3.10 (ROS 2 Humble)"
+"$lean/python" - <<'PY'
+import importlib.metadata as md
+from packaging.specifiers import SpecifierSet  # onnxruntime's dependency, so in the bare install
+requires = md.metadata("segmin")["Requires-Python"]
+assert SpecifierSet(requires).contains("3.10"), f"the wheel's Requires-Python {requires} excludes 3.10"
+print(f"Requires-Python: {requires}")
+PY
+# pip checks the dependencies' Requires-Python against --python-version (not the named wheel's: above).
+if ! $PYTHON -m pip install --dry-run --ignore-installed --quiet --python-version 3.10 --only-binary=:all: \
+    --target "$work/py310" --report "$work/py310.json" "$wheel" "$wheel[ros]" > "$work/py310.log" 2>&1; then
+    grep -v "^WARNING: Location" "$work/py310.log"
+    echo "the robot install (segmin, segmin[ros]) does not resolve for Python 3.10"
+    exit 1
+fi
+$PYTHON - "$work/py310.json" <<'PY'
+import json, sys
+chosen = sorted(f"{item['metadata']['name']}=={item['metadata']['version']}" for item in json.load(open(sys.argv[1]))["install"])
+print("resolved for Python 3.10:", " ".join(chosen))
 PY
 echo "wheel checks passed"

@@ -55,6 +55,13 @@ def _register_data(bench: argparse._SubParsersAction) -> None:
     a.add_argument("--size", default="224", help="frame size W or WxH (default 224)")
     a.add_argument("--sheet", type=Path, default=None, help="PNG file for the side-by-side frames (one row a field)")
     a.add_argument("--force", action="store_true", help="overwrite an existing --sheet")
+    a.add_argument(
+        "--sun-distance",
+        type=float,
+        default=None,
+        help="metres from the world origin to the sun of the shadow figures (default 40: within the "
+        "camera's far plane; the worlds' own 100 m sun casts no shadow in either backend)",
+    )
     a.set_defaults(func=_bench_agreement)
 
 
@@ -196,7 +203,11 @@ def _bench_agreement(args: argparse.Namespace) -> int:
         if args.sheet.exists() and not args.force:
             raise ValueError(f"--sheet {args.sheet}: already exists; use --force to overwrite")
     options = AgreementOptions(
-        camera=camera_from_size(args.size), poses=args.poses, fields=tuple(args.fields or TEST_FIELDS), sheet=args.sheet
+        camera=camera_from_size(args.size),
+        poses=args.poses,
+        fields=tuple(args.fields or TEST_FIELDS),
+        sheet=args.sheet,
+        **({} if args.sun_distance is None else {"sun_distance": args.sun_distance}),
     )
     bench_render_agreement(options)
     return 0

@@ -370,7 +370,10 @@ def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
     sync = gymnasium.make_vec("segmin/RowFollow-v0", num_envs=2, vectorization_mode="sync", **options)
     first, again = _rollout(sync, seed=7), _rollout(sync, seed=7)
     sync.close()
-    vec = gymnasium.make_vec("segmin/RowFollow-v0", num_envs=2, vectorization_mode="async", **options)
+    # Spawned: this process has rendered with gl (the default backend), and OpenGL does not survive a fork.
+    vec = gymnasium.make_vec(
+        "segmin/RowFollow-v0", num_envs=2, vectorization_mode="async", vector_kwargs={"context": "spawn"}, **options
+    )
     try:
         assert vec.observation_space.contains(first[0]) and vec.single_observation_space["mask"].shape == (24, 32, 1)
         from_async = _rollout(vec, seed=7)

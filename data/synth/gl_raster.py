@@ -9,7 +9,15 @@ TinyRenderer's formula (ambient + (diffuse * max(0, n.l) + specular) * light col
 texel times the body's tint, truncated to integers), with nearest, repeating texture lookups
 (images uploaded bottom row first, as TinyRenderer reads them).
 Depth is the planar distance itself, interpolated per pixel, and a second float target carries
-the body id, so depth and mask need no decoding. Not drawn: TinyRenderer's shadows.
+the body id, so depth and mask need no decoding.
+
+Shadows are TinyRenderer's model, drawn the same way (`light_clip_matrix`): a first pass draws every
+body's planar depth seen from the sun (at `lightDistance` along the light direction, looking at the
+world origin through the camera's own perspective, into a map of the camera's size, both faces);
+the colour pass looks each fragment up in that map (nearest texel, clamped at the edges) and scales
+its direct light (diffuse + specular, not ambient) by 0.8 where something lies nearer the sun.
+Like TinyRenderer's, the light's pass keeps only what lies between the camera's near and far planes
+from the sun: with the sun further than `camera.far` from the scene, nothing is shadowed.
 
 A frame whose colour nobody reads (`shoot_depth_ids`: a learner's mask + depth observations) is
 drawn by a second program with no texture or light and one float target: the same vertices and
@@ -25,9 +33,11 @@ context starts.
 from __future__ import annotations
 
 import contextlib
+import ctypes.util
 import functools
 import importlib
 import importlib.util
+import math
 import os
 from typing import Any
 
@@ -39,6 +49,7 @@ from segmin.data.synth.world import World
 _VERTEX_SHADER = """
 #version 330
 uniform mat4 clip_from_world;
+uniform mat4 sun_clip_from_world;
 uniform vec4 depth_row;  // planar depth = dot(depth_row, (p, 1))
 in vec3 in_pos;
 in vec3 in_nrm;
@@ -46,11 +57,13 @@ in vec2 in_uv;
 out vec3 v_nrm;
 out vec2 v_uv;
 out float v_depth;
+out vec4 v_sun_clip;
 void main() {
     gl_Position = clip_from_world * vec4(in_pos, 1.0);
     v_nrm = in_nrm;
     v_uv = in_uv;
     v_depth = dot(depth_row, vec4(in_pos, 1.0));
+    v_sun_clip = sun_clip_from_world * vec4(in_pos, 1.0);
 }
 """
 
@@ -64,17 +77,30 @@ uniform vec3 light_colour;
 uniform vec3 terms;  // ambient, diffuse, specular coefficients
 uniform vec3 backward;  // world direction from the scene towards the camera (eye-space +z)
 uniform float shininess;
+uniform bool shadows;
+uniform sampler2D sun_depth;  // (planar depth from the sun, body + 1; 0 = nothing) per texel
+uniform vec2 sun_clip_z;  // the sun projection's clip z = x * planar depth - y
 in vec3 v_nrm;
 in vec2 v_uv;
 in float v_depth;
+in vec4 v_sun_clip;
 layout(location = 0) out vec4 colour;
 layout(location = 1) out vec2 depth_and_body;
+float sunlight() {  // TinyRenderer's test: 0.8 where something lies nearer the sun, else 1
+    ivec2 size = textureSize(sun_depth, 0);
+    vec2 window = vec2(size) * 0.5 * (v_sun_clip.xy / v_sun_clip.w + 1.0);
+    vec2 nearest = texelFetch(sun_depth, ivec2(clamp(window, vec2(0.0), vec2(size - 1))), 0).xy;
+    if (nearest.y == 0.0) return 1.0;
+    float occluder = sun_clip_z.x * nearest.x - sun_clip_z.y;
+    return -occluder < -0.5 * (v_sun_clip.z + v_sun_clip.w) + 0.05 ? 1.0 : 0.8;
+}
 void main() {
     vec3 n = normalize(v_nrm);
     float diffuse = max(0.0, dot(n, light_dir));
     float specular = pow(max(dot(normalize(2.0 * dot(n, light_dir) * n - light_dir), backward), 0.0), shininess);
     vec3 base = floor(texture(texels, v_uv).rgb * 255.0 + 0.5) * tint;
-    vec3 lit = terms.x * base + (terms.y * diffuse + terms.z * specular) * base * light_colour;
+    float direct = shadows ? sunlight() : 1.0;
+    vec3 lit = terms.x * base + direct * (terms.y * diffuse + terms.z * specular) * base * light_colour;
     colour = vec4(min(floor(lit), 255.0) / 255.0, 1.0);
     depth_and_body = vec2(v_depth, body + 1.0);
 }
@@ -127,10 +153,42 @@ def _context():
     return ctx
 
 
+def opened_in_this_process() -> bool:
+    """Whether this process (or the one it was forked from) has opened its OpenGL context: a
+    worker forked from it now could not render with gl, so it must be spawned."""
+    return _opened_context.cache_info().currsize > 0
+
+
 @functools.cache
 def _opened_context():
     """The context this process opened first, and the process id that opened it."""
     return open_context(), os.getpid()
+
+
+class NoHeadlessGl(OSError):
+    """No OpenGL 3.3 context through EGL opens in this process (no library, driver or device):
+    one line saying what to install; `reason` is what the driver said."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(
+            "render.backend=gl found no headless OpenGL 3.3 through EGL (install Mesa's libegl1 and "
+            f"libgl1-mesa-dri, or use render.backend=tiny): {reason}"
+        )
+        self.reason = reason
+
+
+@functools.cache
+def headless_gl_problem() -> str | None:
+    """Why OpenGL through EGL cannot load here, or None where its libraries are found (what
+    `render.backend=auto` asks). Found without opening a context: a process that has opened one can
+    no longer fork workers that render (`_context`), and an env built only for its spaces (Gymnasium's
+    async vectors build one in the parent) must not spoil its workers."""
+    if importlib.util.find_spec("moderngl") is None:
+        return "moderngl is not installed (the [sim] extra)"
+    for library, variable in (("EGL", "GLCONTEXT_LINUX_LIBEGL"), ("GL", "GLCONTEXT_LINUX_LIBGL")):
+        if not (os.environ.get(variable) or ctypes.util.find_library(library)):  # what glcontext loads
+            return f"no lib{library} found (Mesa's libegl1 and libgl1-mesa-dri provide it)"
+    return None
 
 
 def open_context():
@@ -143,10 +201,7 @@ def open_context():
         # moderngl's stub types each `**settings` value as a dict; the backend name is a string.
         ctx = moderngl.create_context(standalone=True, backend="egl", require=330)  # type: ignore[arg-type]
     except Exception as err:  # moderngl raises plain Exceptions for a missing library or display
-        raise OSError(
-            "render.backend=gl found no headless OpenGL 3.3 through EGL (install Mesa's libegl1 and "
-            f"libgl1-mesa-dri, or use render.backend=tiny): {err}"
-        ) from None
+        raise NoHeadlessGl(str(err)) from None
     ctx.gc_mode = "auto"  # buffers of a world go with its renderer
     return ctx
 
@@ -177,6 +232,35 @@ def clip_matrix(camera: CameraModel, pose: np.ndarray) -> tuple[np.ndarray, np.n
     )
     camera_from_world = np.linalg.inv(pose)
     return project @ camera_from_world, camera_from_world[2]
+
+
+def light_clip_matrix(camera: CameraModel, light: dict) -> tuple[np.ndarray, np.ndarray]:
+    """TinyRenderer's view of the scene from the sun: world-to-clip matrix and the planar-depth row.
+
+    The eye sits `lightDistance` along the (normalised) light direction, looks at the world origin
+    with z up, through the camera's own OpenGL perspective (vertical field of view, aspect, near,
+    far: the matrix `Renderer.set_camera` gives pybullet), as TinyRenderer's shadow pass does."""
+    direction = np.asarray(light["lightDirection"], float)
+    eye = direction / np.linalg.norm(direction) * float(light["lightDistance"])
+    forward = -eye / np.linalg.norm(eye)
+    side = np.cross(forward, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    up = np.cross(side, forward)
+    view = np.eye(4)
+    view[0, :3], view[1, :3], view[2, :3] = side, up, -forward
+    view[:3, 3] = -view[:3, :3] @ eye
+    near, far = camera.near, camera.far
+    tan_v = math.tan(math.radians(camera.vfov_deg) / 2)
+    aspect = math.tan(math.radians(camera.hfov_deg) / 2) / tan_v
+    project = np.array(
+        [
+            [1 / (tan_v * aspect), 0.0, 0.0, 0.0],
+            [0.0, 1 / tan_v, 0.0, 0.0],
+            [0.0, 0.0, (far + near) / (near - far), 2 * far * near / (near - far)],
+            [0.0, 0.0, -1.0, 0.0],
+        ]
+    )
+    return project @ view, -view[2]
 
 
 class GlRasteriser:
@@ -216,6 +300,15 @@ class GlRasteriser:
             self.textures[tid] = tex
         self.blank = ctx.texture((1, 1), 3, bytes([255, 255, 255]))
         self._targets: dict[tuple[int, int, bool], Any] = {}
+        self._sun_targets: dict[tuple[int, int], tuple[Any, Any]] = {}
+        self.all_bodies = sorted(self.ranges)
+        # Every body's vertices lie within this sphere: the sun's pass is skipped where none of them
+        # lies between the sun's near and far planes (the worlds' own sun), drawing nothing either way.
+        self.bounds = np.array(
+            [_bounding_sphere(m.vertices) for chunk in world.chunks for m in chunk.meshes if len(m.vertices)]
+        ).reshape(-1, 4)
+        self.program["texels"].value = 0
+        self.program["sun_depth"].value = 1
 
     def _target(self, width: int, height: int, colour: bool):
         """The framebuffer of a frame size: colour, (depth, body) and a depth buffer, or without colour."""
@@ -243,6 +336,59 @@ class GlRasteriser:
         program["depth_row"].value = tuple(depth_row)
         return fbo
 
+    def _sun_target(self, width: int, height: int):
+        """The sun's depth map of a frame size (a float texture the colour pass reads) and its framebuffer."""
+        key = (width, height)
+        if key not in self._sun_targets:
+            import moderngl
+
+            ctx = self.ctx
+            texture = ctx.texture((width, height), 2, dtype="f4")
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            fbo = ctx.framebuffer(color_attachments=[texture], depth_attachment=ctx.depth_renderbuffer((width, height)))
+            self._sun_targets[key] = (texture, fbo)
+        return self._sun_targets[key]
+
+    def _sun_sees_something(self, camera: CameraModel, light: dict) -> bool:
+        """Whether any body may lie between the near and far planes of the sun's view (its pass,
+        and so every shadow, is empty otherwise)."""
+        _, depth_row = light_clip_matrix(camera, light)
+        depth = self.bounds[:, :3] @ depth_row[:3] + depth_row[3]
+        radius = self.bounds[:, 3]
+        return bool(((depth + radius >= camera.near) & (depth - radius <= camera.far)).any())
+
+    def _sun_pass(self, camera: CameraModel, light: dict) -> np.ndarray:
+        """Draw every body (shown or not, all levels of detail, both faces: TinyRenderer's shadow pass
+        draws all it holds) as the sun sees it into the sun's depth map, bound to texture unit 1;
+        returns the sun's world-to-clip matrix."""
+        ctx = self.ctx
+        texture, fbo = self._sun_target(camera.width, camera.height)
+        fbo.use()
+        ctx.enable(ctx.DEPTH_TEST)
+        ctx.disable(ctx.CULL_FACE)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        clip, depth_row = light_clip_matrix(camera, light)
+        # TinyRenderer fills the map at whole window coordinates, GL at pixel centres: half a texel over.
+        shift = np.eye(4)
+        shift[0, 3], shift[1, 3] = 1 / camera.width, 1 / camera.height
+        self.ids_program["clip_from_world"].write((shift @ clip).T.astype("f4").tobytes())
+        self.ids_program["depth_row"].value = tuple(depth_row)
+        self._draw_ids(self.all_bodies)
+        texture.use(1)
+        return clip
+
+    def _draw_ids(self, bodies: list[int]) -> None:
+        """The bodies through the depth + ids program: one indirect multi-draw, or one call per body."""
+        if self.multi_draw and self.command_buffer is not None and bodies:
+            commands = self.commands[: len(bodies)]
+            commands[:, [2, 0]] = [self.ranges[b] for b in bodies]
+            self.command_buffer.write(commands.tobytes())
+            self.ids_vao.render_indirect(self.command_buffer, count=len(bodies))
+        else:
+            for b in bodies:
+                first, count = self.ranges[b]
+                self.ids_vao.render(first=first, vertices=count)
+
     def _front_to_back(self, pose: np.ndarray, bodies: list[int]) -> list[int]:
         """`bodies` nearest first: the depth test then skips most hidden fragments' shading."""
         if not bodies:
@@ -258,9 +404,18 @@ class GlRasteriser:
         bodies: list[int],
         rgba: dict[int, list[float]],
         texture: dict[int, int],
+        shadow: bool = False,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none)."""
+        """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none);
+        `shadow` draws TinyRenderer's shadows (module docstring)."""
         prog = self.program
+        shadow = shadow and self._sun_sees_something(camera, light)
+        prog["shadows"].value = shadow
+        if shadow:
+            sun_clip = self._sun_pass(camera, light)
+            prog["sun_clip_from_world"].write(sun_clip.T.astype("f4").tobytes())
+            near, far = camera.near, camera.far
+            prog["sun_clip_z"].value = ((far + near) / (far - near), 2 * far * near / (far - near))
         fbo = self._begin(prog, camera, pose, colour=True)
         direction = np.asarray(light["lightDirection"], float)
         prog["light_dir"].value = tuple(direction / np.linalg.norm(direction))
@@ -284,16 +439,7 @@ class GlRasteriser:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Planar depth and body ids as `shoot` gives them, without colour (module docstring)."""
         fbo = self._begin(self.ids_program, camera, pose, colour=False)
-        ordered = self._front_to_back(pose, bodies)
-        if self.multi_draw and self.command_buffer is not None and ordered:
-            commands = self.commands[: len(ordered)]
-            commands[:, [2, 0]] = [self.ranges[b] for b in ordered]
-            self.command_buffer.write(commands.tobytes())
-            self.ids_vao.render_indirect(self.command_buffer, count=len(ordered))
-        else:
-            for b in ordered:
-                first, count = self.ranges[b]
-                self.ids_vao.render(first=first, vertices=count)
+        self._draw_ids(self._front_to_back(pose, bodies))
         return _depth_and_ids(fbo, 0, camera.width, camera.height)
 
 
@@ -302,6 +448,12 @@ def _depth_and_ids(fbo, attachment: int, width: int, height: int) -> tuple[np.nd
     zid = np.frombuffer(fbo.read(components=2, attachment=attachment, dtype="f4"), np.float32)
     zid = zid.reshape(height, width, 2)
     return zid[..., 0].copy(), zid[..., 1].astype(np.int32) - 1
+
+
+def _bounding_sphere(vertices: np.ndarray) -> tuple[float, float, float, float]:
+    """Centre of the vertices' box and the largest distance from it: a sphere holding them all."""
+    centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+    return (*centre.tolist(), float(np.linalg.norm(vertices - centre, axis=1).max()))
 
 
 def _pack(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, tuple[int, int]]]:

@@ -10,14 +10,19 @@ skip the distance cut. Where nothing was hit, a sky (gradient plus clouds) is co
 depth is 0 (no return).
 
 `render.backend` picks the rasteriser: `tiny` (TinyRenderer, the reference) or `gl` (OpenGL through
-EGL, `gl_raster.py`), which draws the same meshes and needs no alpha changes in pybullet; culling,
-level of detail, sky, haze and exposure are this module's for both.
+EGL, `gl_raster.py`), which draws the same meshes, and TinyRenderer's shadows by TinyRenderer's
+model, and needs no alpha changes in pybullet; culling, level of detail, sky, haze and exposure are
+this module's for both. `auto`, the default, is gl wherever OpenGL through EGL loads, and
+TinyRenderer elsewhere, said in one log line per process (`resolve_backend`). The gl context opens
+at the first frame, not when the renderer is built (see `Renderer.raster`).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -26,6 +31,41 @@ import pybullet as p
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.glare import apply_glare, sun_pixel
 from segmin.data.synth.world import World
+
+if TYPE_CHECKING:
+    from segmin.data.synth.gl_raster import GlRasteriser
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("auto", "tiny", "gl")
+_fallback_said: list[str] = []  # the one fallback line of this process, once said
+
+
+def resolve_backend(name: str) -> str:
+    """`tiny` or `gl` for a `render.backend` value: `auto` is gl where OpenGL through EGL loads
+    (`gl_raster.headless_gl_problem`), else TinyRenderer, with one line saying why."""
+    if name not in BACKENDS:
+        raise ValueError(f"render backend: one of {', '.join(BACKENDS)}, got {name!r}")
+    if name != "auto":
+        return name
+    from segmin.data.synth.gl_raster import headless_gl_problem
+
+    problem = headless_gl_problem()
+    if problem is None:
+        return "gl"
+    _say_fallback(problem)
+    return "tiny"
+
+
+def _say_fallback(problem: str) -> None:
+    """The one log line of a process whose `auto` backend is TinyRenderer."""
+    if not _fallback_said:
+        _fallback_said.append(problem)
+        log.warning(
+            "render.backend=auto: no headless OpenGL through EGL (%s); rendering with TinyRenderer, "
+            "several times slower (render.backend=tiny says so and hides this line)",
+            problem,
+        )
 
 
 @dataclass
@@ -116,6 +156,15 @@ def _fixed_look() -> dict:
     }
 
 
+def sun_look(direction: list[float], distance: float) -> dict:
+    """The fixed look lit by a sun from `direction`, `distance` metres away, shadows on: one light
+    for both backends where they are compared."""
+    look = _fixed_look()
+    look["light"] = {**look["light"], "lightDirection": list(direction), "lightDistance": float(distance)}
+    look["shadow"] = True
+    return look
+
+
 class Renderer:
     """Renders frames of one world with one camera model; keeps the per-body visibility state.
 
@@ -155,14 +204,9 @@ class Renderer:
         self.shown: dict[int, bool] = {}
         self.hidden: set[int] = set()  # bodies kept hidden whatever the culling says (tests, ablations)
         self.state = self.bodies >= 0  # shown flag per (chunk, level), mirrors `shown`
-        self.raster = None
-        self.backend = backend or world.spec.render.backend
-        if self.backend not in ("tiny", "gl"):
-            raise ValueError(f"render backend: 'tiny' or 'gl', got {self.backend!r}")
-        if self.backend == "gl":
-            from segmin.data.synth.gl_raster import GlRasteriser
-
-            self.raster = GlRasteriser(world)
+        self.requested_backend = backend or world.spec.render.backend
+        self.backend = resolve_backend(self.requested_backend)
+        self._raster: GlRasteriser | None = None
         # Put every body in a known state: another renderer may have used this world before.
         for c in chunks:
             for b in c.bodies:
@@ -202,10 +246,32 @@ class Renderer:
         self.tan_h = math.tan(math.radians(cam.hfov_deg) / 2)
         self.tan_v = math.tan(math.radians(cam.vfov_deg) / 2)
 
+    @property
+    def raster(self) -> GlRasteriser | None:
+        """The gl backend's rasteriser (None with TinyRenderer), built at the first frame: a process
+        that builds a renderer and draws nothing (Gymnasium's async vector builds an env in the parent
+        for its spaces) opens no OpenGL context, so the workers it forks can open theirs. Where no
+        context opens, an `auto` backend turns to TinyRenderer (one log line); `gl` says why and stops."""
+        if self.backend != "gl":
+            return None
+        if self._raster is None:
+            from segmin.data.synth.gl_raster import GlRasteriser, NoHeadlessGl
+
+            try:
+                self._raster = GlRasteriser(self.world)
+            except NoHeadlessGl as err:
+                if self.requested_backend != "auto":
+                    raise
+                _say_fallback(err.reason)
+                self.backend = "tiny"
+                for body in self.shown:  # TinyRenderer reads tint, texture and shown flag from pybullet
+                    self._set_visual(body, texture=self.texture[body])
+        return self._raster
+
     def _set_visual(self, body: int, texture: int | None = None) -> None:
         """Show TinyRenderer a body's tint, texture and shown flag (alpha); the gl backend reads them
         from `rgba`, `texture` and `state` at draw time instead."""
-        if self.raster is not None:
+        if self.backend == "gl":
             return
         rgba = self.rgba[body] + [1.0 if self.shown[body] else 0.0]
         if texture is None:
@@ -408,16 +474,7 @@ class Renderer:
         pose = camera_pose(self.world, cam, x, y, yaw, pose_offset)
         stats = self._cull(pose)
         look = self._draw_look(rng, math.atan2(pose[1, 2], pose[0, 2]))
-        rgb: np.ndarray | None
-        if self.raster is None:
-            rgb, depth, ids = self._shoot(pose, look)
-        else:  # no shadows: the frame's stats say so
-            look["shadow"] = False
-            bodies = self.bodies[self.state].tolist()
-            if colour:
-                rgb, depth, ids = self.raster.shoot(cam, pose, look["light"], bodies, self.rgba, self.texture)
-            else:
-                rgb, (depth, ids) = None, self.raster.shoot_depth_ids(cam, pose, bodies)
+        rgb, depth, ids = self.rasterise(pose, look, colour)
         mask = np.take(self.veg_lut, ids + 1, mode="clip")  # one pass (ids of bodies outside the table: clipped)
         rgb = self._colour(rgb, pose, rng, look, ids, depth) if colour and rgb is not None else None
         if noisy_depth and cam.depth_noise_enabled:
@@ -464,6 +521,22 @@ class Renderer:
             sun = sun_pixel(pose, look["light"]["lightDirection"], self.camera) if look["low_sun"] == "ahead" else None
             rgb = apply_glare(rgb, ~hit, sun, look["glare"], rng)
         return rgb
+
+    def rasterise(
+        self, pose: np.ndarray, look: dict, colour: bool = True
+    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """The backend's raw image of the bodies shown now (after `_cull(pose)`) in `look`'s light and
+        shadow: RGB (None without `colour`; TinyRenderer always draws it), planar depth and body ids,
+        before sky, haze and exposure. The render-agreement bench compares backends through it."""
+        raster = self.raster
+        if raster is None:
+            return self._shoot(pose, look)
+        bodies = self.bodies[self.state].tolist()
+        if not colour:
+            return None, *raster.shoot_depth_ids(self.camera, pose, bodies)
+        return raster.shoot(
+            self.camera, pose, look["light"], bodies, self.rgba, self.texture, shadow=bool(look["shadow"])
+        )
 
     def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """TinyRenderer's image from `pose` in `look`'s light: RGB, planar depth (0 where nothing was

@@ -67,15 +67,15 @@ class RenderSpec:
     """Per-world rendering knobs: which rasteriser, what to hide and when to switch to coarse meshes.
 
     `backend`: `tiny` is pybullet's TinyRenderer, the reference; `gl` is OpenGL through a headless
-    EGL context (Mesa's llvmpipe on a CPU), several times faster, same masks and depth, no shadows
-    (see data/synth/gl_raster.py).
+    EGL context (Mesa's llvmpipe on a CPU), several times faster, same masks, depth and shadows (see
+    data/synth/gl_raster.py); `auto` is gl wherever EGL loads and tiny elsewhere, said in one log line.
     """
 
-    backend: Literal["tiny", "gl"] = "tiny"
+    backend: Literal["auto", "tiny", "gl"] = "auto"
     cull_distance: float = 35.0
     lod_distances: tuple[float, float] = (4.0, 10.0)  # switch to the next coarser level beyond these
     chunk_length: float = 3.0  # plants of one row within this length share one body
-    shadow_probability: float = 0.0  # share of frames with TinyRenderer shadows (about 2x the cost)
+    shadow_probability: float = 0.0  # share of frames drawn with shadows (TinyRenderer's model, both backends)
 
     def __post_init__(self) -> None:
         check_fraction("render.shadow_probability", self.shadow_probability)

@@ -31,6 +31,8 @@ from pathlib import Path
 
 from segmin.common.lock import writer_lock
 from segmin.common.outputs import check_writable
+from segmin.common.processes import StartMethod
+from segmin.data.synth import gl_raster
 from segmin.data.synth.dataset_meta import FORMAT, check_frame_count, rendered_frame_count, write_meta
 from segmin.data.synth.frame_files import (
     clean_stale,
@@ -124,8 +126,9 @@ def _tasks(todo: list[int], appearance_every: int) -> list[list[int]]:
 
 def _render_tasks(job: RenderJob, tasks: list[list[int]], tick) -> None:
     """Render every task, in this process or on `job.workers` workers of `job.executor` (forked
-    locally: this process holds no pybullet client by now); write each frame as it comes back,
-    `tick(n)` as each task ends."""
+    locally, which saves each worker the imports: this process holds no pybullet client by now;
+    spawned once it has rendered with gl, as OpenGL does not survive a fork); write each frame as
+    it comes back, `tick(n)` as each task ends."""
 
     def done(_: list[int], frames: list[tuple[int, dict[str, bytes]]]) -> None:
         for f, data in frames:
@@ -144,7 +147,8 @@ def _render_tasks(job: RenderJob, tasks: list[list[int]], tick) -> None:
             worker.close()
     else:
         make_worker = functools.partial(RenderWorker, job)
-        job.executor.run(tasks, make_worker, min(job.workers, len(tasks)), done, failed, start_method="fork")
+        start_method: StartMethod = "spawn" if gl_raster.opened_in_this_process() else "fork"
+        job.executor.run(tasks, make_worker, min(job.workers, len(tasks)), done, failed, start_method=start_method)
 
 
 class _Rate:

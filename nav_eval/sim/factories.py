@@ -56,7 +56,7 @@ class FieldContext:
     def __init__(self, field: str, config: NavEvalConfig) -> None:
         import pybullet as p
 
-        from segmin.data.synth.render import Renderer
+        from segmin.data.synth.render import Renderer, resolve_backend
         from segmin.data.synth.spec import load_world_spec
         from segmin.data.synth.world import build_world
 
@@ -64,7 +64,7 @@ class FieldContext:
         self.client = p.connect(p.DIRECT)
         self.world = build_world(self.spec, self.client)
         backend = config.render.backend or self.spec.render.backend
-        self.camera = nav_camera(config, backend)
+        self.camera = nav_camera(config, resolve_backend(backend))
         self.renderer = Renderer(self.world, self.camera, backend=backend)
         self.depth_threshold = config.depth_threshold(self.spec.name, self.spec.family)
         self.gap = config.run.gap if config.run.gap is not None else self.spec.eval_gap

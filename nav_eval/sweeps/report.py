@@ -102,8 +102,13 @@ def breaks(plan: SweepPlan, rows: list[dict]) -> dict[str, dict[str, str]]:
 
 
 def sweep_csv(rows: list[dict]) -> str:
+    return rows_csv(rows, CSV_COLUMNS)
+
+
+def rows_csv(rows: list[dict], columns: tuple[str, ...]) -> str:
+    """`rows` as CSV with `columns`, NaN as an empty cell (a figure no run gave)."""
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
     writer.writeheader()
     for row in rows:
         writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()})

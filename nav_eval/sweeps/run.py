@@ -19,15 +19,10 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from segmin.common.atomic import write_text
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
-from segmin.common.outputs import check_output_dir
-from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs, run_seed
-from segmin.nav_eval.evaluation.run_store import RUNS_FOLDER, digest, model_identity, store_run, stored_runs
-from segmin.nav_eval.sim.factories import make_segmenter
+from segmin.nav_eval.evaluation.evaluate import Job, RunResult, run_seed
+from segmin.nav_eval.sweeps.keyed_runs import prepare_runs, run_key, run_keyed_jobs, with_command_line, write_world
 from segmin.nav_eval.sweeps.report import summarise_sweep, write_sweep_outputs
 from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, load_sweep, plan_sweep, variant_file_name
 
@@ -58,40 +53,27 @@ def run_sweep(
 ) -> SweepOutcome:
     """Run (or resume) the sweep `spec_path` into `out_dir`; `model` and `runs` replace the spec's."""
     spec, path = load_sweep(spec_path)
-    try:
-        spec = dataclasses.replace(spec, **{k: v for k, v in (("model", model), ("runs", runs)) if v is not None})
-    except ValueError as exc:
-        raise ValueError(f"--runs: {exc}") from exc
-    if workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+    spec = with_command_line(spec, model, runs)
     plan = plan_sweep(spec, str(path), overrides)
-    if spec.model != "oracle":
-        make_segmenter(spec.model, threads=1)  # loads and checks the file before any run
-    out = check_output_dir(out_dir, "--out")
-    model_id = model_identity(spec.model)
+    out, model_id = prepare_runs(spec.model, workers, out_dir)
     with writer_lock(out / ".sweep.lock", f"sweep {out}"):
         jobs, keys = _jobs(plan, out, model_id)
-        cached = {} if force else stored_runs(out / RUNS_FOLDER, jobs, RunResult.from_stored)
-        todo = [job for key, job in jobs.items() if key not in cached]
-        new: dict[str, RunResult] = {}
-        errored: list[RunResult] = []
-        key_of = {id(job): key for key, job in jobs.items()}
-
-        def done(job: Job, result: RunResult) -> None:
-            if result.reason == "error":
-                errored.append(result)
-                return
-            key = key_of[id(job)]
-            new[key] = result
-            store_run(out / RUNS_FOLDER, key, result)
-
-        execute_jobs(
-            todo, spec.model, plan.base_config, workers, done, progress=progress, desc="sweep runs", executor=executor
+        ran = run_keyed_jobs(
+            out,
+            jobs,
+            spec.model,
+            plan.base_config,
+            workers,
+            force=force,
+            progress=progress,
+            desc="sweep runs",
+            executor=executor,
         )
-        results = {**cached, **new}
-        rows = summarise_sweep(plan, keys, results)
-        write_sweep_outputs(out, plan, rows, plots=plots, executed=len(new), reused=len(cached), errored=len(errored))
-    return SweepOutcome(plan, rows, len(new), len(cached), errored)
+        rows = summarise_sweep(plan, keys, ran.results)
+        write_sweep_outputs(
+            out, plan, rows, plots=plots, executed=ran.executed, reused=ran.reused, errored=len(ran.errored)
+        )
+    return SweepOutcome(plan, rows, ran.executed, ran.reused, ran.errored)
 
 
 def _jobs(plan: SweepPlan, out: Path, model_id: str) -> tuple[dict[str, Job], list[list[tuple[str, str]]]]:
@@ -107,7 +89,7 @@ def _jobs(plan: SweepPlan, out: Path, model_id: str) -> tuple[dict[str, Job], li
         for run in range(spec.runs):
             seed = run_seed(spec.seed, plan.base_label, run)
             for method in spec.methods:
-                key = digest({"setting": variant.setting, "model": model_id, "method": method, "seed": seed})
+                key = run_key(variant.world, variant.config, model_id, method, seed)
                 keys[-1].append((method, key))
                 if key not in jobs:
                     jobs[key] = Job(field, method, run, seed, config=variant.config)
@@ -120,10 +102,6 @@ def _field(plan: SweepPlan, variant: Variant, out: Path, written: set[str]) -> s
         return plan.spec.base
     path = out / "worlds" / variant_file_name(plan.base_label, variant)
     if str(path) not in written:
-        write_text(
-            path,
-            f"# {plan.where}: {plan.base_label} with {variant.parameter} = {variant.label}\n"
-            + yaml.safe_dump(variant.world, sort_keys=False),
-        )
+        write_world(path, variant.world, f"{plan.where}: {plan.base_label} with {variant.parameter} = {variant.label}")
         written.add(str(path))
     return str(path)

@@ -158,13 +158,18 @@ class SweepSpec:
             labels = [value_label(v) for v in values]
             if len(set(labels)) != len(labels):
                 raise ValueError(f"parameters.{name}: repeated value in {labels}")
-        bad = [m for m in self.methods if m not in METHODS]
-        if bad or not self.methods:
-            raise ValueError(f"methods: unknown {bad}; choose from {list(METHODS)}")
-        if self.runs < 1:
-            raise ValueError(f"runs: must be >= 1, got {self.runs}")
-        if self.seed < 0:
-            raise ValueError(f"seed: must be >= 0, got {self.seed}")
+        check_runs(self.methods, self.runs, self.seed)
+
+
+def check_runs(methods: list[str], runs: int, seed: int) -> None:
+    """The keys every sweep spec has for what it runs: known methods, runs >= 1, seed >= 0."""
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods:
+        raise ValueError(f"methods: unknown {bad}; choose from {list(METHODS)}")
+    if runs < 1:
+        raise ValueError(f"runs: must be >= 1, got {runs}")
+    if seed < 0:
+        raise ValueError(f"seed: must be >= 0, got {seed}")
 
 
 def value_label(value: Any) -> str:

@@ -20,7 +20,7 @@ KINDS: dict[str, str] = {
     "train": "training recipes for `segmin train`",
     "nav": "closed-loop settings for `segmin nav-eval`",
     "pipeline": "profiles for `segmin pipeline`",
-    "sweeps": "robustness sweeps for `segmin robustness`",
+    "sweeps": "robustness sweeps and families of worlds for `segmin robustness`",
     "ros2": "parameter files for `segmin ros2 follow`",
 }
 # What one config of each kind is called in error messages.

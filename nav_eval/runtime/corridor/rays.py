@@ -23,8 +23,10 @@ class StridedRays:
 
     def grid(self, shape: tuple[int, int], s: int) -> tuple[np.ndarray, np.ndarray]:
         """(flat pixel indices, 3 x n ray coefficients) of the `s`-strided grid of an image of `shape`."""
-        if (*shape, s) not in self._grids:
+        # A named key: mypy reads `grids[(*shape, s)]` as Python 3.11's unparenthesised star index.
+        key = (*shape, s)
+        if key not in self._grids:
             rows, cols = np.meshgrid(np.arange(0, shape[0], s), np.arange(0, shape[1], s), indexing="ij")
             rays = self.camera.ray_coefficients(rows.ravel().astype(np.float32), cols.ravel().astype(np.float32))
-            self._grids[(*shape, s)] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
-        return self._grids[(*shape, s)]
+            self._grids[key] = ((rows * shape[1] + cols).ravel(), np.stack(rays).astype(np.float32))
+        return self._grids[key]
