@@ -35,7 +35,8 @@ def test_check_env_passes() -> None:
     env = _fake_env(time_limit_s=2.0)
     check_env(env, skip_render_check=True)
     obs, info = env.reset(seed=1)
-    assert obs["rgb"].shape == (32, 32, 3) and obs["depth"].dtype == np.float32 and float(obs["t"]) == 0.0
+    assert obs["rgb"].shape == (32, 32, 3) and obs["depth"].shape == (32, 32, 1) and obs["t"].shape == (1,)
+    assert obs["depth"].dtype == np.float32 and obs["t"][0] == 0.0
     assert info["mask"].shape == (32, 32) and len(info["pose"]) == 3 and math.isfinite(info["lateral"])
 
 
@@ -108,7 +109,7 @@ def test_gymnasium_make_builds_a_shipped_field() -> None:
         obs, info = env.reset(seed=0)
         assert obs["rgb"].shape == (32, 32, 3) and info["mask"].any()
         obs, _, terminated, truncated, info = env.step(np.array([0.4, 0.0]))
-        assert float(obs["t"]) == pytest.approx(1 / 30) and not (terminated or truncated)
+        assert obs["t"][0] == pytest.approx(1 / 30) and not (terminated or truncated)
         # The IMU: the robot's roll and pitch on this field's rough ground.
         assert obs["attitude"].shape == (2,) and env.observation_space["attitude"].contains(obs["attitude"])
         assert np.allclose(obs["attitude"], imu_attitude(env.unwrapped.simulator.robot.state))
@@ -155,8 +156,8 @@ def test_the_env_observes_what_the_simulator_renders() -> None:
     info = simulator.reset(4)
     for _ in range(5):
         frame = simulator.frame()
-        assert np.array_equal(obs["rgb"], frame.rgb) and np.array_equal(obs["depth"], frame.depth)
-        assert float(obs["t"]) == simulator.t and tuple(obs["attitude"]) == simulator.attitude
+        assert np.array_equal(obs["rgb"], frame.rgb) and np.array_equal(obs["depth"][..., 0], frame.depth)
+        assert obs["t"][0] == simulator.t and tuple(obs["attitude"]) == simulator.attitude
         obs, reward, *_ = env.step(np.array([0.4, 0.1]))
         s = info["s"]
         _, info = simulator.step((0.4, 0.1))
@@ -271,7 +272,7 @@ def test_obs_keys_pick_the_observation_and_its_space() -> None:
     check_env(env, skip_render_check=True)
     obs, info = env.reset(seed=2)
     assert sorted(obs) == ["depth", "mask"] and env.observation_space.contains(obs)
-    assert obs["mask"].dtype == np.uint8 and np.array_equal(obs["mask"].astype(bool), info["mask"])
+    assert obs["mask"].dtype == np.uint8 and np.array_equal(obs["mask"][..., 0].astype(bool), info["mask"])
 
 
 def test_observations_without_rgb_are_rendered_without_colour() -> None:
@@ -309,7 +310,7 @@ def test_a_shipped_model_name_gives_its_mask_of_each_colour_frame(exported, tmp_
     obs, _ = env.reset(seed=4)
     for _ in range(3):
         assert obs["model_mask"].dtype == np.uint8 and env.observation_space.contains(obs)
-        assert np.array_equal(obs["model_mask"], reference.segment(obs["rgb"]).astype(np.uint8))
+        assert np.array_equal(obs["model_mask"][..., 0], reference.segment(obs["rgb"]).astype(np.uint8))
         assert 0 < obs["model_mask"].mean() < 1  # a mask with content: the comparison can tell frames apart
         obs, *_ = env.step(np.array([0.4, 0.0]))
     masks_only = RowFollowEnv(
@@ -374,7 +375,7 @@ def test_make_vec_sync_and_async_agree_and_seed_each_env() -> None:
         "segmin/RowFollow-v0", num_envs=2, vectorization_mode="async", vector_kwargs={"context": "spawn"}, **options
     )
     try:
-        assert vec.observation_space.contains(first[0]) and vec.single_observation_space["mask"].shape == (24, 32)
+        assert vec.observation_space.contains(first[0]) and vec.single_observation_space["mask"].shape == (24, 32, 1)
         from_async = _rollout(vec, seed=7)
     finally:
         vec.close()
