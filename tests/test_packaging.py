@@ -182,3 +182,20 @@ def test_a_moved_module_still_imports_for_one_release_with_a_warning(old: str, n
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert f"{old} moved to {new}" in result.stdout
+
+
+def test_the_ros2_parameter_files_ship_from_the_ros_package_folder() -> None:
+    """The ROS 2 parameter files have one copy, in the ROS 2 package (ros/segmin_ros/config, which
+    colcon installs): the wheel installs the same folder as segmin.configs.ros2, and nothing else of
+    ros/ (the ROS 2 package is built by colcon, not pip)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert setup["package-dir"]["segmin.configs.ros2"] == "ros/segmin_ros/config"
+    assert [name for name, folder in setup["package-dir"].items() if folder.startswith("ros")] == [
+        "segmin.configs.ros2"
+    ]
+    files = sorted((root / "ros" / "segmin_ros" / "config").iterdir())
+    assert files and all(any(f.match(p) for p in setup["package-data"]["segmin.configs.ros2"]) for f in files)
+    assert not (root / "configs" / "ros2").exists()
