@@ -199,3 +199,22 @@ def test_the_ros2_parameter_files_ship_from_the_ros_package_folder() -> None:
     files = sorted((root / "ros" / "segmin_ros" / "config").iterdir())
     assert files and all(any(f.match(p) for p in setup["package-data"]["segmin.configs.ros2"]) for f in files)
     assert not (root / "configs" / "ros2").exists()
+
+
+def test_the_ros2_package_executable_without_segmin_names_the_pip_install(tmp_path: Path) -> None:
+    """segmin_ros does not vendor segmin: in a ROS 2 Python without it, `ros2 run segmin_ros follow`
+    says in one line what to install instead of a traceback."""
+    follow = Path(__file__).resolve().parent.parent / "ros" / "segmin_ros" / "segmin_ros" / "follow.py"
+    code = BLOCKER.format(blocked=("segmin",)) + f"import runpy; runpy.run_path({str(follow)!r}, run_name='__main__')"
+    result = subprocess.run(
+        [sys.executable, "-c", code, "--params", "x.yaml"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip().splitlines() == [
+        "follow: error: segmin_ros needs segmin in the Python of the robot's ROS 2: pip install 'segmin[ros]'"
+    ]
