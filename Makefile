@@ -21,10 +21,11 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 # The ROS 2 node under a real rclpy, in an environment of its own (never .venv), each DDS
-# process in a loopback-only network namespace (needs root for unshare -n).
+# process in a loopback-only network namespace (needs root for unshare -n); the ROS 2 package
+# (ros/segmin_ros) built with colcon and its installed node started as its launch file says.
 test-ros2: $(STAMP)
 	bash .ci/ros_env.sh $(ROS_ENV)
-	SEGMIN_ROS_ENV=$(abspath $(ROS_ENV)) $(PY) -m pytest -q -m ros2 tests/test_ros2_node.py
+	SEGMIN_ROS_ENV=$(abspath $(ROS_ENV)) $(PY) -m pytest -q -m ros2 tests/test_ros2_node.py tests/test_ros2_package.py
 
 demo: $(STAMP)
 	$(VENV)/bin/segmin pipeline --config quick --out runs/demo

@@ -2,7 +2,7 @@
 
 Usage (inside a network namespace holding only loopback, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST):
 
-    ROSENV/bin/python tests/ros2_driver.py BAG PARAMS OUT.json
+    ROSENV/bin/python tests/ros2_driver.py BAG PARAMS OUT.json [NODE_COMMAND.json]
 
 The node runs with `publish_frame_acks`: the player publishes each image message at its recorded
 time (or later) and waits for the node's acknowledgement before the next, so the node takes every
@@ -21,6 +21,10 @@ offset so that each phase's stamps come after the last):
    commands again after it (the node alive);
 5. a bad parameter (follower.navigator.v_max = -1) -> refused with its reason, the node alive;
 6. ~/enable false -> one stop, then silence.
+
+With NODE_COMMAND.json (a JSON list: the command that starts the node, as the ROS 2 package's
+launch file describes it), the node is started that way instead, and only phases 1 and 2 run: the
+package's tests compare its commands; the other phases are the node's own.
 
 Writes what it saw as JSON; the test asserts on it. rclpy is imported only here, never by pytest.
 """
@@ -208,12 +212,12 @@ def stop(node: subprocess.Popen) -> tuple[int, str]:
     return code, node.stdout.read() if node.stdout else ""
 
 
-def with_node(params: Path, out: Path, driver: Driver, result: dict, phases) -> None:
-    """Start the node on `params`, wait for its services, run `phases(driver)`, then stop the node
-    and write `result` with what `driver` received and the node's exit code and log to `out`."""
+def with_node(params: Path, out: Path, driver: Driver, result: dict, phases, command: list[str] | None = None) -> None:
+    """Start the node on `params` (or by `command`), wait for its services, run `phases(driver)`, then
+    stop the node and write `result` with what `driver` received and the node's exit code and log to `out`."""
     segmin = Path(sys.executable).with_name("segmin")
     node = subprocess.Popen(
-        [str(segmin), "ros2", "follow", "--params", str(params)],
+        command or [str(segmin), "ros2", "follow", "--params", str(params)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -234,16 +238,18 @@ def with_node(params: Path, out: Path, driver: Driver, result: dict, phases) -> 
 
 def main() -> int:
     bag, params, out = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+    command = json.loads(Path(sys.argv[4]).read_text()) if len(sys.argv) > 4 else None
     frames, bag_commands = read_bag(bag)
     rclpy.init()
     result: dict = {"bag_commands": bag_commands, "phases": {}}
 
     def phases(driver: Driver) -> None:
         disabled_then_bag(driver, frames, result)
-        stall_and_bad_input(driver, frames, result)
-        disable(driver, frames, result)
+        if command is None:
+            stall_and_bad_input(driver, frames, result)
+            disable(driver, frames, result)
 
-    with_node(params, out, Driver(), result, phases)
+    with_node(params, out, Driver(), result, phases, command)
     return 0
 
 

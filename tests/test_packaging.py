@@ -182,3 +182,39 @@ def test_a_moved_module_still_imports_for_one_release_with_a_warning(old: str, n
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert f"{old} moved to {new}" in result.stdout
+
+
+def test_the_ros2_parameter_files_ship_from_the_ros_package_folder() -> None:
+    """The ROS 2 parameter files have one copy, in the ROS 2 package (ros/segmin_ros/config, which
+    colcon installs): the wheel installs the same folder as segmin.configs.ros2, and nothing else of
+    ros/ (the ROS 2 package is built by colcon, not pip)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    setup = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert setup["package-dir"]["segmin.configs.ros2"] == "ros/segmin_ros/config"
+    assert [name for name, folder in setup["package-dir"].items() if folder.startswith("ros")] == [
+        "segmin.configs.ros2"
+    ]
+    files = sorted((root / "ros" / "segmin_ros" / "config").iterdir())
+    assert files and all(any(f.match(p) for p in setup["package-data"]["segmin.configs.ros2"]) for f in files)
+    assert not (root / "configs" / "ros2").exists()
+
+
+def test_the_ros2_package_executable_without_segmin_names_the_pip_install(tmp_path: Path) -> None:
+    """segmin_ros does not vendor segmin: in a ROS 2 Python without it, `ros2 run segmin_ros follow`
+    says in one line what to install instead of a traceback."""
+    follow = Path(__file__).resolve().parent.parent / "ros" / "segmin_ros" / "segmin_ros" / "follow.py"
+    code = BLOCKER.format(blocked=("segmin",)) + f"import runpy; runpy.run_path({str(follow)!r}, run_name='__main__')"
+    result = subprocess.run(
+        [sys.executable, "-c", code, "--params", "x.yaml"],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip().splitlines() == [
+        "follow: error: segmin_ros needs segmin in the Python of the robot's ROS 2: pip install 'segmin[ros]'"
+    ]

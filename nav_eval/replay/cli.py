@@ -74,7 +74,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         type=Path,
         default=None,
         help="follower config YAML (method, navigator, runtime, camera), or a ROS 2 parameter file with a follower "
-        "section such as configs/ros2/jackal_d435.yaml (default: the defaults, method segmind)",
+        "section such as the shipped jackal_d435.yaml (segmin configs copy jackal_d435; default: the defaults, method "
+        "segmind)",
     )
     for flag, (key, kind, what) in SHORTCUTS.items():
         choices = METHODS if flag == "method" else None

@@ -34,11 +34,21 @@ _SINGULAR = {
 }
 
 
+# Kinds kept outside configs/ in the repository: the ROS 2 parameter files are the ROS 2 package's
+# (ros/segmin_ros/config, which colcon installs for the launch file), one copy that the wheel also
+# installs as segmin/configs/ros2 (pyproject's package-dir). An editable install has no such
+# folder: it reads them in the checkout, beside configs/.
+_CHECKOUT_FOLDERS = {"ros2": Path("ros", "segmin_ros", "config")}
+
+
 def shipped_dir(kind: str) -> Path:
     """The folder of one kind of shipped config (a real folder: segmin installs unzipped)."""
     if kind not in KINDS:
         raise ConfigError(f"unknown config kind {kind!r} (kinds: {', '.join(KINDS)})")
-    return Path(str(files("segmin.configs") / kind))
+    configs = Path(str(files("segmin.configs")))
+    if not (configs / kind).is_dir() and kind in _CHECKOUT_FOLDERS:
+        return configs.parent / _CHECKOUT_FOLDERS[kind]
+    return configs / kind
 
 
 def shipped_names(kind: str) -> list[str]:

@@ -1,0 +1,1 @@
+"""segmin's row follower as a ROS 2 package: the node itself is segmin's (from pip)."""
