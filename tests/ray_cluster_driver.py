@@ -5,13 +5,14 @@ Usage (inside a network namespace holding only loopback): `python tests/ray_clus
 Starts a head (`ray start --head`) and a worker node joining it, one CPU each, both on 127.0.0.1,
 with token authentication (`RAY_AUTH_MODE=token`, one `RAY_AUTH_TOKEN` for the nodes and every
 driver), then runs `segmin synth render`, `nav-eval` and `robustness` with `--executor ray
---ray-address` and with the local pool, and a Ray nav-eval and render during which the worker
+--ray-address` and with the local pool, and a Ray nav-eval and render during each of which a worker
 node is killed (its `ray start --block` process and every process under it: raylet, actors) once the first result is
 written. Writes which outputs equal the local pool's as JSON; the test asserts on it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -28,6 +29,9 @@ PORT = 6390
 ADDRESS = f"127.0.0.1:{PORT}"
 RAY = [sys.executable, "-m", "ray.scripts.scripts"]
 NODE = ["--node-ip-address=127.0.0.1", "--num-cpus=1", "--object-store-memory=80000000", "--disable-usage-stats"]
+# 40 frames: 4 jobs of 10 (a render job is one appearance block), so each node holds one when it is lost.
+RENDER = ["synth", "render", "--world", "straight_vineyard", "--size", "48", "--frames", "40", "--workers", "2"]
+NAV_EVAL = ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--methods", "segmin", "--runs", "4"]
 NAV = ["perception.width=32", "perception.height=32", "run.length_m=1.0", "run.time_limit_s=8"]
 # The head declares a lost node dead after about 1.5 s (Ray's default is about 15 s).
 HEALTH = {
@@ -52,18 +56,20 @@ def table(path: Path) -> list[dict[str, str]]:
         return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(handle)]
 
 
-def start_cluster(temp: Path) -> subprocess.Popen:
-    """The head (background daemons) and the worker node (`--block`, in a session of its own to kill)."""
+def start_head(temp: Path) -> None:
+    """The head node (daemons in the background, its files under `temp`)."""
     subprocess.run(
         [*RAY, "start", "--head", f"--port={PORT}", "--include-dashboard=false", f"--temp-dir={temp}", *NODE],
         check=True,
         stdout=subprocess.DEVNULL,
     )
+
+
+def start_worker() -> subprocess.Popen:
+    """A worker node joining the head (`--block`: its processes live under this one, to kill),
+    once the cluster counts two live nodes."""
     worker = subprocess.Popen(
-        [*RAY, "start", f"--address={ADDRESS}", "--block", *NODE],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        [*RAY, "start", f"--address={ADDRESS}", "--block", *NODE], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     import ray
 
@@ -97,17 +103,18 @@ def descendants(root: int) -> list[int]:
     return found
 
 
-def kill_node_when(worker: subprocess.Popen, results: Path, command: list[str]) -> int:
-    """Run `segmin COMMAND` and kill the worker node once a first result is in the folder `results`;
-    the command's exit status."""
+def kill_node_when(worker: subprocess.Popen, results: Path, pattern: str, command: list[str]) -> int:
+    """Run `segmin COMMAND` and kill the worker node once a first result (`pattern`) is in the
+    folder `results`; the command's exit status."""
     job = subprocess.Popen([sys.executable, "-m", "segmin.app.cli", *command, "--no-progress"])
-    while not (results.is_dir() and any(results.iterdir())):
+    while not any(results.glob(pattern)):
         if job.poll() is not None:
             raise RuntimeError(f"{command[0]} ended before its first result was written")
         time.sleep(0.05)
-    for pid in descendants(worker.pid):
-        os.kill(pid, signal.SIGKILL)
-    os.kill(worker.pid, signal.SIGKILL)
+    for pid in [*descendants(worker.pid), worker.pid]:
+        with contextlib.suppress(ProcessLookupError):  # ended meanwhile
+            os.kill(pid, signal.SIGKILL)
+    worker.wait()
     return job.wait(timeout=120)
 
 
@@ -118,43 +125,18 @@ def main() -> None:
     on_ray = ["--executor", "ray", "--ray-address", ADDRESS]
     seen: dict[str, object] = {}
     temp = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths live under it
-    worker = None
+    workers: list[subprocess.Popen] = []
     try:
-        worker = start_cluster(temp)
+        start_head(temp)
+        workers.append(start_worker())
         seen["nodes"] = 2
-        render_args = [
-            "synth",
-            "render",
-            "--world",
-            "straight_vineyard",
-            "--size",
-            "32",
-            "--frames",
-            "6",
-            "--workers",
-            "2",
-        ]
-        segmin(*render_args, "--out", str(work / "render_local"))
-        segmin(*render_args, "--out", str(work / "render_ray"), *on_ray)
+        segmin(*RENDER, "--out", str(work / "render_local"))
+        segmin(*RENDER, "--out", str(work / "render_ray"), *on_ray)
         local_frames = tree(work / "render_local")
         seen["frames"] = sum(name.endswith(".png") for name in local_frames)
         seen["render_equal"] = tree(work / "render_ray") == local_frames
 
-        nav_args = [
-            "nav-eval",
-            "--model",
-            "oracle",
-            "--field",
-            "straight_vineyard",
-            "--methods",
-            "segmin",
-            "--runs",
-            "4",
-            "--workers",
-            "2",
-            "--no-plots",
-            *NAV,
-        ]
+        nav_args = [*NAV_EVAL, "--workers", "2", "--no-plots", *NAV]
         segmin(*nav_args, "--out", str(work / "nav_local"))
         segmin(*nav_args, "--out", str(work / "nav_ray"), *on_ray)
         local_results = table(work / "nav_local" / "results.csv")
@@ -181,11 +163,18 @@ def main() -> None:
         seen["sweep_equal"] = table(work / "sweep_ray" / "sweep.csv") == table(work / "sweep_local" / "sweep.csv")
 
         lost = work / "nav_lost"
-        seen["exit_after_loss"] = kill_node_when(worker, lost / "runs", [*nav_args, "--out", str(lost), *on_ray])
+        seen["exit_after_loss"] = kill_node_when(workers[-1], lost, "runs/*", [*nav_args, "--out", str(lost), *on_ray])
         seen["nav_equal_after_loss"] = table(lost / "results.csv") == local_results
+
+        workers.append(start_worker())
+        lost = work / "render_lost"
+        seen["render_exit_after_loss"] = kill_node_when(
+            workers[-1], lost, "**/*.png", [*RENDER, "--out", str(lost), *on_ray]
+        )
+        seen["render_equal_after_loss"] = tree(lost) == local_frames
     finally:
         subprocess.run([*RAY, "stop", "--force"], check=False, capture_output=True)
-        if worker is not None:
+        for worker in workers:
             worker.wait(timeout=30)
         shutil.rmtree(temp, ignore_errors=True)
     out.write_text(json.dumps(seen))

@@ -1,7 +1,7 @@
 """`--executor ray` on a real cluster: a head and a worker node started with `ray start` on
 loopback, token authentication on, inside a network namespace holding only `lo` (root:
 `unshare -n`), so nothing reaches past the machine. The render, nav-eval and robustness outputs
-equal the local pool's, and losing the worker node in the middle of a nav-eval loses no run
+equal the local pool's, and losing the worker node in the middle of a nav-eval or a render loses no run and no frame
 (`tests/ray_cluster_driver.py` does the work; this checks what it saw)."""
 
 from __future__ import annotations
@@ -38,10 +38,11 @@ def cluster_run(tmp_path_factory) -> dict:
 
 def test_a_two_node_cluster_gives_the_local_pools_outputs(cluster_run) -> None:
     assert cluster_run["nodes"] == 2
-    assert cluster_run["frames"] == 18 and cluster_run["render_equal"], cluster_run
+    assert cluster_run["frames"] == 120 and cluster_run["render_equal"], cluster_run
     assert cluster_run["runs"] == 4 and cluster_run["nav_errors"] == 0 and cluster_run["nav_equal"], cluster_run
     assert cluster_run["sweep_rows"] == 2 and cluster_run["sweep_equal"], cluster_run
 
 
-def test_losing_the_worker_node_mid_job_loses_no_run(cluster_run) -> None:
+def test_losing_the_worker_node_mid_job_loses_no_run_and_no_frame(cluster_run) -> None:
     assert cluster_run["exit_after_loss"] == 0 and cluster_run["nav_equal_after_loss"], cluster_run
+    assert cluster_run["render_exit_after_loss"] == 0 and cluster_run["render_equal_after_loss"], cluster_run
