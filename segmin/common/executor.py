@@ -14,7 +14,9 @@ progress bar) on its side of `done`; the executor only decides where `worker.run
   that does not answer within `RAY_CONNECT_TIMEOUT_S` is one line naming it (Ray itself retries
   for minutes, printing only its own retry lines).
 
-A job whose worker dies (or raises) becomes `failed(job, why)`, on either executor.
+A job whose worker raises becomes `failed(job, why)`, on either executor; so does a job whose
+local worker process dies. On Ray, a job whose actor dies (its node lost) is run again on another
+actor (`MAX_ATTEMPTS`), and the dead actor is replaced, so losing a node loses no job.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import socket
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
@@ -77,6 +79,9 @@ class RayHost:
 
     def __init__(self, make_worker: Callable[[], JobWorker[Any, Any]]) -> None:
         self.worker = make_worker()
+
+    def ready(self) -> None:
+        """Returns once the worker is made: a replacement actor takes jobs only then."""
 
     def run(self, job: Any) -> Any:
         return self.worker.run(job)
@@ -152,6 +157,73 @@ def connect_ray(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S, s
     return True
 
 
+MAX_ATTEMPTS = 3
+"""How many times a job is started when the Ray actors running it die (their node lost, killed):
+it goes back to the queue for another actor until then, so a lost node loses no job, while a job
+that itself kills its worker (a crash, every time) fails after that many tries."""
+
+ACTOR_START_TIMEOUT_S = 60.0
+"""How long jobs left with no actor running wait for a replacement actor to start (a lost node's
+actors start again wherever a CPU is free) before they fail."""
+
+
+class _RayPool:
+    """The driver's side of a Ray run: the job queue, the actors and what each one runs."""
+
+    def __init__(self, ray: Any, jobs: Sequence[Any], make_worker: Callable[[], JobWorker[Any, Any]]) -> None:
+        self.ray = ray
+        self.host = ray.remote(num_cpus=1)(RayHost)
+        self.make_worker = make_worker
+        self.pending: deque[tuple[int, Any]] = deque(enumerate(jobs))
+        self.losses: Counter[int] = Counter()  # job index -> how many actors died running it
+        self.started: list[Any] = []  # every actor, to kill at the end
+        self.starting: dict[Any, Any] = {}  # ready ref -> a replacement actor not yet known to run
+        self.running: dict[Any, tuple[Any, int, Any]] = {}  # result ref -> (actor, job index, job)
+        self.idle: list[Any] = []  # live actors with no job (the queue was empty when they asked)
+
+    def start_actor(self) -> Any:
+        actor = self.host.remote(self.make_worker)
+        self.started.append(actor)
+        return actor
+
+    def next_job(self, actor: Any) -> None:
+        """Give `actor` the next job, or keep it idle."""
+        if self.pending:
+            index, job = self.pending.popleft()
+            self.running[actor.run.remote(job)] = (actor, index, job)
+        else:
+            self.idle.append(actor)
+
+    def lost(self, index: int, job: Any) -> bool:
+        """The actor running `job` died: queue the job again (True) unless it has had its
+        `MAX_ATTEMPTS`, and start a replacement actor."""
+        self.losses[index] += 1
+        again = self.losses[index] < MAX_ATTEMPTS
+        if again:
+            self.pending.appendleft((index, job))
+        replacement = self.start_actor()
+        self.starting[replacement.ready.remote()] = replacement
+        while self.idle and self.pending:
+            self.next_job(self.idle.pop())
+        return again
+
+    def wait(self) -> Any | None:
+        """The next finished job or started replacement; None when none comes (every actor died,
+        and no replacement found a CPU within `ACTOR_START_TIMEOUT_S`) or nothing is left to do."""
+        if not self.running and not (self.pending and self.starting):
+            return None
+        timeout = None if self.running else ACTOR_START_TIMEOUT_S
+        ready, _ = self.ray.wait([*self.running, *self.starting], num_returns=1, timeout=timeout)
+        return ready[0] if ready else None
+
+    def close(self) -> None:
+        """Close the workers of the live actors, then kill every actor."""
+        closing = [actor.close.remote() for actor in self.idle]
+        self.ray.wait(closing, num_returns=len(closing), timeout=60)
+        for actor in self.started:
+            self.ray.kill(actor)
+
+
 def run_on_ray(
     jobs: Sequence[J],
     make_worker: Callable[[], JobWorker[J, R]],
@@ -161,44 +233,47 @@ def run_on_ray(
     address: str | None,
     source: str = "--ray-address",
 ) -> None:
-    """`run_in_processes` on Ray actors: each actor takes the next job as soon as it returns one."""
+    """`run_in_processes` on Ray actors: each actor takes the next job as soon as it returns one.
+
+    A job whose actor dies under it (its node lost) goes back to the front of the queue, for the
+    next free actor, up to `MAX_ATTEMPTS` starts; each dead actor is replaced by a new one, which
+    Ray places wherever a CPU is free, so the outputs equal a run without the failure."""
     ray = import_ray()
     connected = connect_ray(address, source=source)
-    host = ray.remote(num_cpus=1)(RayHost)
-    pending = deque(jobs)
-    started = [host.remote(make_worker) for _ in range(min(actors, len(pending)))]
-    running: dict[Any, tuple[Any, J]] = {}  # result ref -> (actor, job)
-    dead: list[Any] = []
-
-    def next_job(actor: Any) -> None:
-        if pending:
-            job = pending.popleft()
-            running[actor.run.remote(job)] = (actor, job)
-
+    lost_errors = (ray.exceptions.RayActorError, ray.exceptions.ObjectLostError)
+    pool = _RayPool(ray, jobs, make_worker)
     try:
-        for actor in started:
-            next_job(actor)
-        while running:
-            [ref], _ = ray.wait(list(running), num_returns=1)
-            actor, job = running.pop(ref)
+        for _ in range(min(actors, len(jobs))):
+            pool.next_job(pool.start_actor())
+        while (ref := pool.wait()) is not None:
+            if ref in pool.starting:  # a replacement actor is up, or died starting
+                actor = pool.starting.pop(ref)
+                try:
+                    ray.get(ref)
+                except lost_errors:
+                    continue
+                pool.next_job(actor)
+                continue
+            actor, index, job = pool.running.pop(ref)
             try:
                 result = ray.get(ref)
-            except ray.exceptions.RayActorError as exc:  # the actor (its process or node) died
-                dead.append(actor)
-                done(job, failed(job, f"the Ray actor died during this run: {_cause_line(exc)}"))
+            except lost_errors as exc:  # the actor (its process or node) died, or its result went with its node
+                if not pool.lost(index, job):
+                    done(
+                        job,
+                        failed(job, f"the Ray actor died during this run ({MAX_ATTEMPTS} times): {_cause_line(exc)}"),
+                    )
                 continue
             except ray.exceptions.RayTaskError as exc:  # the worker raised: the actor lives on
                 done(job, failed(job, f"the worker raised: {_cause_line(exc)}"))
             else:
                 done(job, result)
-            next_job(actor)
-        while pending:  # every actor died: nothing runs these
-            job = pending.popleft()
-            done(job, failed(job, "no Ray actor left to run it (they all died)"))
-        ray.get([actor.close.remote() for actor in started if actor not in dead], timeout=60)
+            pool.next_job(actor)
+        while pool.pending:  # no actor left to run these
+            _, job = pool.pending.popleft()
+            done(job, failed(job, "no Ray actor left to run it (they all died, and none could start again)"))
     finally:
-        for actor in started:
-            ray.kill(actor)
+        pool.close()
         if connected:
             ray.shutdown()
 
