@@ -7,24 +7,13 @@ equal the local pool's, and losing the worker node in the middle of a nav-eval o
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from loopback import in_loopback_namespace
 
 DRIVER = Path(__file__).with_name("ray_cluster_driver.py")
-
-
-def in_loopback_namespace(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
-    """argv run in a new network namespace with only loopback up; fails the test where none can be made."""
-    probe = subprocess.run(["unshare", "-n", "ip", "-o", "link", "show"], capture_output=True, text=True, check=False)
-    if probe.returncode != 0:
-        pytest.fail(f"cannot make a network namespace (unshare -n, needs root): {probe.stderr.strip()}")
-    if [line.split(":")[1].strip() for line in probe.stdout.splitlines()] != ["lo"]:
-        pytest.fail(f"the new network namespace holds more than lo: {probe.stdout}")
-    command = ["unshare", "-n", "bash", "-c", 'ip link set lo up && exec "$@"', "bash", *argv]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
 
 
 @pytest.fixture(scope="module")

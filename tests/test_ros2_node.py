@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 import yaml
 from bag_helpers import depth_message, image_message, write_bag
+from loopback import in_loopback_namespace
 from test_sim_bags import _episode
 
 from segmin.nav_eval.ros2 import topics
@@ -51,27 +52,10 @@ def ros_env() -> Path:
 
 
 def confined(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
-    """Run argv in a new network namespace with only loopback up (fails the test when none can be made)."""
-    probe = subprocess.run(
-        ["unshare", "-n", "bash", "-c", "ip link set lo up && ip -o link show"],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    if probe.returncode != 0:
-        pytest.fail(f"cannot make a loopback-only network namespace (unshare -n, needs root): {probe.stderr.strip()}")
-    links = [line.split(":")[1].strip() for line in probe.stdout.splitlines()]
-    if links != ["lo"]:
-        pytest.fail(f"the network namespace holds {links}, not only lo")
+    """Run argv in a loopback-only network namespace, DDS discovery kept to localhost and no ROS
+    settings of the caller's environment passed on."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "RMW_", "FASTRTPS", "FASTDDS"))}
-    return subprocess.run(
-        ["unshare", "-n", "bash", "-c", CONFINE, "bash", *argv],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env=env,
-        check=False,
-    )
+    return in_loopback_namespace(argv, timeout, script=CONFINE, env=env)
 
 
 def _params(path: Path, model: Path, changes: dict[str, object] | None = None, **node: object) -> Path:
