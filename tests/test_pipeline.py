@@ -6,6 +6,7 @@ import hashlib
 import itertools
 import json
 import logging
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -797,6 +798,11 @@ def test_a_run_starts_its_chain_at_a_stage_with_a_model_made_before(
     assert "largest probability difference to the ONNX model" in capsys.readouterr().out
     cache = StageCache(out)
     assert cache.record("train/vineyards/base") is None and not (out / "train" / "vineyards" / "base").exists()
+    # Rendered: no frame of the stage before the given one, the given one's calibration frames alone.
+    rendered = cache.record("render").outputs["worlds"]["vineyards"]
+    assert {w["stage"] for w in rendered} == {"tree_edges", "by_trees", "validation"}
+    given_frames = [w["frames"] for w in rendered if w["stage"] == "tree_edges"]
+    assert given_frames == [math.ceil(4 / len(given_frames))] * len(given_frames)
     given = cache.record("train/vineyards/tree_edges").outputs
     assert given["kept"] == "given" and given["epochs"] == 0 and given["backbone_weights"] == str(onnx)
     assert not (out / "train" / "vineyards" / "tree_edges" / "metrics.csv").exists()  # nothing trained

@@ -56,7 +56,8 @@ class StartFrom:
     """A model that stands in for a family's chain up to and including `stage`: the stages before
     it are not trained in this run, the named stage's model is this one, scored on the held-out
     frames like a trained stage (so a gated candidate after it is judged against it), and the
-    stages after it fine-tune from it. The data the family renders stays the whole recipe's.
+    stages after it fine-tune from it. The run renders no frame for the stages before it, and for
+    it only the calibration frames (`stages.rendered_chain`).
 
     `model`: a shipped model name or a segmin fp32 ONNX file (its BatchNorm statistics measured
     again on `calibration_frames` of that stage's training frames, as `segmin models to-torch`

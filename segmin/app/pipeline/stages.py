@@ -63,19 +63,35 @@ def world_specs(config: PipelineConfig) -> dict[str, dict[str, Any]]:
 
     specs: dict[str, dict[str, Any]] = {}
     for family, plan in config.families.items():
-        for step in config.training_chain(family):
+        for step, frames in rendered_chain(config, family):
             for name in step.worlds:
                 spec = to_dict(load_world_spec(name))
-                if step.render_split == "train":
+                if step.render_split == "train" and step.given is None:
                     specs[f"{family}/train/{name}"] = spec
                 else:
-                    specs[f"{family}/{step.render_split}/{name}"] = {**spec, "frames": step.frames_per_world}
+                    specs[f"{family}/{step.render_split}/{name}"] = {**spec, "frames": frames}
         for name in plan.val_worlds:
             specs[f"{family}/val/{name}"] = to_dict(load_world_spec(name, _world_overrides(config, name, "val")))
         for entry in plan.validation:
             spec = to_dict(load_world_spec(entry.world, validation_overrides(entry)))
             specs[f"{family}/val/{entry.world}@{entry.seed}"] = {**spec, "frames": entry.frames}
     return specs
+
+
+def rendered_chain(config: PipelineConfig, family: str) -> list[tuple[TrainStep, int]]:
+    """The training stages whose frames this run renders, each with its frames per world.
+
+    Every stage the run trains gets the recipe's count. A stage `start_from` gives trains nothing:
+    it gets only the frames its BatchNorm statistics are measured on (`calibration_frames`, spread
+    over its worlds), and the stages before it none, since their models were made in another run.
+    """
+    rendered = []
+    for step in config.run_chain(family):
+        frames = step.frames_per_world
+        if step.given is not None:
+            frames = min(frames, math.ceil(step.given.calibration_frames / len(step.worlds)))
+        rendered.append((step, frames))
+    return rendered
 
 
 def render_inputs(config: PipelineConfig) -> tuple[Any, ...]:
@@ -113,8 +129,8 @@ def _render_jobs(
     """(render folder, training stage or None for validation, world, frames, spec overrides) of
     every world the family renders: each training stage's, then the validation worlds."""
     jobs: list[tuple[str, str | None, str, int, list[str]]] = [
-        (step.render_split, step.name, name, step.frames_per_world, [])
-        for step in config.training_chain(family)
+        (step.render_split, step.name, name, frames, [])
+        for step, frames in rendered_chain(config, family)
         for name in step.worlds
     ]
     jobs += [
@@ -140,7 +156,7 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
     outputs: dict[str, Any] = {"domains": {}, "training_sets": {}, "worlds": {}}
     for family, plan in config.families.items():
         sets: dict[str, dict[str, Any]] = {
-            step.name: {"root": step.render_split, "domains": []} for step in config.training_chain(family)
+            step.name: {"root": step.render_split, "domains": []} for step, _ in rendered_chain(config, family)
         }
         val_domains: list[str] = []
         worlds: list[dict[str, Any]] = []
@@ -169,7 +185,8 @@ def render_stage(config: PipelineConfig, folder: Path, *, overwrite: bool, log) 
                     "frames": frames,
                 }
             )
-        outputs["domains"][family] = {"train": sets[FIRST_STAGE]["domains"], "val": val_domains}
+        first = sets.get(FIRST_STAGE, {"domains": []})  # none when `start_from` gives a later stage
+        outputs["domains"][family] = {"train": first["domains"], "val": val_domains}
         outputs["training_sets"][family] = sets
         outputs["worlds"][family] = worlds
     sheet = folder / "contact_sheet.png"
