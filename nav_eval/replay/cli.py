@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.nav_eval.live.options import add_live_options, live_view
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 
 if TYPE_CHECKING:
@@ -95,6 +96,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "else level ground)",
     )
     replay.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    add_live_options(replay)
     replay.add_argument("--out", type=Path, required=True, help="output folder (must be empty unless --force)")
     replay.add_argument("--force", action="store_true", help="write into a non-empty --out")
     add_overrides(replay, example="navigator.depth_threshold=8")
@@ -177,7 +179,20 @@ def _replay(args: argparse.Namespace) -> int:
     if args.mask_closing is not None:
         check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
     follower = follower_of(args)
-    result = replay(
+    with live_view(args) as live:
+        result = _run(args, follower, replay, live)
+    valid = sum(row[4] for row in result.commands)
+    print(f"replay: {result.frames} frames, {len(result.commands)} commands ({valid} valid) with {follower.method}")
+    for note in result.notes:
+        print(f"note: {note}")
+    for path in result.files:
+        print(f"wrote {path}")
+    return 0
+
+
+def _run(args: argparse.Namespace, follower: FollowerConfig, replay: Any, live: Any) -> Any:
+    """The replay of the command line's sequence, streamed to `live` (None: not)."""
+    return replay(
         args.model,
         args.rgb,
         args.out,
@@ -190,11 +205,5 @@ def _replay(args: argparse.Namespace) -> int:
         timestamps=args.timestamps,
         force=args.force,
         threads=args.threads,
+        live=live,
     )
-    valid = sum(row[4] for row in result.commands)
-    print(f"replay: {result.frames} frames, {len(result.commands)} commands ({valid} valid) with {follower.method}")
-    for note in result.notes:
-        print(f"note: {note}")
-    for path in result.files:
-        print(f"wrote {path}")
-    return 0

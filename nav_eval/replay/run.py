@@ -135,13 +135,15 @@ def replay(
     segmenter: Any = None,
     source: FrameSource | None = None,
     imu: ImuTrack | None = None,
+    live: Any = None,
 ) -> ReplayResult:
     """Run the runtime over the sequence and write the outputs (see the module docstring).
 
         The runtime is `follower` on `camera` (SegCorridor's; None: the config's intrinsics), or
         for the paper's methods `method`, `depth_threshold`, `mask_closing` and `runtime`. The
         sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then); `imu`
-    gives the attitude at each frame to a navigator that levels its points (SegCorridor)."""
+    gives the attitude at each frame to a navigator that levels its points (SegCorridor); `live`
+    (a `live.publisher.LiveView`) is given every step, for `--live`."""
     if str(model) == "oracle":
         raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
     follower = follower or _paper_follower(method, depth_threshold, mask_closing, runtime)
@@ -173,6 +175,8 @@ def replay(
         except ValueError as exc:
             raise ValueError(f"frame {name}: {exc}") from None
         restarts += output.stopped == "frame_timeout"
+        if live is not None:
+            live.step(t, image, output, navigator)
         if output.fresh:
             cmd = output.command
             if output.stopped in REASONS:
