@@ -83,7 +83,9 @@ class LiveClient:
                     self._control(socket_, json.loads(frame), subscriptions, time.perf_counter() - start)
                 elif frame[0] == MESSAGE_DATA:
                     sub, log_time = struct.unpack_from("<IQ", frame, 1)
-                    self.received.messages.append((subscriptions[sub], log_time, bytes(frame[13:]), time.perf_counter() - start))
+                    self.received.messages.append(
+                        (subscriptions[sub], log_time, bytes(frame[13:]), time.perf_counter() - start)
+                    )
 
     def _control(self, socket_: Any, op: dict[str, Any], subscriptions: dict[int, str], now: float) -> None:
         """Subscribe to each advertised channel (subscription id = channel id)."""

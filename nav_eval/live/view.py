@@ -86,7 +86,12 @@ class ViewMessages:
         if rgb is not None:
             mask = self._mask if self._mask is not None and self._mask.shape == rgb.shape[:2] else None
             drawn = overlay(rgb, mask, self._column)
-            messages.append((topics.OVERLAY, image_message(self._types, header(self._types, t, topics.OPTICAL_FRAME), drawn, "rgb8")))
+            messages.append(
+                (
+                    topics.OVERLAY,
+                    image_message(self._types, header(self._types, t, topics.OPTICAL_FRAME), drawn, "rgb8"),
+                )
+            )
         if not output.fresh:
             return messages
         messages.append((topics.HISTOGRAM, self.histogram(output.command.histogram)))
@@ -109,7 +114,9 @@ class ViewMessages:
         its x_min and x_max; one DELETEALL marker without a centreline, so no stale line stays."""
         types = self._types
         if centre is None:
-            return types["visualization_msgs/msg/MarkerArray"](markers=[self._marker(t, 0, MARKER_DELETEALL, [], (0, 0, 0))])
+            return types["visualization_msgs/msg/MarkerArray"](
+                markers=[self._marker(t, 0, MARKER_DELETEALL, [], (0, 0, 0))]
+            )
         config = navigator.config
         x = np.linspace(float(config.x_min), float(config.x_max), ROW_SAMPLES)
         y = np.asarray(polyval(x, centre), dtype=float)
@@ -127,7 +134,9 @@ class ViewMessages:
     def path(self, t: float, pose: Any) -> Any:
         """The path so far in odom, `pose` appended."""
         types = self._types
-        self._poses.append(types["geometry_msgs/msg/PoseStamped"](header=header(types, t, topics.ODOM_FRAME), pose=pose))
+        self._poses.append(
+            types["geometry_msgs/msg/PoseStamped"](header=header(types, t, topics.ODOM_FRAME), pose=pose)
+        )
         return types["nav_msgs/msg/Path"](header=header(types, t, topics.ODOM_FRAME), poses=list(self._poses))
 
     def _marker(self, t: float, key: int, action: int, points: list[Any], colour: tuple[float, float, float]) -> Any:

@@ -191,15 +191,21 @@ def replay(
     result.notes.extend(_input_notes(method, has_depth, navigator.inputs.attitude, levels))
     if non_finite:
         result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")
+    result.notes.extend(_stop_notes(fault_stops, restarts, runner.config.frame_timeout_s))
+    return result
+
+
+def _stop_notes(fault_stops: Counter[str], restarts: int, frame_timeout_s: float) -> list[str]:
+    """What stopped the runtime during the replay: sensor faults (commands by reason), gaps between frames."""
+    notes = []
     if fault_stops:
         counts = ", ".join(f"{reason} {count}" for reason, count in fault_stops.items())
-        result.notes.append(f"sensor faults stopped the robot (commands by reason: {counts})")
+        notes.append(f"sensor faults stopped the robot (commands by reason: {counts})")
     if restarts:
-        result.notes.append(
-            f"{restarts} gap(s) longer than {runner.config.frame_timeout_s} s between frames: "
-            "the runtime stopped and restarted there"
+        notes.append(
+            f"{restarts} gap(s) longer than {frame_timeout_s} s between frames: the runtime stopped and restarted there"
         )
-    return result
+    return notes
 
 
 def _input_notes(method: str, has_depth: bool, wants_attitude: bool, imu: ImuTrack | None) -> list[str]:
