@@ -20,8 +20,9 @@ from segmin.nav_eval.ros2 import topics
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
-# What a replay's or the node's live view streams: the view topics and the command.
-LIVE_TYPES = {**VIEW_TYPES, topics.CMD_VEL: "geometry_msgs/msg/Twist"}
+# What a replay's or the node's live view streams: the view topics and the command; no path, as
+# neither has the robot's odometry (nav-eval's live view streams its whole bag, path included).
+LIVE_TYPES = {**{k: v for k, v in VIEW_TYPES.items() if k != topics.PATH}, topics.CMD_VEL: "geometry_msgs/msg/Twist"}
 
 
 def check_port(port: int, option: str, host: str = DEFAULT_HOST) -> None:
