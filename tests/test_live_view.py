@@ -21,12 +21,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from live_client import LiveClient, free_port
+
 from rosbags.typesys import Stores, get_typestore
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 from test_replay_bags import GreenSegmenter
 from test_sim_bags import LENGTH_M, _ImageFrames
 
+from benchmarks.live_client import LiveClient, free_port
 from segmin.app.cli import main
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.live.publisher import LiveView
@@ -194,3 +195,31 @@ def test_nav_eval_live_takes_one_run(tmp_path, capsys) -> None:
     argv = ["nav-eval", "--model", "oracle", "--fields", "curved_vineyard", "--methods", "segmin", "--runs", "2"]
     assert main([*argv, "--out", str(tmp_path), "--live", "--live-port", str(free_port())]) == 2
     assert "--live streams one run" in capsys.readouterr().err
+
+
+def test_the_looked_up_tint_is_the_per_pixel_blend_to_the_bit() -> None:
+    from segmin.data.overlay import GREEN, MAGENTA, tint_mask
+
+    rng = np.random.default_rng(0)
+    for opacity in (0.4, 0.45, 0.5, 0.55):
+        for colour in (GREEN, MAGENTA, (12, 200, 77)):
+            rgb = rng.integers(0, 256, (17, 23, 3), dtype=np.uint8)
+            mask = rng.random((17, 23)) > 0.5
+            keep = round(1.0 - opacity, 6)
+            expected = rgb.copy()
+            expected[mask] = (keep * rgb[mask] + opacity * np.asarray(colour)).astype(np.uint8)
+            assert np.array_equal(tint_mask(rgb, mask, colour, opacity), expected)
+
+
+def test_a_wide_frame_is_drawn_at_the_overlay_width_with_its_mask_and_column() -> None:
+    from segmin.nav_eval.runtime.control import Command
+
+    mask = np.zeros((480, 640), dtype=bool)
+    mask[:, :160] = True
+    output = SimpleNamespace(fresh=True, fused=mask, command=Command(0.5, 0.0, 400.0, np.zeros(640), True))
+    view = ViewMessages(STORE.types)
+    (topic, image), *_ = view.step(0.0, np.zeros((480, 640, 3), dtype=np.uint8), output, None)
+    pixels = image.data.reshape(image.height, image.width, 3)
+    assert (topic, image.width, image.height) == (topics.OVERLAY, 320, 240)
+    assert (pixels[:, :80, 1] > 0).all() and (pixels[:, 81:190, 1] == 0).all()  # the mask, a quarter of the width
+    assert (pixels[:, 199:201] == (255, 0, 0)).all()  # column 400 of 640 at 200 of 320

@@ -37,9 +37,9 @@ class LiveView:
         """Publish the step at `t` (after waiting for it with a `rate`): the overlay of `rgb`, and
         at a command its histogram, rows, /cmd_vel and (given `pose`, a Pose in odom) the path."""
         self._pace(t)
-        for topic, message in self._view.step(t, rgb, output, navigator, pose):
+        for topic, message in self._view.step(t, rgb, output, navigator, pose, wanted=self.server.subscribed):
             self.server.write(topic, t, message)
-        if output.fresh:
+        if output.fresh and self.server.subscribed(topics.CMD_VEL):
             self.server.write(topics.CMD_VEL, t, twist(self._types, output.command.v, output.command.omega))
 
     def _pace(self, t: float) -> None:

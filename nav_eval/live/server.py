@@ -4,8 +4,8 @@ encoding `ros2msg`, the message definition `rosbags` writes), so that Foxglove s
 exactly as it shows a bag of it, with one layout.
 
 Every channel is advertised when the server starts, so a client sees the whole view at once;
-messages go out as the data comes (replay may run faster than real time), serialised only while
-a client subscribes to the channel. foxglove-sdk and rosbags are imported when a server starts
+messages go out as the data comes (replay may run faster than real time); a publisher builds
+them only while a client subscribes (`subscribed`). foxglove-sdk and rosbags are imported when a server starts
 (the [live] extra), never by the robot runtime.
 """
 
@@ -75,11 +75,13 @@ class LiveServer:
             raise ValueError(f"live view: cannot serve on {host}:{port}: {exc}") from None
         self.port = int(self._server.port)
 
+    def subscribed(self, topic: str) -> bool:
+        """Whether a client subscribes to `topic` now: its message is worth building."""
+        return bool(self._channels[topic].has_sinks())
+
     def write(self, topic: str, t: float, message: Any) -> None:
-        """Log `message` on `topic` at `t` seconds (skipped while no client subscribes to it)."""
-        channel = self._channels[topic]
-        if channel.has_sinks():
-            channel.log(bytes(self.store.serialize_cdr(message, self._types[topic])), log_time=nanoseconds(t))
+        """Log `message` on `topic` at `t` seconds."""
+        self._channels[topic].log(bytes(self.store.serialize_cdr(message, self._types[topic])), log_time=nanoseconds(t))
 
     def log(self, topic: str, t: float, data: bytes) -> None:
         """Log an already serialised message (a bag recorder's) on `topic` at `t` seconds."""

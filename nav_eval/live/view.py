@@ -4,19 +4,24 @@ same schemas and one Foxglove layout opens both.
 
 | topic | type | frame | what |
 | --- | --- | --- | --- |
-| /segmin/overlay | sensor_msgs/Image rgb8 | camera_color_optical_frame | each camera frame with the newest command's fused mask (green) and target column (red; a red bar on top: a stop) |
+| /segmin/overlay | sensor_msgs/Image rgb8 | camera_color_optical_frame | each camera frame, at most 320 px wide, with the newest command's fused mask (green) and target column (red; a red bar on top: a stop) |
 | /segmin/histogram | std_msgs/Float32MultiArray | | the command's smoothed column histogram (SegMin, SegMinD, SegZeros; SegCorridor's fallback), one value per column; empty otherwise |
 | /segmin/rows | visualization_msgs/MarkerArray | base_link | SegCorridor's centreline and the rows half its running corridor width to each side; a DELETEALL without a centreline (the paper's methods, the fallback) |
 | /segmin/path | nav_msgs/Path | odom | the robot's poses so far, one per command |
 
-The overlay is drawn by `replay.video.overlay` (the video's drawing), nothing of its own. The
-messages use the ROS 2 Humble types of `rosbags` (the [ros] or [live] extra).
+The overlay is drawn by `replay.video.overlay` (the video's drawing), nothing of its own, on the
+frame scaled down to `OVERLAY_WIDTH`: a view to watch the navigator by, at a quarter of a 640 px
+frame's drawing, serialising and sending (the full frame is the camera topic's). A topic no one
+asks for (`wanted`: the live view's subscriptions) is not built. The messages use the ROS 2
+Humble types of `rosbags` (the [ros] or [live] extra).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+import cv2
 import numpy as np
 
 from segmin.nav_eval.replay.video import overlay
@@ -30,6 +35,7 @@ VIEW_TYPES = {
     topics.ROWS: "visualization_msgs/msg/MarkerArray",
     topics.PATH: "nav_msgs/msg/Path",
 }
+OVERLAY_WIDTH = 320  # px: frames wider than this are scaled down before drawing
 ROW_SAMPLES = 12  # points per drawn line: enough for a quadratic centreline to look smooth
 LINE_WIDTH_M = 0.05
 MARKER_LINE_STRIP, MARKER_ADD, MARKER_DELETEALL = 4, 0, 3  # visualization_msgs/Marker constants
@@ -74,31 +80,50 @@ class ViewMessages:
         self._poses: list[Any] = []
 
     def step(
-        self, t: float, rgb: np.ndarray | None, output: FollowerOutput, navigator: Any, pose: Any | None = None
+        self,
+        t: float,
+        rgb: np.ndarray | None,
+        output: FollowerOutput,
+        navigator: Any,
+        pose: Any | None = None,
+        wanted: Callable[[str], bool] = lambda topic: True,
     ) -> list[tuple[str, Any]]:
         """(topic, message) of one runtime step at `t`: the overlay of `rgb` (none without an
         image) and, at a fresh command, its histogram, its rows (from `navigator`'s running
-        corridor width) and the path with `pose` (a geometry_msgs/Pose in odom; None: no path)."""
+        corridor width) and the path with `pose` (a geometry_msgs/Pose in odom; None: no path);
+        only the topics `wanted` (the path's poses are kept all the same)."""
         messages: list[tuple[str, Any]] = []
         if output.fresh:
             self._mask = output.fused
             self._column = output.command.target_column
-        if rgb is not None:
-            mask = self._mask if self._mask is not None and self._mask.shape == rgb.shape[:2] else None
-            drawn = overlay(rgb, mask, self._column)
-            messages.append(
-                (
-                    topics.OVERLAY,
-                    image_message(self._types, header(self._types, t, topics.OPTICAL_FRAME), drawn, "rgb8"),
-                )
-            )
+        if rgb is not None and wanted(topics.OVERLAY):
+            messages.append((topics.OVERLAY, self.overlay(t, rgb)))
         if not output.fresh:
             return messages
-        messages.append((topics.HISTOGRAM, self.histogram(output.command.histogram)))
-        messages.append((topics.ROWS, self.rows(t, getattr(output.command, "centre", None), navigator)))
+        if wanted(topics.HISTOGRAM):
+            messages.append((topics.HISTOGRAM, self.histogram(output.command.histogram)))
+        if wanted(topics.ROWS):
+            messages.append((topics.ROWS, self.rows(t, getattr(output.command, "centre", None), navigator)))
         if pose is not None:
-            messages.append((topics.PATH, self.path(t, pose)))
+            path = self.path(t, pose)
+            if wanted(topics.PATH):
+                messages.append((topics.PATH, path))
         return messages
+
+    def overlay(self, t: float, rgb: np.ndarray) -> Any:
+        """The frame (scaled to at most `OVERLAY_WIDTH`) with the newest mask and column drawn."""
+        height, width = rgb.shape[:2]
+        mask = self._mask if self._mask is not None and self._mask.shape == (height, width) else None
+        column = self._column
+        if width > OVERLAY_WIDTH:
+            scale = OVERLAY_WIDTH / width
+            size = (OVERLAY_WIDTH, max(1, round(height * scale)))
+            rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+            if mask is not None:
+                mask = cv2.resize(mask.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
+            column = None if column is None else column * scale
+        drawn = overlay(rgb, mask, column)
+        return image_message(self._types, header(self._types, t, topics.OPTICAL_FRAME), drawn, "rgb8")
 
     def histogram(self, values: np.ndarray) -> Any:
         """The histogram as a Float32MultiArray of one dimension, "column"."""

@@ -104,3 +104,20 @@ class LiveClient:
         self._stop.set()
         self._thread.join(timeout=5)
         return self.received
+
+
+def count_in_process(port: int, ready: Any, stop: Any, counts: Any) -> None:
+    """A client in a process of its own (as Foxglove is), for the bench: sets `ready` once
+    subscribed, records until `stop` is set, then puts {topic: messages} on the queue `counts`."""
+    client = LiveClient(port)
+    client.connected.wait(10)
+    while not client.received.channels:
+        time.sleep(0.01)
+    time.sleep(0.1)
+    ready.set()
+    stop.wait()
+    received = client.stop()
+    tally: dict[str, int] = {}
+    for topic, *_ in received.messages:
+        tally[topic] = tally.get(topic, 0) + 1
+    counts.put(tally)
