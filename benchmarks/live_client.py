@@ -16,8 +16,9 @@ from typing import Any
 
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
+from websockets.typing import Subprotocol
 
-SUBPROTOCOL = "foxglove.sdk.v1"
+SUBPROTOCOL = Subprotocol("foxglove.sdk.v1")
 MESSAGE_DATA = 0x01
 
 

@@ -21,7 +21,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
 from rosbags.typesys import Stores, get_typestore
 from test_nav_eval_sim import FakeRenderer, FakeWorld, _config
 from test_replay_bags import GreenSegmenter
