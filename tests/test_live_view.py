@@ -222,3 +222,20 @@ def test_a_wide_frame_is_drawn_at_the_overlay_width_with_its_mask_and_column() -
     assert (topic, image.width, image.height) == (topics.OVERLAY, 320, 240)
     assert (pixels[:, :80, 1] > 0).all() and (pixels[:, 81:190, 1] == 0).all()  # the mask, a quarter of the width
     assert (pixels[:, 199:201] == (255, 0, 0)).all()  # column 400 of 640 at 200 of 320
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        (70000, r"parameter live_port: live_port must be 0 \(off\) or a TCP port"),
+        ("8765", "parameter live_port: expected int"),
+    ],
+)
+def test_the_nodes_live_port_parameter_is_checked(value, message) -> None:
+    from segmin.nav_eval.ros2.params import STARTUP_ONLY, as_values, node_params
+
+    params = node_params({"live_port": 8765})
+    assert params.node.live_port == 8765 and as_values(params)["live_port"] == 8765
+    assert node_params({}).node.live_port == 0 and "live_port" in STARTUP_ONLY  # off unless asked; fixed at start-up
+    with pytest.raises(ValueError, match=message):
+        node_params({"live_port": value})
