@@ -119,11 +119,18 @@ def _episode(method: str, bag: Path | None, live_port: int = 0):
     return episode, got
 
 
-def test_nav_eval_streams_the_topics_schemas_and_messages_of_its_bag(tmp_path) -> None:
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> tuple[Path, object]:
+    """A SegCorridor run in the stand-in world, written as a bag."""
+    bag = tmp_path_factory.mktemp("live") / "run"
+    episode, _ = _episode("segcorridor", bag)
+    return bag, episode
+
+
+def test_nav_eval_streams_the_topics_schemas_and_messages_of_its_bag(recorded) -> None:
     from rosbags.highlevel import AnyReader
 
-    bag = tmp_path / "run"
-    episode, _ = _episode("segcorridor", bag)
+    bag, episode = recorded
     with AnyReader([bag]) as reader:
         schemas = {c.topic: (c.msgtype, c.msgdef.data) for c in reader.connections}
         counts = Counter(c.topic for c, _, _ in reader.messages())
@@ -136,6 +143,30 @@ def test_nav_eval_streams_the_topics_schemas_and_messages_of_its_bag(tmp_path) -
     assert live_episode.commands == episode.commands  # streaming changes nothing of the run
     assert {c["topic"]: (c["schemaName"], c["schema"]) for c in got.channels.values()} == schemas
     assert Counter(name for name, *_ in got.messages) == counts
+
+
+def test_replaying_a_bag_live_streams_its_odometry_as_the_path_and_tf(recorded, tmp_path, capsys) -> None:
+    from segmin.nav_eval.replay.bags import bag_poses
+
+    bag, _ = recorded
+    port = free_port()
+    client = LiveClient(port)  # connects once the replay's server is up
+    argv = ["replay", "--model", "unused.onnx", "--bag", str(bag), "--rgb-topic", topics.COLOUR, "--depth-topic"]
+    argv += [topics.DEPTH, "--method", "segmind", "--depth-threshold", "5", "--out", str(tmp_path / "out")]
+    with pytest.MonkeyPatch.context() as patch:  # the stand-in world's segmenter instead of a model file
+        patch.setattr("segmin.nav_eval.runtime.segmenter.OnnxSegmenter", lambda *a, **k: GreenSegmenter())
+        patch.setattr("segmin.nav_eval.runtime.shipped_models.resolve_model", lambda model: model)
+        assert main([*argv, "--live", "--live-port", str(port), "--live-rate", "2"]) == 0
+    got = client.stop()
+    assert f"live view: ws://127.0.0.1:{port};" in capsys.readouterr().out
+    assert got.topics() == set(LIVE_TYPES) | {topics.PATH, topics.TF}
+    path = STORE.deserialize_cdr(got.of(topics.PATH)[-1], "nav_msgs/msg/Path")
+    last = path.poses[-1]
+    t = last.header.stamp.sec + last.header.stamp.nanosec * 1e-9
+    pose = [p for s, p in bag_poses(bag, topics.ODOM) if s <= t + 1e-9][-1]
+    assert (last.pose.position.x, last.pose.position.y, last.pose.orientation.w) == (pose[0], pose[1], pose[6])
+    tf = STORE.deserialize_cdr(got.of(topics.TF)[-1], "tf2_msgs/msg/TFMessage").transforms[0]
+    assert (tf.header.frame_id, tf.child_frame_id, tf.transform.translation.x) == ("odom", "base_link", pose[0])
 
 
 def test_rows_lie_half_the_corridor_width_beside_the_centreline() -> None:

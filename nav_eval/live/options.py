@@ -50,16 +50,24 @@ def live_port(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def live_view(args: argparse.Namespace) -> Iterator[Any]:
-    """A `LiveView` serving for the duration of the block with --live (the port checked first,
-    the URL printed); None without."""
+    """Replay's `LiveView` serving for the duration of the block with --live (the port checked
+    first, the URL printed; with --bag, the path and TF from its /odom when it has one); None
+    without --live."""
     port = live_port(args)
     if not port:
         yield None
         return
     from segmin.nav_eval.live.publisher import LiveView
-    from segmin.nav_eval.live.server import LIVE_TYPES, LiveServer
+    from segmin.nav_eval.live.server import LIVE_TYPES, ODOMETRY_TYPES, LiveServer
+    from segmin.nav_eval.ros2 import topics
 
-    with LiveServer(LIVE_TYPES, port) as server:
-        view = LiveView(server, args.live_rate)
-        print(f"live view: ws://127.0.0.1:{server.port} (Foxglove: open connection; layout {LAYOUT})", flush=True)
+    poses: list = []
+    if args.bag is not None:
+        from segmin.nav_eval.replay.bags import bag_poses
+
+        poses = bag_poses(args.bag, topics.ODOM)
+    with LiveServer({**LIVE_TYPES, **ODOMETRY_TYPES} if poses else LIVE_TYPES, port) as server:
+        view = LiveView(server, args.live_rate, poses)
+        path = "" if poses else f" (no {topics.ODOM} odometry in the input: no path)"
+        print(f"live view: ws://127.0.0.1:{server.port}{path}; Foxglove layout: {LAYOUT}", flush=True)
         yield view
