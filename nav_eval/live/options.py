@@ -59,15 +59,15 @@ def live_view(args: argparse.Namespace) -> Iterator[Any]:
         return
     from segmin.nav_eval.live.publisher import LiveView
     from segmin.nav_eval.live.server import LIVE_TYPES, ODOMETRY_TYPES, LiveServer
-    from segmin.nav_eval.ros2 import topics
+    from segmin.nav_eval.ros2.topics import ODOM
 
     poses: list = []
     if args.bag is not None:
         from segmin.nav_eval.replay.bags import bag_poses
 
-        poses = bag_poses(args.bag, topics.ODOM)
+        poses = bag_poses(args.bag, ODOM)
     with LiveServer({**LIVE_TYPES, **ODOMETRY_TYPES} if poses else LIVE_TYPES, port) as server:
         view = LiveView(server, args.live_rate, poses)
-        path = "" if poses else f" (no {topics.ODOM} odometry in the input: no path)"
+        path = "" if poses else f" (no {ODOM} odometry in the input: no path)"
         print(f"live view: ws://127.0.0.1:{server.port}{path}; Foxglove layout: {LAYOUT}", flush=True)
         yield view

@@ -19,7 +19,7 @@ import numpy as np
 
 from segmin.nav_eval.live.server import LiveServer
 from segmin.nav_eval.live.view import ViewMessages, header, twist
-from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.ros2.topics import BASE_FRAME, CMD_VEL, ODOM_FRAME, TF
 from segmin.nav_eval.runtime.follower import FollowerOutput
 
 Pose = tuple[float, float, float, float, float, float, float]  # x, y, z, qx, qy, qz, qw in odom
@@ -46,10 +46,10 @@ class LiveView:
         pose = self._pose(t) if output.fresh else None
         for topic, message in self._view.step(t, rgb, output, navigator, pose, wanted=self.server.subscribed):
             self.server.write(topic, t, message)
-        if output.fresh and self.server.subscribed(topics.CMD_VEL):
-            self.server.write(topics.CMD_VEL, t, twist(self._types, output.command.v, output.command.omega))
-        if pose is not None and self.server.subscribed(topics.TF):
-            self.server.write(topics.TF, t, self._transform(t, pose))
+        if output.fresh and self.server.subscribed(CMD_VEL):
+            self.server.write(CMD_VEL, t, twist(self._types, output.command.v, output.command.omega))
+        if pose is not None and self.server.subscribed(TF):
+            self.server.write(TF, t, self._transform(t, pose))
 
     def _pose(self, t: float) -> Any | None:
         """The newest odometry pose at or before `t` as a geometry_msgs/Pose (None: none yet)."""
@@ -71,7 +71,7 @@ class LiveView:
             translation=types["geometry_msgs/msg/Vector3"](x=p.x, y=p.y, z=p.z), rotation=pose.orientation
         )
         stamped = types["geometry_msgs/msg/TransformStamped"](
-            header=header(types, t, topics.ODOM_FRAME), child_frame_id=topics.BASE_FRAME, transform=transform
+            header=header(types, t, ODOM_FRAME), child_frame_id=BASE_FRAME, transform=transform
         )
         return types["tf2_msgs/msg/TFMessage"](transforms=[stamped])
 

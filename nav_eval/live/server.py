@@ -16,15 +16,15 @@ from types import TracebackType
 from typing import Any
 
 from segmin.nav_eval.live.view import VIEW_TYPES, nanoseconds
-from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.ros2.topics import CMD_VEL, PATH, TF
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 # What a replay's or the node's live view streams: the view topics but the path, and the command;
 # `ODOMETRY_TYPES` besides when the robot's odometry is known (a bag's /odom). nav-eval's live view
 # streams its whole bag (`sim.bag_recorder.TOPIC_TYPES`).
-LIVE_TYPES = {**{k: v for k, v in VIEW_TYPES.items() if k != topics.PATH}, topics.CMD_VEL: "geometry_msgs/msg/Twist"}
-ODOMETRY_TYPES = {topics.PATH: VIEW_TYPES[topics.PATH], topics.TF: "tf2_msgs/msg/TFMessage"}
+LIVE_TYPES = {**{k: v for k, v in VIEW_TYPES.items() if k != PATH}, CMD_VEL: "geometry_msgs/msg/Twist"}
+ODOMETRY_TYPES = {PATH: VIEW_TYPES[PATH], TF: "tf2_msgs/msg/TFMessage"}
 
 
 def check_port(port: int, option: str, host: str = DEFAULT_HOST) -> None:

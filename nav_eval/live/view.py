@@ -25,15 +25,15 @@ import cv2
 import numpy as np
 
 from segmin.nav_eval.replay.video import overlay
-from segmin.nav_eval.ros2 import topics
+from segmin.nav_eval.ros2.topics import BASE_FRAME, HISTOGRAM, ODOM_FRAME, OPTICAL_FRAME, OVERLAY, PATH, ROWS
 from segmin.nav_eval.runtime.corridor.row_fit import polyval
 from segmin.nav_eval.runtime.follower import FollowerOutput
 
 VIEW_TYPES = {
-    topics.OVERLAY: "sensor_msgs/msg/Image",
-    topics.HISTOGRAM: "std_msgs/msg/Float32MultiArray",
-    topics.ROWS: "visualization_msgs/msg/MarkerArray",
-    topics.PATH: "nav_msgs/msg/Path",
+    OVERLAY: "sensor_msgs/msg/Image",
+    HISTOGRAM: "std_msgs/msg/Float32MultiArray",
+    ROWS: "visualization_msgs/msg/MarkerArray",
+    PATH: "nav_msgs/msg/Path",
 }
 OVERLAY_WIDTH = 320  # px: frames wider than this are scaled down before drawing
 ROW_SAMPLES = 12  # points per drawn line: enough for a quadratic centreline to look smooth
@@ -96,18 +96,18 @@ class ViewMessages:
         if output.fresh:
             self._mask = output.fused
             self._column = output.command.target_column
-        if rgb is not None and wanted(topics.OVERLAY):
-            messages.append((topics.OVERLAY, self.overlay(t, rgb)))
+        if rgb is not None and wanted(OVERLAY):
+            messages.append((OVERLAY, self.overlay(t, rgb)))
         if not output.fresh:
             return messages
-        if wanted(topics.HISTOGRAM):
-            messages.append((topics.HISTOGRAM, self.histogram(output.command.histogram)))
-        if wanted(topics.ROWS):
-            messages.append((topics.ROWS, self.rows(t, getattr(output.command, "centre", None), navigator)))
+        if wanted(HISTOGRAM):
+            messages.append((HISTOGRAM, self.histogram(output.command.histogram)))
+        if wanted(ROWS):
+            messages.append((ROWS, self.rows(t, getattr(output.command, "centre", None), navigator)))
         if pose is not None:
             path = self.path(t, pose)
-            if wanted(topics.PATH):
-                messages.append((topics.PATH, path))
+            if wanted(PATH):
+                messages.append((PATH, path))
         return messages
 
     def overlay(self, t: float, rgb: np.ndarray) -> Any:
@@ -123,7 +123,7 @@ class ViewMessages:
                 mask = cv2.resize(mask.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
             column = None if column is None else column * scale
         drawn = overlay(rgb, mask, column)
-        return image_message(self._types, header(self._types, t, topics.OPTICAL_FRAME), drawn, "rgb8")
+        return image_message(self._types, header(self._types, t, OPTICAL_FRAME), drawn, "rgb8")
 
     def histogram(self, values: np.ndarray) -> Any:
         """The histogram as a Float32MultiArray of one dimension, "column"."""
@@ -159,10 +159,8 @@ class ViewMessages:
     def path(self, t: float, pose: Any) -> Any:
         """The path so far in odom, `pose` appended."""
         types = self._types
-        self._poses.append(
-            types["geometry_msgs/msg/PoseStamped"](header=header(types, t, topics.ODOM_FRAME), pose=pose)
-        )
-        return types["nav_msgs/msg/Path"](header=header(types, t, topics.ODOM_FRAME), poses=list(self._poses))
+        self._poses.append(types["geometry_msgs/msg/PoseStamped"](header=header(types, t, ODOM_FRAME), pose=pose))
+        return types["nav_msgs/msg/Path"](header=header(types, t, ODOM_FRAME), poses=list(self._poses))
 
     def _marker(self, t: float, key: int, action: int, points: list[Any], colour: tuple[float, float, float]) -> Any:
         types = self._types
@@ -176,7 +174,7 @@ class ViewMessages:
         )
         mesh = types["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, dtype=np.uint8))
         return types["visualization_msgs/msg/Marker"](
-            header=header(types, t, topics.BASE_FRAME),
+            header=header(types, t, BASE_FRAME),
             ns="segmin_rows",
             id=key,
             type=MARKER_LINE_STRIP,
