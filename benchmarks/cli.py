@@ -153,7 +153,9 @@ def _register_closed_loop(bench: argparse._SubParsersAction) -> None:
     )
     live.add_argument("--model", default="vineyards", help="exported .onnx file or a shipped model name (vineyards)")
     live.add_argument("--frames", type=int, default=150, help="frames per round, at 30 Hz (default 150: 5 s)")
-    live.add_argument("--rounds", type=int, default=3, help="alternations of the runtime alone and with the view")
+    live.add_argument(
+        "--rounds", type=int, default=5, help="alternations of the runtime alone and with the view (default 5)"
+    )
     live.add_argument("--size", default="640x480", help="frame size WxH (default 640x480, the D435's colour)")
     live.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
     live.set_defaults(func=_bench_live_view)

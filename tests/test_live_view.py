@@ -250,9 +250,9 @@ def test_a_wide_frame_is_drawn_at_the_overlay_width_with_its_mask_and_column() -
     view = ViewMessages(STORE.types)
     (topic, image), *_ = view.step(0.0, np.zeros((480, 640, 3), dtype=np.uint8), output, None)
     pixels = image.data.reshape(image.height, image.width, 3)
-    assert (topic, image.width, image.height) == (topics.OVERLAY, 320, 240)
-    assert (pixels[:, :80, 1] > 0).all() and (pixels[:, 81:190, 1] == 0).all()  # the mask, a quarter of the width
-    assert (pixels[:, 199:201] == (255, 0, 0)).all()  # column 400 of 640 at 200 of 320
+    assert (topic, image.width, image.height) == (topics.OVERLAY, 224, 168)
+    assert (pixels[:, :55, 1] > 0).all() and (pixels[:, 57:130, 1] == 0).all()  # the mask, a quarter of the width
+    assert (pixels[:, 139:141] == (255, 0, 0)).all()  # column 400 of 640 at 140 of 224
 
 
 @pytest.mark.parametrize(
@@ -270,3 +270,16 @@ def test_the_nodes_live_port_parameter_is_checked(value, message) -> None:
     assert node_params({}).node.live_port == 0 and "live_port" in STARTUP_ONLY  # off unless asked; fixed at start-up
     with pytest.raises(ValueError, match=message):
         node_params({"live_port": value})
+
+
+def test_nav_eval_live_streams_its_one_run(tmp_path, capsys) -> None:
+    port = free_port()
+    client = LiveClient(port, timeout=60)  # connects once the run's server is up
+    argv = ["nav-eval", "--model", "oracle", "--fields", "straight_vineyard", "--methods", "segmin", "--runs", "1"]
+    argv += ["--no-plots", "--no-progress", "--out", str(tmp_path), "--set", "perception.width=64"]
+    argv += ["perception.height=48", "run.length_m=1.0", "run.time_limit_s=8", "--live", "--live-port", str(port)]
+    assert main(argv) == 0, capsys.readouterr().err
+    got = client.stop()
+    assert got.topics() == set(TOPIC_TYPES)
+    counts = Counter(name for name, *_ in got.messages)
+    assert counts[topics.OVERLAY] == counts[topics.COLOUR] > 0 and counts[topics.CMD_VEL] > 0

@@ -4,14 +4,15 @@ same schemas and one Foxglove layout opens both.
 
 | topic | type | frame | what |
 | --- | --- | --- | --- |
-| /segmin/overlay | sensor_msgs/Image rgb8 | camera_color_optical_frame | each camera frame, at most 320 px wide, with the newest command's fused mask (green) and target column (red; a red bar on top: a stop) |
+| /segmin/overlay | sensor_msgs/Image rgb8 | camera_color_optical_frame | each camera frame, at most 224 px wide, with the newest command's fused mask (green) and target column (red; a red bar on top: a stop) |
 | /segmin/histogram | std_msgs/Float32MultiArray | | the command's smoothed column histogram (SegMin, SegMinD, SegZeros; SegCorridor's fallback), one value per column; empty otherwise |
 | /segmin/rows | visualization_msgs/MarkerArray | base_link | SegCorridor's centreline and the rows half its running corridor width to each side; a DELETEALL without a centreline (the paper's methods, the fallback) |
 | /segmin/path | nav_msgs/Path | odom | the robot's poses so far, one per command |
 
 The overlay is drawn by `replay.video.overlay` (the video's drawing), nothing of its own, on the
-frame scaled down to `OVERLAY_WIDTH`: a view to watch the navigator by, at a quarter of a 640 px
-frame's drawing, serialising and sending (the full frame is the camera topic's). A topic no one
+frame scaled down to at most `OVERLAY_WIDTH` (what the shipped models see): a view to watch the
+navigator by, at an eighth of a 640 px frame's drawing, serialising and sending (the full frame is
+the camera topic's). A topic no one
 asks for (`wanted`: the live view's subscriptions) is not built. The messages use the ROS 2
 Humble types of `rosbags` (the [ros] or [live] extra).
 """
@@ -35,7 +36,7 @@ VIEW_TYPES = {
     ROWS: "visualization_msgs/msg/MarkerArray",
     PATH: "nav_msgs/msg/Path",
 }
-OVERLAY_WIDTH = 320  # px: frames wider than this are scaled down before drawing
+OVERLAY_WIDTH = 224  # px, the shipped models' input width: frames wider than this are scaled down before drawing
 ROW_SAMPLES = 12  # points per drawn line: enough for a quadratic centreline to look smooth
 LINE_WIDTH_M = 0.05
 MARKER_LINE_STRIP, MARKER_ADD, MARKER_DELETEALL = 4, 0, 3  # visualization_msgs/Marker constants
@@ -111,16 +112,16 @@ class ViewMessages:
         return messages
 
     def overlay(self, t: float, rgb: np.ndarray) -> Any:
-        """The frame (scaled to at most `OVERLAY_WIDTH`) with the newest mask and column drawn."""
+        """The frame, scaled to at most `OVERLAY_WIDTH` wide, with the newest mask and column drawn."""
         height, width = rgb.shape[:2]
         mask = self._mask if self._mask is not None and self._mask.shape == (height, width) else None
         column = self._column
         if width > OVERLAY_WIDTH:
             scale = OVERLAY_WIDTH / width
             size = (OVERLAY_WIDTH, max(1, round(height * scale)))
-            rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+            rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_LINEAR)  # INTER_AREA: 10x the CPU at 640 -> 224
             if mask is not None:
-                mask = cv2.resize(mask.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
+                mask = cv2.resize(mask.view(np.uint8), size, interpolation=cv2.INTER_NEAREST).view(bool)
             column = None if column is None else column * scale
         drawn = overlay(rgb, mask, column)
         return image_message(self._types, header(self._types, t, OPTICAL_FRAME), drawn, "rgb8")
