@@ -317,8 +317,9 @@ def _bench_replay_bag(args: argparse.Namespace) -> int:
 def _bench_live_view(args: argparse.Namespace) -> int:
     from benchmarks.live_view import bench_live_view
 
-    if args.frames < 30 or args.rounds < 1 or args.threads < 1:
-        raise ValueError("bench live-view: --frames must be >= 30, --rounds and --threads >= 1")
+    for name, low in (("frames", 30), ("rounds", 1), ("threads", 1)):  # 30 frames: one second of camera
+        if getattr(args, name) < low:
+            raise ValueError(f"bench live-view: --{name} {getattr(args, name)}: must be >= {low}")
     camera = camera_from_size(args.size)
     print(bench_live_view(args.model, args.frames, args.rounds, (camera.width, camera.height), args.threads))
     return 0
