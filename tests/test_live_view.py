@@ -225,6 +225,8 @@ def test_nav_eval_live_takes_one_run(tmp_path, capsys) -> None:
     argv = ["nav-eval", "--model", "oracle", "--fields", "curved_vineyard", "--methods", "segmin", "--runs", "2"]
     assert main([*argv, "--out", str(tmp_path), "--live", "--live-port", str(free_port())]) == 2
     assert "--live streams one run" in capsys.readouterr().err
+    assert main([*argv, "--out", str(tmp_path), "--live", "--executor", "ray"]) == 2
+    assert "--live streams a run from this computer" in capsys.readouterr().err
 
 
 def test_the_looked_up_tint_is_the_per_pixel_blend_to_the_bit() -> None:

@@ -78,6 +78,8 @@ def _nav_eval(args: argparse.Namespace) -> int:
     config = load_nav_config(args.config, overrides_of(args))
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if args.live and args.executor == "ray":  # the run's server would listen on a Ray worker's loopback
+        raise ValueError("--live streams a run from this computer: leave out --executor ray")
     executor = executor_of(args)
     if args.bag:
         import rosbags.rosbag2  # noqa: F401  (a missing [ros] extra is named now, not in every run)
