@@ -339,7 +339,7 @@ class Worker:
 
 
 def _recorder(job: Job, model: str, config: NavEvalConfig, ctx: FieldContext, depth_threshold: float) -> Any:
-    """The run's bag recorder when the job asks for a bag (a null context otherwise)."""
+    """The run's bag recorder when the job asks for a bag or a live view (a null context otherwise)."""
     if not job.bag_path and not job.live_port:
         return contextlib.nullcontext()
     from segmin import __version__

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from segmin.common.cli_args import add_overrides, overrides_of
 from segmin.nav_eval.live.options import add_live_options, live_view
@@ -180,7 +180,21 @@ def _replay(args: argparse.Namespace) -> int:
         check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
     follower = follower_of(args)
     with live_view(args) as live:
-        result = _run(args, follower, replay, live)
+        result = replay(
+            args.model,
+            args.rgb,
+            args.out,
+            follower=follower,
+            camera=_bag_camera(args, follower),
+            source=_bag_source(args, follower.method),
+            imu=_bag_imu(args, follower),
+            depth=args.depth,
+            fps=args.fps,
+            timestamps=args.timestamps,
+            force=args.force,
+            threads=args.threads,
+            live=live,
+        )
     valid = sum(row[4] for row in result.commands)
     print(f"replay: {result.frames} frames, {len(result.commands)} commands ({valid} valid) with {follower.method}")
     for note in result.notes:
@@ -188,22 +202,3 @@ def _replay(args: argparse.Namespace) -> int:
     for path in result.files:
         print(f"wrote {path}")
     return 0
-
-
-def _run(args: argparse.Namespace, follower: FollowerConfig, replay: Any, live: Any) -> Any:
-    """The replay of the command line's sequence, streamed to `live` (None: not)."""
-    return replay(
-        args.model,
-        args.rgb,
-        args.out,
-        follower=follower,
-        camera=_bag_camera(args, follower),
-        source=_bag_source(args, follower.method),
-        imu=_bag_imu(args, follower),
-        depth=args.depth,
-        fps=args.fps,
-        timestamps=args.timestamps,
-        force=args.force,
-        threads=args.threads,
-        live=live,
-    )
