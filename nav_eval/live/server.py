@@ -5,8 +5,8 @@ exactly as it shows a bag of it, with one layout.
 
 Every channel is advertised when the server starts, so a client sees the whole view at once;
 messages go out as the data comes (replay may run faster than real time); a publisher builds
-them only while a client subscribes (`subscribed`). foxglove-sdk and rosbags are imported when a server starts
-(the [live] extra), never by the robot runtime.
+them only while a client subscribes (`subscribed`). foxglove-sdk and rosbags are imported when a
+server starts (the [live] extra), never by the robot runtime.
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ from typing import Any
 from segmin.nav_eval.live.view import VIEW_TYPES, nanoseconds
 from segmin.nav_eval.ros2.topics import CMD_VEL, PATH, TF
 
-DEFAULT_HOST = "127.0.0.1"
-DEFAULT_PORT = 8765
+DEFAULT_HOST = "127.0.0.1"  # loopback: a viewer on another computer comes through an SSH tunnel
 # What a replay's or the node's live view streams: the view topics but the path, and the command;
 # `ODOMETRY_TYPES` besides when the robot's odometry is known (a bag's /odom). nav-eval's live view
 # streams its whole bag (`sim.bag_recorder.TOPIC_TYPES`).
@@ -55,7 +54,7 @@ class LiveServer:
     `topic_types` (topic -> ROS 2 type); `write` logs one message. A context manager: it stops
     the server on exit."""
 
-    def __init__(self, topic_types: dict[str, str], port: int = DEFAULT_PORT, host: str = DEFAULT_HOST) -> None:
+    def __init__(self, topic_types: dict[str, str], port: int, host: str = DEFAULT_HOST) -> None:
         import foxglove
         from rosbags.typesys import Stores, get_typestore
 
