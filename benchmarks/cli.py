@@ -147,6 +147,19 @@ def _register_closed_loop(bench: argparse._SubParsersAction) -> None:
     bag.add_argument("--depth-threshold", type=float, default=5.0, help="depth cut in metres (default 5)")
     bag.set_defaults(func=_bench_replay_bag)
 
+    live = bench.add_parser(
+        "live-view",
+        help="what --live's publisher costs the runtime, as a share of its frame time (a client subscribed)",
+    )
+    live.add_argument("--model", default="vineyards", help="exported .onnx file or a shipped model name (vineyards)")
+    live.add_argument("--frames", type=int, default=150, help="frames per round, at 30 Hz (default 150: 5 s)")
+    live.add_argument(
+        "--rounds", type=int, default=5, help="alternations of the runtime alone and with the view (default 5)"
+    )
+    live.add_argument("--size", default="640x480", help="frame size WxH (default 640x480, the D435's colour)")
+    live.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    live.set_defaults(func=_bench_live_view)
+
     gym = bench.add_parser(
         "gym", help="segmin/RowFollow-v0 env steps/s: single, make_vec sync and async, per observation option"
     )
@@ -298,6 +311,17 @@ def _bench_replay_bag(args: argparse.Namespace) -> int:
     from benchmarks.replay_bag import bench_replay_bag
 
     print(bench_replay_bag(args.model, args.bag, args.threads, args.method, args.depth_threshold))
+    return 0
+
+
+def _bench_live_view(args: argparse.Namespace) -> int:
+    from benchmarks.live_view import bench_live_view
+
+    for name, low in (("frames", 30), ("rounds", 1), ("threads", 1)):  # 30 frames: one second of camera
+        if getattr(args, name) < low:
+            raise ValueError(f"bench live-view: --{name} {getattr(args, name)}: must be >= {low}")
+    camera = camera_from_size(args.size)
+    print(bench_live_view(args.model, args.frames, args.rounds, (camera.width, camera.height), args.threads))
     return 0
 
 

@@ -1,6 +1,7 @@
 """segmin's layers and their one-way data flow, checked on the source.
 
-common -> data -> models -> train -> export -> robot runtime -> replay / ROS 2 node / demo / photo scoring ->
+common -> data -> models -> train -> export -> robot runtime -> ROS topic names -> replay and the live view /
+ROS 2 node / demo / photo scoring ->
 simulator -> closed-loop evaluation -> sweeps -> benches -> app -> the repository's benchmarks/ (outside
 the wheel: segmin never imports it): a module may import its own layer
 and the layers before it, never one after it, and no set of modules may import one another in a
@@ -30,14 +31,19 @@ PACKAGE_DIRS: dict[str, str] = {
     "benchmarks": "benchmarks",
 }
 # The data flow, first to last. `segmin` alone (its __init__) and `segmin.common` are the ground.
-LAYERS: tuple[str, ...] = (
+# A tuple is one layer of several packages (they may import one another, without a cycle).
+LAYERS: tuple[str | tuple[str, ...], ...] = (
     "segmin.common",
     "segmin.data",
     "segmin.models",
     "segmin.train",
     "segmin.export",
     "segmin.nav_eval.runtime",
-    "segmin.nav_eval.replay",
+    # The ROS 2 topic and frame names: plain strings, importing nothing, read by replay, the live
+    # view, the node and the simulator's bags (matched before the node's layer below).
+    "segmin.nav_eval.ros2.topics",
+    # The live view streams replay's steps (and the node's, nav-eval's) and replay's CLI starts it.
+    ("segmin.nav_eval.replay", "segmin.nav_eval.live"),
     "segmin.nav_eval.ros2",
     "segmin.nav_eval.demo",
     "segmin.nav_eval.seg_eval",
@@ -136,8 +142,9 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def layer_of(module: str) -> int:
     """Position in the data flow; the bare `segmin` package is the ground like `segmin.common`."""
     for position, layer in enumerate(LAYERS):
-        if module == layer or module.startswith(layer + "."):
-            return position
+        for package in (layer,) if isinstance(layer, str) else layer:
+            if module == package or module.startswith(package + "."):
+                return position
     # segmin.envs registers the Gymnasium envs by their import path (a string): it imports no module
     # of the project, and the simulator's env module imports it to register on import too.
     if module in ("segmin", "segmin.configs", "segmin.nav_eval", "segmin.envs"):

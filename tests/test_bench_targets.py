@@ -43,6 +43,8 @@ def test_verdicts_cover_the_measured_figures_only():
         (["nav-eval", "--rounds", "0"], "--rounds 0: must be >= 1"),
         (["synth", "--backends", "egl"], "--backends egl: each must be tiny or gl"),
         (["render-agreement", "--poses", "0"], "--poses 0: must be >= 1"),
+        (["live-view", "--frames", "10"], "--frames 10: must be >= 30"),
+        (["live-view", "--rounds", "0"], "--rounds 0: must be >= 1"),
     ],
 )
 def test_benches_refuse_bad_parameters_with_one_line(argv, message, capsys):

@@ -56,7 +56,18 @@ def test_the_benchmark_runner_has_every_developer_bench_with_help(capsys: pytest
 
     targets = sorted(path[0] for path in _leaves(benchmarks_parser()))
     assert targets == sorted(
-        ["synth", "render-agreement", "train", "iou-bound", "export", "nav-eval", "replay-bag", "gym", "executor"]
+        [
+            "synth",
+            "render-agreement",
+            "train",
+            "iou-bound",
+            "export",
+            "nav-eval",
+            "replay-bag",
+            "live-view",
+            "gym",
+            "executor",
+        ]
     )
     for target in targets:
         with pytest.raises(SystemExit) as exit_info:

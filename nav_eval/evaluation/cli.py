@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from segmin.common.cli_args import add_executor_options, add_overrides, executor_of, overrides_of
+from segmin.nav_eval.live.options import add_live_options, live_port
 from segmin.nav_eval.runtime.methods import METHODS
 
 
@@ -62,6 +63,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         help="rosbag2 (MCAP) of run 0 of each field and method in OUT/bags/: camera, depth, IMU, odometry, "
         "ground truth, cmd_vel, TF (needs the [ros] extra; replay it with segmin replay --bag)",
     )
+    add_live_options(parser, rate=False)
     parser.add_argument("--no-plots", action="store_true", help="skip the figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_scenario_options(parser)
@@ -76,9 +78,12 @@ def _nav_eval(args: argparse.Namespace) -> int:
     config = load_nav_config(args.config, overrides_of(args))
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if args.live and args.executor == "ray":  # the run's server would listen on a Ray worker's loopback
+        raise ValueError("--live streams a run from this computer: leave out --executor ray")
     executor = executor_of(args)
     if args.bag:
         import rosbags.rosbag2  # noqa: F401  (a missing [ros] extra is named now, not in every run)
+    port = live_port(args)  # a taken port or a missing [live] extra is said before the run
     results = run_evaluation(
         args.model,
         args.fields,
@@ -94,6 +99,7 @@ def _nav_eval(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
         executor=executor,
         resume=not args.force,
+        live_port=port,
     )
     print(table3_markdown(results), end="")
     failed = [r for r in results if r.reason == "error"]

@@ -145,6 +145,7 @@ class Job:
     seed: int
     video_path: str = ""
     bag_path: str = ""  # write the run as a rosbag2 (MCAP) folder here (sim.bag_recorder)
+    live_port: int = 0  # stream the run to a live view on this port (nav_eval.live; 0: not)
     # The run's own NavEvalConfig as plain data (`to_dict`), when it is not the worker's: a sweep
     # runs many configs on one pool. None: the worker's config.
     config: dict | None = None
@@ -338,8 +339,8 @@ class Worker:
 
 
 def _recorder(job: Job, model: str, config: NavEvalConfig, ctx: FieldContext, depth_threshold: float) -> Any:
-    """The run's bag recorder when the job asks for a bag (a null context otherwise)."""
-    if not job.bag_path:
+    """The run's bag recorder when the job asks for a bag or a live view (a null context otherwise)."""
+    if not job.bag_path and not job.live_port:
         return contextlib.nullcontext()
     from segmin import __version__
     from segmin.nav_eval.sim.bag_recorder import RunRecorder
@@ -358,7 +359,7 @@ def _recorder(job: Job, model: str, config: NavEvalConfig, ctx: FieldContext, de
         "command_hz": follower.runtime.command_hz,
         "fuse_frames": follower.navigator.fuse_frames,
     }
-    return RunRecorder(job.bag_path, ctx.camera, job.seed, metadata)
+    return RunRecorder(job.bag_path or None, ctx.camera, job.seed, metadata, live_port=job.live_port)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -382,6 +383,7 @@ def run_evaluation(
     plots: bool = True,
     executor: Executor = LOCAL,
     resume: bool = False,
+    live_port: int = 0,
 ) -> list[RunResult]:
     """Evaluate `model` ('oracle', an .onnx path or a shipped model name) on fields x methods x runs.
 
@@ -392,7 +394,8 @@ def run_evaluation(
     `out_dir` holding another evaluation's results is refused. Without it every run is done.
     workers <= 1 runs in this process; more uses spawned processes, or `executor`'s (Ray actors)
     whatever the number. `video` / `bag`: run 0 of
-    each field and method as a video in out/videos, as a rosbag2 (MCAP) in out/bags.
+    each field and method as a video in out/videos, as a rosbag2 (MCAP) in out/bags. `live_port`:
+    stream the one run (one field, method and run, done again even if stored) to a live view.
     Reads top to bottom as plan -> resume -> run (in process or in workers) -> write; kept as one
     function so the resume rules and the rewrite after every run stay side by side.
     """
@@ -405,6 +408,11 @@ def run_evaluation(
         raise ValueError(f"--runs must be >= 1, got {runs}")
     preflight(str(model), field_list, method_list, config)
     out = check_output_dir(out_dir, "--out") if out_dir is not None else None
+    if live_port and len(field_list) * len(method_list) * runs != 1:
+        raise ValueError(
+            f"--live streams one run: give one field, one method and --runs 1 "
+            f"(got {len(field_list)} field(s), {len(method_list)} method(s), {runs} run(s))"
+        )
     jobs = []
     for f in field_list:
         for r in range(runs):
@@ -414,7 +422,7 @@ def run_evaluation(
                     path = str(out / "videos" / f"{field_label(f)}_{m}.mp4")
                 if bag and out is not None and r == 0:
                     bag_path = str(out / "bags" / f"{field_label(f)}_{m}")
-                jobs.append(Job(f, m, r, run_seed(seed, f, r), path, bag_path))
+                jobs.append(Job(f, m, r, run_seed(seed, f, r), path, bag_path, live_port))
     meta = {
         "model": str(model),
         "model_sha256": model_sha256(str(model)),  # what the runs were of (a path may get a new file)
@@ -432,7 +440,7 @@ def run_evaluation(
         finished = stored_runs(out / RUNS_FOLDER, keys.values(), RunResult.from_stored)
     elif out is not None:  # starting over: a later resume must not pick up runs from before
         shutil.rmtree(out / RUNS_FOLDER, ignore_errors=True)
-    todo = [job for job in jobs if keys.get(id(job)) not in finished]
+    todo = [job for job in jobs if job.live_port or keys.get(id(job)) not in finished]
     _check_bag_paths(todo)
     if finished:
         log.info("%s: resuming, %d of %d runs finished before, %d to do", out, len(finished), len(jobs), len(todo))

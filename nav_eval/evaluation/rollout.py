@@ -60,7 +60,7 @@ def run_episode(
 ) -> Episode:
     """Drive one run to its end with `follower`, its masks from `segmenter` (the oracle, or a
     model on the rendered images); `pose` replaces the seeded start. `recorder` (a
-    `sim.bag_recorder.RunRecorder`) is given every camera frame and every command.
+    `sim.bag_recorder.RunRecorder`) is given every camera frame, every runtime step and every command.
 
     The loop stays whole: rendering, background segmentation, the runtime step and the simulator
     step interleave per frame, and splitting it would pass that per-frame state around."""
@@ -106,6 +106,8 @@ def run_episode(
             else:
                 out = follower.step(None, blank_depth, t, attitude=simulator.attitude if imu else None)
             driving.append((t, out.command.valid))
+            if recorder is not None:
+                recorder.step(t, out, follower.navigator)
             if out.fresh:
                 cmd = out.command
                 column = cmd.target_column

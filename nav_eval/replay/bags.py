@@ -20,7 +20,8 @@ bag's first `CameraInfo` on `--camera-info-topic` (by default the colour topic's
 `--imu-topic`, the node's `/imu/data` by default) for SegCorridor's roll and pitch: each frame
 takes the newest sample stamped at or before it (`replay.imu`). A bag without the default topic
 is replayed on level ground, as before; a topic named with `--imu-topic` that the bag lacks,
-holds no message or holds another type stops the replay, naming it.
+holds no message or holds another type stops the replay, naming it. `bag_poses` reads the robot's
+odometry for the live view's path (`--live`).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from segmin.nav_eval.runtime.follower_config import CameraConfig
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 IMU_TYPE = "sensor_msgs/msg/Imu"
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 DEFAULT_SLOP_S = 0.01  # RealSense colour and aligned depth differ by a few ms; frames are 33 ms apart
 
 
@@ -139,6 +141,23 @@ def bag_imu(path: str | Path, topic: str, *, named: bool) -> ImuTrack | None:
             message = reader.deserialize(raw, connection.msgtype)
             track.add(stamp_seconds(message), message)
         return track
+    finally:
+        reader.close()
+
+
+def bag_poses(path: str | Path, topic: str) -> list[tuple[float, tuple[float, ...]]]:
+    """The robot's poses on the `nav_msgs/Odometry` topic `topic`, ascending by header stamp, as
+    (t, (x, y, z, qx, qy, qz, qw)); empty when the bag has no such topic (the live view's path
+    and TF then stay out, said by the replay)."""
+    reader = open_bag(Path(path))
+    try:
+        connections = [c for c in reader.connections if c.topic == topic and c.msgtype == ODOMETRY_TYPE]
+        poses = []
+        for connection, _, raw in reader.messages(connections=connections):
+            message = reader.deserialize(raw, connection.msgtype)
+            p, q = message.pose.pose.position, message.pose.pose.orientation
+            poses.append((stamp_seconds(message), tuple(float(v) for v in (p.x, p.y, p.z, q.x, q.y, q.z, q.w))))
+        return sorted(poses, key=lambda pose: pose[0])
     finally:
         reader.close()
 

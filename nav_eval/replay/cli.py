@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from segmin.common.cli_args import add_overrides, overrides_of
+from segmin.nav_eval.live.options import add_live_options, live_view
 from segmin.nav_eval.runtime.methods import DEPTH_METHODS, METHODS
 
 if TYPE_CHECKING:
@@ -95,6 +96,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "else level ground)",
     )
     replay.add_argument("--threads", type=int, default=2, help="onnxruntime threads (default 2)")
+    add_live_options(replay)
     replay.add_argument("--out", type=Path, required=True, help="output folder (must be empty unless --force)")
     replay.add_argument("--force", action="store_true", help="write into a non-empty --out")
     add_overrides(replay, example="navigator.depth_threshold=8")
@@ -177,20 +179,22 @@ def _replay(args: argparse.Namespace) -> int:
     if args.mask_closing is not None:
         check_closing_radius(args.mask_closing, "--mask-closing")  # named as the flag, before the bag is opened
     follower = follower_of(args)
-    result = replay(
-        args.model,
-        args.rgb,
-        args.out,
-        follower=follower,
-        camera=_bag_camera(args, follower),
-        source=_bag_source(args, follower.method),
-        imu=_bag_imu(args, follower),
-        depth=args.depth,
-        fps=args.fps,
-        timestamps=args.timestamps,
-        force=args.force,
-        threads=args.threads,
-    )
+    with live_view(args) as live:
+        result = replay(
+            args.model,
+            args.rgb,
+            args.out,
+            follower=follower,
+            camera=_bag_camera(args, follower),
+            source=_bag_source(args, follower.method),
+            imu=_bag_imu(args, follower),
+            depth=args.depth,
+            fps=args.fps,
+            timestamps=args.timestamps,
+            force=args.force,
+            threads=args.threads,
+            live=live,
+        )
     valid = sum(row[4] for row in result.commands)
     print(f"replay: {result.frames} frames, {len(result.commands)} commands ({valid} valid) with {follower.method}")
     for note in result.notes:

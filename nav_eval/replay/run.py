@@ -135,13 +135,15 @@ def replay(
     segmenter: Any = None,
     source: FrameSource | None = None,
     imu: ImuTrack | None = None,
+    live: Any = None,
 ) -> ReplayResult:
     """Run the runtime over the sequence and write the outputs (see the module docstring).
 
         The runtime is `follower` on `camera` (SegCorridor's; None: the config's intrinsics), or
         for the paper's methods `method`, `depth_threshold`, `mask_closing` and `runtime`. The
         sequence is `rgb` (with `depth`, `fps`, `timestamps`), or `source` (rgb None then); `imu`
-    gives the attitude at each frame to a navigator that levels its points (SegCorridor)."""
+    gives the attitude at each frame to a navigator that levels its points (SegCorridor); `live`
+    (a `live.publisher.LiveView`) is given every step, for `--live`."""
     if str(model) == "oracle":
         raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
     follower = follower or _paper_follower(method, depth_threshold, mask_closing, runtime)
@@ -173,6 +175,8 @@ def replay(
         except ValueError as exc:
             raise ValueError(f"frame {name}: {exc}") from None
         restarts += output.stopped == "frame_timeout"
+        if live is not None:
+            live.step(t, image, output, navigator)
         if output.fresh:
             cmd = output.command
             if output.stopped in REASONS:
@@ -187,15 +191,21 @@ def replay(
     result.notes.extend(_input_notes(method, has_depth, navigator.inputs.attitude, levels))
     if non_finite:
         result.notes.append(f"{non_finite} depth frame(s) had non-finite pixels, used as 'no reading'")
+    result.notes.extend(_stop_notes(fault_stops, restarts, runner.config.frame_timeout_s))
+    return result
+
+
+def _stop_notes(fault_stops: Counter[str], restarts: int, frame_timeout_s: float) -> list[str]:
+    """What stopped the runtime during the replay: sensor faults (commands by reason), gaps between frames."""
+    notes = []
     if fault_stops:
         counts = ", ".join(f"{reason} {count}" for reason, count in fault_stops.items())
-        result.notes.append(f"sensor faults stopped the robot (commands by reason: {counts})")
+        notes.append(f"sensor faults stopped the robot (commands by reason: {counts})")
     if restarts:
-        result.notes.append(
-            f"{restarts} gap(s) longer than {runner.config.frame_timeout_s} s between frames: "
-            "the runtime stopped and restarted there"
+        notes.append(
+            f"{restarts} gap(s) longer than {frame_timeout_s} s between frames: the runtime stopped and restarted there"
         )
-    return result
+    return notes
 
 
 def _input_notes(method: str, has_depth: bool, wants_attitude: bool, imu: ImuTrack | None) -> list[str]:

@@ -6,7 +6,8 @@ topic ending in /compressed or /compressedDepth, as image_transport names them).
 `Twist` (or `TwistStamped`) on `cmd_vel`, optionally `~/overlay` (the mask and the chosen
 column on the image), `/diagnostics` and `~/frame_acks` (the header of each image message once
 handled: a player that waits for it feeds the node frame by frame, so the commands depend on the
-images' stamps alone, not on when DDS delivered them). The service `~/enable` (std_srvs/SetBool) and the
+images' stamps alone, not on when DDS delivered them) and, with `live_port`, the live view to
+Foxglove (`nav_eval.live`: a WebSocket server, no ROS topic). The service `~/enable` (std_srvs/SetBool) and the
 parameter `enabled` start and stop driving; both are off at start-up.
 
 One single-threaded executor runs the callbacks: the images (segmentation runs there), the
@@ -88,6 +89,16 @@ def _image_type(topic: str) -> type:
     return CompressedImage if topic.rstrip("/").endswith(("/compressed", "/compressedDepth")) else Image
 
 
+def live_view(port: int) -> Any:
+    """The live view on `port` (parameter live_port), None when 0: streams what the node computes."""
+    if not port:
+        return None
+    from segmin.nav_eval.live.publisher import LiveView
+    from segmin.nav_eval.live.server import LIVE_TYPES, LiveServer
+
+    return LiveView(LiveServer(LIVE_TYPES, port))
+
+
 class RowFollowerNode(Node):
     """See the module docstring."""
 
@@ -117,6 +128,7 @@ class RowFollowerNode(Node):
         )
         # Reliable with a queue: a player waiting for each acknowledgement must not miss one.
         self._acks = self.create_publisher(Header, "~/frame_acks", 100) if settings.publish_frame_acks else None
+        self._live = live_view(settings.live_port)
         self.timing = CommandTiming()
         self._stopping = threading.Event()
         self._command_thread = threading.Thread(target=self._command_loop, name="commands", daemon=True)
@@ -164,12 +176,16 @@ class RowFollowerNode(Node):
         stamp = message.header.stamp
         self.timing.image_received(stamp.sec * 10**9 + stamp.nanosec, int(info["received_timestamp"]))
         self._apply_pending()
-        self._overlay_out(self.core.on_colour(message, self._seconds()), message)
+        output = self.core.on_colour(message, self._seconds())
+        self._overlay_out(output, message)
+        self._live_out(output)
         self._acknowledge(message)
 
     def _on_depth(self, message: Any) -> None:
         self._apply_pending()
-        self._overlay_out(self.core.on_depth(message, self._seconds()), None)
+        output = self.core.on_depth(message, self._seconds())
+        self._overlay_out(output, None)
+        self._live_out(output)
         self._acknowledge(message)
 
     def _acknowledge(self, message: Any) -> None:
@@ -188,6 +204,11 @@ class RowFollowerNode(Node):
         out.encoding, out.step = "rgb8", 3 * image.shape[1]
         out.data = np.ascontiguousarray(image).tobytes()
         self._overlay.publish(out)
+
+    def _live_out(self, output: FollowerOutput | None) -> None:
+        """The runtime's step to the live view (`live_port`), drawn on the frame it stepped."""
+        if self._live is not None and output is not None and self.core.follower is not None:
+            self._live.step(output.t, self.core.last_rgb, output, self.core.follower.navigator)
 
     # ---- commands ------------------------------------------------------------------------------
     def _publish(self, outgoing: Outgoing) -> None:
@@ -264,6 +285,8 @@ class RowFollowerNode(Node):
         """Stop the command thread first (it wakes within one period), so it never publishes on a destroyed node."""
         self._stopping.set()
         self._command_thread.join(timeout=2.0)
+        if self._live is not None:
+            self._live.server.close()
         super().destroy_node()
 
     def _watchdog(self) -> None:
@@ -335,6 +358,10 @@ def run(name: str, values: dict[str, Any], base: Path | None, ros_args: list[str
     """Start the node; a bad parameter or model refuses before rclpy starts (ValueError, one line)."""
     use_sim_time = bool(values.pop("use_sim_time", False))
     params = node_params(values, base)
+    if params.node.live_port:  # a taken port or a missing [live] extra, before the model and rclpy start
+        from segmin.nav_eval.live.server import check_port
+
+        check_port(params.node.live_port, "parameter live_port")
     segmenter = load_segmenter(params)
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     rclpy.init(args=["segmin", "--ros-args", *ros_args] if ros_args else None)

@@ -85,6 +85,7 @@ class NodeSettings:
     camera_info_topic: str = ""
     imu_topic: str = ""
     imu_max_age_s: float = IMU_MAX_AGE_S
+    live_port: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
@@ -101,6 +102,8 @@ class NodeSettings:
                 raise ValueError(f"{name} must name a topic")
         if not (math.isfinite(self.imu_max_age_s) and self.imu_max_age_s > 0):
             raise ValueError(f"imu_max_age_s must be a number of seconds > 0, got {self.imu_max_age_s!r}")
+        if not 0 <= self.live_port <= 65535:
+            raise ValueError(f"live_port must be 0 (off) or a TCP port 1-65535, got {self.live_port!r}")
 
 
 @dataclass(frozen=True)
@@ -220,12 +223,15 @@ DESCRIPTIONS: dict[str, str] = {
     "imu_topic": "sensor_msgs/Imu: roll and pitch from its orientation (REP 103, IMU level with base_link) for "
     "SegCorridor; empty: not subscribed, level ground assumed",
     "imu_max_age_s": "an IMU message older than this at a frame is stale: ignored (level ground), logged, s",
+    "live_port": "stream the live view to Foxglove on ws://127.0.0.1:<this port> (8765: Foxglove's default): the "
+    "camera with the mask and target, the histogram, the command and SegCorridor's rows; needs the [live] extra; "
+    "0: off",
 }
 GROUPS = (  # the node's own parameters, in the file's order; the follower section comes after them
     ("driving", ("enabled", "model", "threads", "inference_spin")),
     ("topics", ("colour_topic", "depth_topic", "cmd_vel_topic", "twist_stamped", "base_frame", "slop_s")),
     ("timing", ("publish_on_timer", "command_priority")),
-    ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks")),
+    ("outputs", ("publish_overlay", "publish_diagnostics", "publish_frame_acks", "live_port")),
     ("SegCorridor's inputs: camera intrinsics and IMU", ("camera_info_topic", "imu_topic", "imu_max_age_s")),
 )
 DEFAULTS: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(NodeSettings)}
@@ -243,6 +249,7 @@ STARTUP_ONLY = (
     "publish_overlay",
     "publish_diagnostics",
     "publish_frame_acks",
+    "live_port",
     "camera_info_topic",
     "imu_topic",
     f"{FOLLOWER}.method",

@@ -24,3 +24,10 @@ BASE_FRAME = "base_link"
 CAMERA_FRAME = "camera_link"
 OPTICAL_FRAME = "camera_color_optical_frame"
 IMU_FRAME = "imu_link"
+
+# The live view's own topics (nav_eval.live): streamed by `--live` and written to nav-eval's bags
+# beside the ones above, so that one Foxglove layout opens both.
+OVERLAY = "/segmin/overlay"  # the camera frame with the mask and the target column drawn
+HISTOGRAM = "/segmin/histogram"  # the navigator's smoothed column histogram
+ROWS = "/segmin/rows"  # SegCorridor's centreline and rows, in base_link
+PATH = "/segmin/path"  # the robot's poses in odom

@@ -16,10 +16,14 @@ depth-noise generator of its own, so the run's frames, noise and commands are un
 | /ground_truth/odom | nav_msgs/Odometry | map -> base_link | the true pose |
 | /cmd_vel | geometry_msgs/Twist | | each command the runtime computed, at its time |
 | /tf, /tf_static | tf2_msgs/TFMessage | | odom -> base_link per frame; map -> odom, base_link -> camera_link -> optical frame, base_link -> imu_link once |
+| /segmin/overlay, /segmin/histogram, /segmin/rows, /segmin/path | | | the live view's topics (`live.view`), per runtime step (`step`) |
 
 Stamps are simulated time from 0 s, header stamp = log time. The bag's metadata (custom_data)
 holds the field, method, model, seed, depth threshold and rates of the run. The bag is written
 inside `<path>.partial/` and moved to `path` when complete, so a folder at `path` is always a whole run.
+
+With `live_port` the same messages, serialised once, also stream to a live view (`live.server`,
+`segmin nav-eval --live`); `path` None then writes no bag.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from segmin.common.outputs import check_writable
+from segmin.nav_eval.live.view import VIEW_TYPES, ViewMessages, header, image_message, nanoseconds, twist
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.sim.robot import RobotState, body_axes
 
@@ -52,6 +57,7 @@ TOPIC_TYPES = {
     topics.CMD_VEL: "geometry_msgs/msg/Twist",
     topics.TF: "tf2_msgs/msg/TFMessage",
     topics.TF_STATIC: "tf2_msgs/msg/TFMessage",
+    **VIEW_TYPES,
 }
 
 
@@ -105,28 +111,53 @@ def base_pose(state: RobotState) -> np.ndarray:
 
 
 class RunRecorder:
-    """Writes one run (see the module docstring); `frame` per camera frame, `command` per command.
+    """Writes one run (see the module docstring); `frame` per camera frame, `step` per runtime
+    step, `command` per command.
 
     Use as a context manager: an exception inside leaves no bag (the partial folder is removed).
     """
 
-    def __init__(self, path: str | Path, camera: Any, seed: int, metadata: dict[str, str] | None = None) -> None:
-        from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    def __init__(
+        self,
+        path: str | Path | None,
+        camera: Any,
+        seed: int,
+        metadata: dict[str, str] | None = None,
+        live_port: int = 0,
+    ) -> None:
         from rosbags.typesys import Stores, get_typestore
 
-        self.path = Path(path)
-        # Written inside <path>.partial/ under the bag's own name (rosbag2 names its file after it).
-        self._partial = partial_path(self.path)
-        shutil.rmtree(self._partial, ignore_errors=True)
-        self._partial.mkdir(parents=True)
         self._store = get_typestore(Stores.ROS2_HUMBLE)
         self._types = self._store.types
         self.camera = camera
         self._noise_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x0BA6]))
-        self._writer = Writer(self._partial / self.path.name, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._view = ViewMessages(self._types)
+        self._last_rgb: np.ndarray | None = None  # the newest frame's image and odometry pose, for `step`
+        self._last_pose: Any = None
+        self._odom_origin: np.ndarray | None = None  # 4 x 4 map -> odom: the start pose, level
+        self.frames = 0
+        self.commands = 0
+        self.path = None if path is None else Path(path)
+        self._live: Any = None
+        if live_port:
+            from segmin.nav_eval.live.server import LiveServer
+
+            self._live = LiveServer(TOPIC_TYPES, live_port)
+        self._writer: Any = None
+        if self.path is not None:
+            self._open_bag(self.path, metadata or {})
+
+    def _open_bag(self, path: Path, metadata: dict[str, str]) -> None:
+        """Start the bag inside <path>.partial/, under the bag's own name (rosbag2 names its file after it)."""
+        from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+        self._partial = partial_path(path)
+        shutil.rmtree(self._partial, ignore_errors=True)
+        self._partial.mkdir(parents=True)
+        self._writer = Writer(self._partial / path.name, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        for key, value in (metadata or {}).items():
+        for key, value in metadata.items():
             self._writer.set_custom_data(f"segmin.{key}", str(value))
         self._writer.open()
         never = QosTime(0, 0)
@@ -143,9 +174,6 @@ class RunRecorder:
             )
             for topic, msgtype in TOPIC_TYPES.items()
         }
-        self._odom_origin: np.ndarray | None = None  # 4 x 4 map -> odom: the start pose, level
-        self.frames = 0
-        self.commands = 0
 
     # ---- the rollout's calls -------------------------------------------------------------------
     def frame(self, simulator: Any, t: float, rendered: Any | None) -> None:
@@ -169,7 +197,9 @@ class RunRecorder:
         self._write(topics.DEPTH_INFO, t, info_message)
         self._write(topics.IMU, t, self._imu(t, pose, state))
         odom = np.linalg.inv(self._odom_origin) @ pose
-        self._write(topics.ODOM, t, self._odometry(t, topics.ODOM_FRAME, odom, state))
+        odometry = self._odometry(t, topics.ODOM_FRAME, odom, state)
+        self._write(topics.ODOM, t, odometry)
+        self._last_rgb, self._last_pose = np.asarray(rgb, dtype=np.uint8), odometry.pose.pose
         self._write(topics.GROUND_TRUTH, t, self._odometry(t, topics.MAP_FRAME, pose, state))
         tf = self._types["tf2_msgs/msg/TFMessage"](
             transforms=[self._transform(t, topics.ODOM_FRAME, topics.BASE_FRAME, odom)]
@@ -177,17 +207,24 @@ class RunRecorder:
         self._write(topics.TF, t, tf)
         self.frames += 1
 
+    def step(self, t: float, output: Any, navigator: Any) -> None:
+        """The live view's topics of the runtime's step at `t` (a `FollowerOutput` of `navigator`),
+        drawn on the newest frame `frame` wrote."""
+        for topic, message in self._view.step(t, self._last_rgb, output, navigator, self._last_pose):
+            self._write(topic, t, message)
+
     def command(self, t: float, v: float, omega: float) -> None:
         """A command the runtime computed at time `t`."""
-        vector = self._types["geometry_msgs/msg/Vector3"]
-        twist = self._types["geometry_msgs/msg/Twist"](
-            linear=vector(x=v, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=omega)
-        )
-        self._write(topics.CMD_VEL, t, twist)
+        self._write(topics.CMD_VEL, t, twist(self._types, v, omega))
         self.commands += 1
 
-    def close(self) -> Path:
-        """Finish the bag and move it to `path` (replacing an older one); returns `path`."""
+    def close(self) -> Path | None:
+        """Finish the bag and move it to `path` (replacing an older one); returns `path` (None
+        without a bag). Stops the live view."""
+        if self._live is not None:
+            self._live.close()
+        if self.path is None:
+            return None
         self._writer.close()
         if self.path.exists():
             shutil.rmtree(self.path)
@@ -196,7 +233,11 @@ class RunRecorder:
         return self.path
 
     def abort(self) -> None:
-        """Drop the unfinished bag."""
+        """Drop the unfinished bag; stop the live view."""
+        if self._live is not None:
+            self._live.close()
+        if self.path is None:
+            return
         try:
             self._writer.close()
         finally:
@@ -214,26 +255,16 @@ class RunRecorder:
     # ---- messages ------------------------------------------------------------------------------
     def _write(self, topic: str, t: float, message: Any) -> None:
         data = self._store.serialize_cdr(message, TOPIC_TYPES[topic])
-        self._writer.write(self._connections[topic], _nanoseconds(t), data)
+        if self._writer is not None:
+            self._writer.write(self._connections[topic], nanoseconds(t), data)
+        if self._live is not None:
+            self._live.log(topic, t, data)
 
     def _header(self, t: float, frame_id: str) -> Any:
-        ns = _nanoseconds(t)
-        stamp = self._types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
-        return self._types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+        return header(self._types, t, frame_id)
 
-    def _image(self, header: Any, pixels: np.ndarray, encoding: str) -> Any:
-        pixels = np.ascontiguousarray(pixels)
-        height, width = pixels.shape[:2]
-        data = pixels.view(np.uint8).reshape(-1)
-        return self._types["sensor_msgs/msg/Image"](
-            header=header,
-            height=height,
-            width=width,
-            encoding=encoding,
-            is_bigendian=0,
-            step=data.size // height,
-            data=data,
-        )
+    def _image(self, head: Any, pixels: np.ndarray, encoding: str) -> Any:
+        return image_message(self._types, head, pixels, encoding)
 
     def _camera_info(self, header: Any) -> Any:
         k = self.camera.intrinsics()
@@ -321,7 +352,3 @@ class RunRecorder:
             self._transform(t, topics.BASE_FRAME, topics.IMU_FRAME, np.eye(4)),
         ]
         self._write(topics.TF_STATIC, t, self._types["tf2_msgs/msg/TFMessage"](transforms=transforms))
-
-
-def _nanoseconds(t: float) -> int:
-    return round(t * 1e9)

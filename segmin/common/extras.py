@@ -2,8 +2,9 @@
 
 `pip install segmin` is the robot runtime (numpy, OpenCV, onnxruntime, PyYAML). Simulation and
 figures come with `[sim]`, training and export with `[train]`, ROS bags (replay and recording)
-with `[ros]`; `[all]` is all three. Ray, for `--executor ray`, comes with `[cluster]`. The table must
-follow pyproject.toml's extras (a test checks it).
+with `[ros]`, the live view in Foxglove with `[live]`; `[all]` is these four. Ray, for
+`--executor ray`, comes with `[cluster]`. The table must follow pyproject.toml's extras (a test
+checks it).
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "tensorboard": "train",
     "rosbags": "ros",
     "ray": "cluster",
+    "foxglove": "live",
 }
-ALL_EXTRAS = ("sim", "train", "ros")
+ALL_EXTRAS = ("sim", "train", "ros", "live")
 """What `segmin[all]` installs (not [cluster]: Ray is for the machines that fan jobs out)."""
 
 

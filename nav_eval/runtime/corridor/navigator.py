@@ -89,6 +89,12 @@ class CorridorNavigator:
         self._smoother.rest()
         self.mode_counts = dict.fromkeys(MODES, 0)
 
+    @property
+    def corridor_width(self) -> float | None:
+        """The running corridor width (m) between the fitted rows, None before two rows were seen:
+        read by the live view to draw the rows beside the centreline."""
+        return self._width
+
     def statistics(self) -> dict[str, float]:
         """Shares of this run's commands found on one row, on the trunks and by the fallback
         (`methods.METHOD_STATISTICS`); none before the first command."""
