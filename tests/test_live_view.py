@@ -285,3 +285,19 @@ def test_nav_eval_live_streams_its_one_run(tmp_path, capsys) -> None:
     assert got.topics() == set(TOPIC_TYPES)
     counts = Counter(name for name, *_ in got.messages)
     assert counts[topics.OVERLAY] == counts[topics.COLOUR] > 0 and counts[topics.CMD_VEL] > 0
+
+
+def test_the_path_keeps_the_newest_poses_only(monkeypatch) -> None:
+    """A long run's path message stays bounded: the newest PATH_POSES poses, in order."""
+    from segmin.nav_eval.live import view
+
+    monkeypatch.setattr(view, "PATH_POSES", 3)
+    messages = view.ViewMessages(STORE.types)
+    types = STORE.types
+    for k in range(5):
+        pose = types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=float(k), y=0.0, z=0.0),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        path = messages.path(0.2 * k, pose)
+    assert [p.pose.position.x for p in path.poses] == [2.0, 3.0, 4.0]

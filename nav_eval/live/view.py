@@ -7,7 +7,7 @@ same schemas and one Foxglove layout opens both.
 | /segmin/overlay | sensor_msgs/Image rgb8 | camera_color_optical_frame | each camera frame, at most 224 px wide, with the newest command's fused mask (green) and target column (red; a red bar on top: a stop) |
 | /segmin/histogram | std_msgs/Float32MultiArray | | the command's smoothed column histogram (SegMin, SegMinD, SegZeros; SegCorridor's fallback), one value per column; empty otherwise |
 | /segmin/rows | visualization_msgs/MarkerArray | base_link | SegCorridor's centreline and the rows half its running corridor width to each side; a DELETEALL without a centreline (the paper's methods, the fallback) |
-| /segmin/path | nav_msgs/Path | odom | the robot's poses so far, one per command |
+| /segmin/path | nav_msgs/Path | odom | the robot's newest poses, one per command (at most `PATH_POSES`) |
 
 The overlay is drawn by `replay.video.overlay` (the video's drawing), nothing of its own, on the
 frame scaled down to at most `OVERLAY_WIDTH` (what the shipped models see): a view to watch the
@@ -19,6 +19,7 @@ Humble types of `rosbags` (the [ros] or [live] extra).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +41,9 @@ OVERLAY_WIDTH = 224  # px, the shipped models' input width: frames wider than th
 ROW_SAMPLES = 12  # points per drawn line: enough for a quadratic centreline to look smooth
 LINE_WIDTH_M = 0.05
 MARKER_LINE_STRIP, MARKER_ADD, MARKER_DELETEALL = 4, 0, 3  # visualization_msgs/Marker constants
+# Poses a path message carries: 10 min of commands at 5 Hz. The whole path of an hour's run would
+# make each message, and its serialising, grow with the run's length.
+PATH_POSES = 3000
 
 
 def nanoseconds(t: float) -> int:
@@ -78,7 +82,7 @@ class ViewMessages:
         self._types = types
         self._mask: np.ndarray | None = None
         self._column: float | None = None
-        self._poses: list[Any] = []
+        self._poses: deque[Any] = deque(maxlen=PATH_POSES)
 
     def step(
         self,
@@ -159,7 +163,7 @@ class ViewMessages:
         return types["visualization_msgs/msg/MarkerArray"](markers=markers)
 
     def path(self, t: float, pose: Any) -> Any:
-        """The path so far in odom, `pose` appended."""
+        """The path in odom: its newest `PATH_POSES` poses, `pose` the last."""
         types = self._types
         self._poses.append(types["geometry_msgs/msg/PoseStamped"](header=header(types, t, ODOM_FRAME), pose=pose))
         return types["nav_msgs/msg/Path"](header=header(types, t, ODOM_FRAME), poses=list(self._poses))
