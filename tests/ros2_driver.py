@@ -22,6 +22,9 @@ offset so that each phase's stamps come after the last):
 5. a bad parameter (follower.navigator.v_max = -1) -> refused with its reason, the node alive;
 6. ~/enable false -> one stop, then silence.
 
+With `live_port` set in PARAMS, a Foxglove client (benchmarks/live_client.py) connects to the
+node's live view before phase 1 and records what it streams until the end of phase 2 (`live`).
+
 With NODE_COMMAND.json (a JSON list: the command that starts the node, as the ROS 2 package's
 launch file describes it), the node is started that way instead, and only phases 1 and 2 run: the
 package's tests compare its commands; the other phases are the node's own.
@@ -41,6 +44,7 @@ from collections import Counter
 from pathlib import Path
 
 import rclpy
+import yaml
 from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
@@ -200,6 +204,30 @@ def disable(driver: Driver, frames: list, result: dict) -> None:
     result["phases"]["disable"] = [start, middle, len(driver.received), response.message]
 
 
+def live_client(params: Path):
+    """A Foxglove client of the node's live view when PARAMS sets `live_port` (else None)."""
+    port = yaml.safe_load(params.read_text())[NODE]["ros__parameters"].get("live_port", 0)
+    if not port:
+        return None
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks/
+    from benchmarks.live_client import LiveClient
+
+    client = LiveClient(port)
+    if not client.connected.wait(10):
+        raise RuntimeError(f"no live view on port {port}")
+    return client
+
+
+def live_record(client) -> dict:
+    """What the client saw: topics and schemas advertised, seconds to each subscription, messages per topic."""
+    received = client.stop()
+    return {
+        "channels": {c["topic"]: [c["encoding"], c["schemaName"]] for c in received.channels.values()},
+        "subscribed_at": received.subscribed_at,
+        "counts": dict(Counter(topic for topic, *_ in received.messages)),
+    }
+
+
 def stop(node: subprocess.Popen) -> tuple[int, str]:
     """Ctrl-C the node; its exit code and its log."""
     if node.poll() is None:
@@ -242,9 +270,13 @@ def main() -> int:
     frames, bag_commands = read_bag(bag)
     rclpy.init()
     result: dict = {"bag_commands": bag_commands, "phases": {}}
+    result["colour_frames"] = sum(1 for _, topic, _ in frames if topic == COLOUR)
 
     def phases(driver: Driver) -> None:
+        client = live_client(params)
         disabled_then_bag(driver, frames, result)
+        if client is not None:
+            result["live"] = live_record(client)
         if command is None:
             stall_and_bad_input(driver, frames, result)
             disable(driver, frames, result)

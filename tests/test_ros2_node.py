@@ -31,6 +31,7 @@ from bag_helpers import depth_message, image_message, write_bag
 from loopback import in_loopback_namespace
 from test_sim_bags import _episode
 
+from segmin.nav_eval.live.server import LIVE_TYPES
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.params import NODE_NAME, defaults_yaml
 from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
@@ -41,6 +42,7 @@ NS = 10**9
 # Scheduling slack of the watchdog timer on a shared two-core machine (0.95 s was seen against
 # 0.85 s with 0.05 s of slack while two simulator processes ran beside it).
 TIMER_SLACK_S = 0.2
+LIVE_PORT = 8765  # in the test's own network namespace: nothing else listens there
 CONFINE = 'ip link set lo up && export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST && exec "$@"'
 
 
@@ -81,8 +83,9 @@ def episode_bag(exported, tmp_path_factory) -> Path:
     return bag
 
 
-def frame_by_frame_params(folder: Path, model: Path) -> Path:
-    """The node's parameters for a driver: the bag's clock, acknowledgements, commands sent at once."""
+def frame_by_frame_params(folder: Path, model: Path, **node: object) -> Path:
+    """The node's parameters for a driver: the bag's clock, acknowledgements, commands sent at once
+    (and the node settings `node`)."""
     return _params(
         folder / "params.yaml",
         model,
@@ -90,13 +93,14 @@ def frame_by_frame_params(folder: Path, model: Path) -> Path:
         publish_frame_acks=True,
         publish_on_timer=False,
         command_priority=10,
+        **node,
     )
 
 
-def run_driver(script: str, source: Path, folder: Path, model: Path) -> dict:
+def run_driver(script: str, source: Path, folder: Path, model: Path, **node: object) -> dict:
     """Run a driver (`tests/<script>`, in the ROS environment, confined) on `source` against the node
-    on its frame-by-frame parameters; returns what it wrote."""
-    params = frame_by_frame_params(folder, model)
+    on its frame-by-frame parameters (and the node settings `node`); returns what it wrote."""
+    params = frame_by_frame_params(folder, model, **node)
     env = ros_env()
     result = confined(
         [str(env / "bin" / "python"), str(ROOT / "tests" / script), str(source), str(params), str(folder / "out.json")],
@@ -108,8 +112,20 @@ def run_driver(script: str, source: Path, folder: Path, model: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def drive(exported, episode_bag, tmp_path_factory) -> dict:
-    """The driver's record of one node run over a simulated bag."""
-    return run_driver("ros2_driver.py", episode_bag, tmp_path_factory.mktemp("ros2"), exported[0])
+    """The driver's record of one node run over a simulated bag, its live view watched by a client."""
+    return run_driver("ros2_driver.py", episode_bag, tmp_path_factory.mktemp("ros2"), exported[0], live_port=LIVE_PORT)
+
+
+def test_the_node_streams_its_live_view_to_a_foxglove_client(drive) -> None:
+    """live_port: every channel of the live view advertised within 1 s of connecting, in the bags'
+    schemas, an overlay for at least 95 % of the frames and the commands it sent."""
+    live = drive["live"]
+    assert live["channels"] == {topic: ["cdr", msgtype] for topic, msgtype in LIVE_TYPES.items()}
+    assert max(live["subscribed_at"].values()) < 1.0
+    first, last = drive["phases"]["bag"]
+    assert live["counts"][topics.OVERLAY] >= 0.95 * drive["colour_frames"] > 0
+    assert live["counts"][topics.CMD_VEL] >= 0.95 * (last - first) > 0
+    assert live["counts"][topics.HISTOGRAM] > 0
 
 
 def test_the_node_publishes_nothing_until_enabled(drive) -> None:
