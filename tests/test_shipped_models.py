@@ -300,3 +300,21 @@ def test_the_pipeline_report_shows_the_shipped_cards_mae_over_all_and_successful
     row = {"field": "high_trees", "method": "segmind", "runs": 3, "successes": 0, "mae": 0.5, "mae_successful": None}
     lines = _closed_loop([], [], {"trees": {"closed_loop": [row]}})
     assert "| trees | high_trees | segmind | 0/3 | 0.500 | n/a |" in lines
+
+
+def test_a_card_released_before_the_looks_were_kept_says_them_all_and_how_the_model_was_chosen() -> None:
+    """The shipped cards predate the per-run count: they carry the looks since, and whether the
+    model was chosen among candidates scored on the photos (then its figures are no clean test)."""
+    from segmin.app.model_card import _looks
+
+    chosen = _looks({"looks": {"in_all": 12, "chosen_with_them": True}})
+    assert (
+        chosen
+        == " looked at 12 times in all for models of this recipe, this model chosen among candidates scored on it"
+    )
+    assert _looks({"looks": {"in_all": 5, "chosen_with_them": False}}) == (
+        " looked at 5 times in all for models of this recipe"
+    )
+    for name, count in (("vineyards", 12), ("trees", 5)):
+        card = shipped_model(name).card()
+        assert card is not None and card["real_photos"]["looks"]["in_all"] == count

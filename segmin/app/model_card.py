@@ -190,10 +190,17 @@ def _sha(stage: dict[str, Any]) -> str:
 
 
 def _looks(real: dict[str, Any]) -> str:
-    """How often the photo set was looked at, for the card's line (cards from before it was kept: nothing)."""
+    """How often the photo set was looked at, for the card's line (cards from before it was kept: nothing).
+
+    A run's card counts the looks before it and its own one; a card released before the count was
+    kept carries the count since (`in_all`) and whether the model was chosen among candidates
+    scored on the photos, which makes its figures there no clean test."""
     looks = real.get("looks")
     if not looks:
         return ""
+    if "in_all" in looks:
+        chosen = ", this model chosen among candidates scored on it" if looks.get("chosen_with_them") else ""
+        return f" looked at {looks['in_all']} times in all for models of this recipe{chosen}"
     before = looks["before"]
     earlier = f"{before} time{'s' * (before != 1)} while this model's recipe was made and " if before else ""
     return f" looked at {earlier}once for this model, after it was chosen"
