@@ -15,7 +15,7 @@ from sweep_helpers import TINY, assert_refused_before_any_run
 from segmin.app.cli import main
 from segmin.data.synth.spec import load_world_spec
 from segmin.nav_eval.evaluation import evaluate
-from segmin.nav_eval.evaluation.evaluate import RunResult
+from segmin.nav_eval.evaluation.records import RunResult
 from segmin.nav_eval.runtime.corridor.config import CorridorConfig
 from segmin.nav_eval.sweeps.families import run_families
 from segmin.nav_eval.sweeps.family_report import FamilyRun, choose, judge, summarise_families, t_critical, t_interval

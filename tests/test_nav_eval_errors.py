@@ -107,7 +107,7 @@ def test_a_non_finite_depth_threshold_is_refused_by_name():
 
 
 def _errored(field: str = "straight_vineyard"):
-    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.evaluation.records import RunResult
 
     return RunResult(
         field=field,
@@ -153,7 +153,7 @@ def test_the_pipeline_never_caches_a_nav_stage_with_errored_runs(tmp_path, monke
 
 def _driven(job):
     """A finished run of `job` with a two-point path, as a worker returns it (no simulation)."""
-    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.evaluation.records import RunResult
     from segmin.nav_eval.sim.track import Trajectory
 
     path = Trajectory.from_rows([(0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 1.0), (1.0, 0.5, 0.01, 0.0, 0.5, 0.0, 1.0)])

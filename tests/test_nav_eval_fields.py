@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from segmin.data.synth.spec import TEST_FIELDS
-from segmin.nav_eval.evaluation.evaluate import Job, Worker, run_evaluation, run_seed
+from segmin.nav_eval.evaluation.evaluate import Worker, run_evaluation, run_seed
 from segmin.nav_eval.evaluation.metrics import compute_metrics
+from segmin.nav_eval.evaluation.records import Job
 from segmin.nav_eval.evaluation.rollout import run_episode
 from segmin.nav_eval.runtime.follower import RowFollower
 from segmin.nav_eval.runtime.navigator import Command, Navigator, NavigatorConfig

@@ -6,7 +6,7 @@ import csv
 import json
 import math
 
-from segmin.nav_eval.evaluation.evaluate import RunResult
+from segmin.nav_eval.evaluation.records import RunResult
 from segmin.nav_eval.evaluation.report import write_results
 from segmin.nav_eval.runtime.methods import STATISTIC_COLUMNS
 

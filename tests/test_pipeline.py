@@ -333,7 +333,7 @@ def test_the_comparison_with_the_paper_sets_segcorridor_beside_segmind() -> None
     """Per field, the paper's SegMinD MAE is the bar for our SegMinD and SegCorridor, SegMinD first;
     the paper's other methods are left to the table, a field without a finished run says so."""
     from segmin.app.pipeline.report import _comparison
-    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.evaluation.records import RunResult
 
     def run(field: str, method: str, mae: float, success: bool = True) -> RunResult:
         return RunResult(field, method, 0, 0, "trees", success, "goal" if success else "collision", mae=mae)

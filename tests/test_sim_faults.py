@@ -119,7 +119,7 @@ def test_a_simulated_fault_stops_the_robot_within_0_3_m_and_it_drives_on(kind: s
 
 
 def test_the_report_gives_the_worst_fault_metrics_per_field_and_method() -> None:
-    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.evaluation.records import RunResult
     from segmin.nav_eval.evaluation.report import faults_markdown
 
     def result(run: int, stop: float, blind: float, resume: float) -> RunResult:

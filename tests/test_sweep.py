@@ -15,6 +15,7 @@ from segmin.common.config import to_dict
 from segmin.common.shipped import shipped_names
 from segmin.data.synth.spec import load_world_spec
 from segmin.nav_eval.evaluation import evaluate
+from segmin.nav_eval.evaluation.records import RunResult
 from segmin.nav_eval.sim.robot import SkidSteerConfig
 from segmin.nav_eval.sweeps import plots
 from segmin.nav_eval.sweeps.family_spec import is_family_spec
@@ -195,7 +196,7 @@ def test_a_tiny_sweep_writes_its_tables_and_figures_and_resumes(tmp_path, monkey
 
 def test_runs_that_raise_are_reported_and_not_stored(tmp_path, capsys, monkeypatch) -> None:
     def broken(self, job):
-        return evaluate.RunResult(
+        return RunResult(
             field=job.field,
             method=job.method,
             run=job.run,

@@ -16,7 +16,8 @@ from typing import Any
 
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
-from segmin.nav_eval.evaluation.evaluate import Job, RunResult, run_seed
+from segmin.nav_eval.evaluation.evaluate import run_seed
+from segmin.nav_eval.evaluation.records import Job, RunResult
 from segmin.nav_eval.sim.factories import field_label
 from segmin.nav_eval.sweeps.family_report import FamilyRun, Verdict, judge, summarise_families, write_family_outputs
 from segmin.nav_eval.sweeps.family_spec import FamilyPlan, load_family_spec, plan_families

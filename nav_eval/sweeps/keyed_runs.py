@@ -19,7 +19,8 @@ import yaml
 from segmin.common.atomic import write_text
 from segmin.common.executor import Executor
 from segmin.common.outputs import check_output_dir
-from segmin.nav_eval.evaluation.evaluate import Job, RunResult, execute_jobs
+from segmin.nav_eval.evaluation.evaluate import execute_jobs
+from segmin.nav_eval.evaluation.records import Job, RunResult
 from segmin.nav_eval.evaluation.run_store import RUNS_FOLDER, digest, model_identity, store_run, stored_runs
 from segmin.nav_eval.sim.config import NavEvalConfig
 from segmin.nav_eval.sim.factories import make_segmenter

@@ -21,7 +21,8 @@ from typing import Any
 
 from segmin.common.executor import LOCAL, Executor
 from segmin.common.lock import writer_lock
-from segmin.nav_eval.evaluation.evaluate import Job, RunResult, run_seed
+from segmin.nav_eval.evaluation.evaluate import run_seed
+from segmin.nav_eval.evaluation.records import Job, RunResult
 from segmin.nav_eval.sweeps.keyed_runs import prepare_runs, run_key, run_keyed_jobs, with_command_line, write_world
 from segmin.nav_eval.sweeps.report import summarise_sweep, write_sweep_outputs
 from segmin.nav_eval.sweeps.spec import SweepPlan, Variant, load_sweep, plan_sweep, variant_file_name

@@ -465,7 +465,7 @@ def load_results(path: Path) -> list[Any]:
     """RunResult objects back from a results.json (for a report over cached stages)."""
     import json
 
-    from segmin.nav_eval.evaluation.evaluate import RunResult
+    from segmin.nav_eval.evaluation.records import RunResult
 
     rows = json.loads(path.read_text())["rows"]
     return [RunResult.from_row({k: (math.nan if v is None else v) for k, v in row.items()}) for row in rows]
