@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from segmin.nav_eval.demo.scenes import DemoScene, render_scene
 from segmin.nav_eval.runtime.corridor import CameraGeometry, CorridorConfig, CorridorNavigator, fit_parallel_rows
+from segmin.nav_eval.runtime.corridor.trunk_mode import ground_plane
 from segmin.nav_eval.runtime.follower import RowFollower
 from segmin.nav_eval.runtime.methods import METHOD_STATISTICS
 from segmin.nav_eval.sim.config import load_nav_config
@@ -507,6 +508,33 @@ def test_under_a_closed_canopy_the_trunks_give_the_centre(offset):
     assert len(command.centre) == 1 + nav.config.degree  # as long as the row fits' centrelines
     assert nav.mode_counts["trunks"] == 3
     assert np.sign(command.omega) == -np.sign(offset) or offset == 0.0
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.3])
+def test_a_robot_pitched_on_a_bump_still_finds_the_trunks(offset):
+    """The camera 5 deg further down than the navigator's geometry says (a bump under the
+    robot): the level ground ahead rises through the trunks' height band in the robot's plane.
+    Measured from the robot's plane the trunk-to-trunk width fell to 3.4 m and the centre went
+    to the wrong side; measured from the ground ahead both hold."""
+    mask, depth = render_scene(orchard_scene(offset), size=SIZE, tilt_deg=10.0)
+    nav = orchard_navigator()
+    for _ in range(3):
+        command = nav.step(mask, depth)
+    assert command.mode == "trunks"
+    assert command.centre[0] == pytest.approx(-offset, abs=0.06)
+    assert nav._trunks.width == pytest.approx(7.0, abs=0.3)
+
+
+def test_the_ground_plane_is_fitted_under_trunks_and_noise():
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(0.5, 12.0, 2000), rng.uniform(-5.0, 5.0, 2000)
+    h = 0.05 + 0.09 * x - 0.03 * y + rng.normal(0.0, 0.02, x.shape)
+    trunk_x, trunk_h = np.repeat([4.0, 8.0], 100), np.tile(np.linspace(0.0, 2.0, 100), 2)
+    x, y = np.concatenate([x, trunk_x]), np.concatenate([y, np.full(200, 3.5)])
+    h = np.concatenate([h, 0.05 + 0.09 * trunk_x - 0.03 * 3.5 + trunk_h])
+    assert ground_plane(x, y, h) == pytest.approx((0.05, 0.09, -0.03), abs=0.01)
+    # too few points near the robot's plane: that plane is the ground
+    assert ground_plane(x[:20], y[:20], h[:20]) == (0.0, 0.0, 0.0)
 
 
 def test_an_opening_in_the_canopy_hands_the_trunk_scene_to_segmind():

@@ -37,6 +37,8 @@ TRUNK_X_MAX = 12.0  # m: trunks and posts are looked for up to this far ahead
 TRUNK_STRIDE = 2  # px: every n-th pixel (both directions) of the trunk search
 TRUNK_MAX_LATERAL = 6.0  # m: trunk points kept within this of the split line (before the width is known)
 TRUNK_MAX_EXCESS_GREEN = 10.0  # a trunk pixel is not green: 2G - R - B at most this
+GROUND_BANDS = (1.0, 0.3, 0.15)  # m: the ground plane's rounds, each fitted to the points this near the last
+GROUND_MIN_POINTS = 30  # fewer non-vegetation points near the ground: the robot's own plane is the ground
 _FIXED = {
     "max_lateral": MAX_LATERAL,
     "roof_share": ROOF_SHARE,

@@ -12,6 +12,8 @@ import numpy as np
 
 from ..camera import CameraGeometry
 from .config import (
+    GROUND_BANDS,
+    GROUND_MIN_POINTS,
     ROOF_BIN,
     TRUNK_H_MAX,
     TRUNK_H_MIN,
@@ -24,6 +26,27 @@ from .config import (
 )
 from .rays import StridedRays
 from .row_fit import polyval
+
+
+def ground_plane(x: np.ndarray, y: np.ndarray, h: np.ndarray) -> tuple[float, float, float]:
+    """The ground ahead as a plane h = a + b x + c y in the robot's frame, fitted to the low
+    non-vegetation points, (0, 0, 0) (the plane the robot stands on) with too few of them.
+
+    A robot pitched by a bump sees the level ground ahead rise by x tan(pitch): at 0.09 rad the
+    soil 4-9 m ahead stood 0.3-0.8 m above the robot's plane, inside the trunks' height band,
+    and the trunk-to-trunk width shrank from 7 m to 2 m until the robot left the row (two of the
+    six high-trees layouts). The ground is most of the non-vegetation pixels, so least squares
+    on the points near the current plane, the band narrowed each round, finds it; trunks and
+    posts stand above it and fall out of the band."""
+    plane = np.zeros(3)
+    design = np.stack([np.ones_like(x), x, y], axis=1)
+    for band in GROUND_BANDS:
+        near = np.abs(h - design @ plane) <= band
+        if np.count_nonzero(near) < GROUND_MIN_POINTS:
+            return 0.0, 0.0, 0.0
+        plane = np.linalg.lstsq(design[near], h[near], rcond=None)[0]
+    a, b, c = (float(value) for value in plane)
+    return a, b, c
 
 
 def roof_opening(lateral: np.ndarray, reach: float) -> float:
@@ -73,14 +96,19 @@ class TrunkFinder:
         z = depth_m.ravel()[pixel_index[chosen]]
         valid = np.flatnonzero(z > 0)
         ray_columns = np.take(rays, chosen[valid], axis=1)
-        # The height band is measured from the ground the robot stands on (its own frame, not
-        # levelled): across a slope the level plane through the robot cuts the uphill row's ground
-        # and passes under the downhill row's crowns. The positions are levelled (trunks stand
-        # along gravity).
+        # The height band is measured from the ground ahead (`ground_plane`, in the robot's own
+        # frame, not levelled): across a slope the level plane through the robot cuts the uphill
+        # row's ground and passes under the downhill row's crowns, and a bump under the robot tilts
+        # its own plane against the ground ahead. The positions are levelled (trunks stand along
+        # gravity).
         x, y, h = self.camera.points_on_rays(ray_columns, z[valid])
+        ahead = (x >= config.x_min) & (x <= TRUNK_X_MAX)
+        x, y, h = x[ahead], y[ahead], h[ahead]
+        a, b, c = ground_plane(x, y, h)
+        above_ground = h - (a + b * x + c * y)
         if attitude is not None:
             x, y, _ = self.camera.level(x, y, h, attitude)
-        ok = (x >= config.x_min) & (x <= TRUNK_X_MAX) & (h >= TRUNK_H_MIN) & (h <= TRUNK_H_MAX)
+        ok = (above_ground >= TRUNK_H_MIN) & (above_ground <= TRUNK_H_MAX)
         x, y = x[ok], y[ok]
         offset = y - polyval(x, split)
         # Once the trunk-to-trunk width w is known, the next rows' trunks (at 1.5 w) are left out.
