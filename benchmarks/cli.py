@@ -130,7 +130,8 @@ def _register_closed_loop(bench: argparse._SubParsersAction) -> None:
         "--backends",
         nargs="+",
         default=["tiny", "gl"],
-        help="render backends driving the same run in turn (default: tiny gl); --matrix uses the last",
+        help="render backends driving the same run in turn (default: tiny gl; auto: what a run gets with "
+        "no backend setting); --matrix uses the last",
     )
     b.add_argument("--rounds", type=int, default=1, help="turns of every backend (default 1)")
     b.add_argument("--out", type=Path, default=None, help="folder for --matrix outputs (default: a temp folder)")
@@ -171,7 +172,8 @@ def _register_closed_loop(bench: argparse._SubParsersAction) -> None:
         "--backends",
         nargs="+",
         default=["tiny", "gl"],
-        help="render backends, taking turns on each setting (default: tiny gl; ratios against the first)",
+        help="render backends, taking turns on each setting (default: tiny gl; auto: the env's default; "
+        "ratios against the first)",
     )
     gym.set_defaults(func=_bench_gym)
 
@@ -330,8 +332,10 @@ def _bench_gym(args: argparse.Namespace) -> int:
 
     if args.steps < 1 or any(s < 8 for s in args.sizes) or any(n < 1 for n in args.num_envs):
         raise ValueError("bench gym: --steps, --num-envs must be >= 1 and --sizes >= 8 px")
-    if not args.backends or any(b not in ("tiny", "gl") for b in args.backends):
-        raise ValueError(f"bench gym: --backends {' '.join(args.backends)}: each must be one of tiny, gl")
+    from segmin.data.synth.render import BACKENDS
+
+    if not args.backends or any(b not in BACKENDS for b in args.backends):
+        raise ValueError(f"bench gym: --backends {' '.join(args.backends)}: each must be one of {', '.join(BACKENDS)}")
     print(format_gym_rows(bench_gym(args.field, args.sizes, args.steps, args.num_envs, args.backends)))
     return 0
 

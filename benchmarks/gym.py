@@ -50,7 +50,8 @@ def time_env(
         "field": field,
         "obs_keys": tuple(obs_keys),
         "size": size,
-        "overrides": [f"render.backend={backend}"],
+        # auto: no setting, the env's default (each field's own backend: gl where EGL opens)
+        "overrides": [] if backend == "auto" else [f"render.backend={backend}"],
     }
     env: gymnasium.Env | gymnasium.vector.VectorEnv
     if mode == "single":

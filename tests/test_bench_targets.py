@@ -39,7 +39,7 @@ def test_verdicts_cover_the_measured_figures_only():
         (["synth", "--workers", "1", "0"], "--workers 1 0: each must be >= 1"),
         (["nav-eval", "--workers", "0"], "--workers 0: must be >= 1"),
         (["nav-eval", "--seconds", "0"], "--seconds 0.0: must be > 0"),
-        (["nav-eval", "--backends", "tiny", "vulkan"], "--backends tiny vulkan: each must be one of tiny, gl"),
+        (["nav-eval", "--backends", "tiny", "vulkan"], "--backends tiny vulkan: each must be one of auto, tiny, gl"),
         (["nav-eval", "--rounds", "0"], "--rounds 0: must be >= 1"),
         (["synth", "--backends", "egl"], "--backends egl: each must be tiny or gl"),
         (["render-agreement", "--poses", "0"], "--poses 0: must be >= 1"),
