@@ -3,7 +3,7 @@
 These time how segmin is built (rendering, training, export, the closed loop, bag replay, the
 Gymnasium env, the executors) and guard its speed targets; a robot team does not need them, so they
 live outside the wheel. The benches a team runs on its own hardware stay in `segmin bench`
-(model-speed, navigator, ros2). Every target prints its figures and, where it has them, its
+(model-speed: its model against the paper's; navigator; ros2). Every target prints its figures and, where it has them, its
 targets' verdicts; errors read as the `segmin` command's (one line, exit 2).
 """
 
@@ -27,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     _register_data(bench)
     _register_train(bench)
     _register_export(bench)
+    _register_architectures(bench)
     _register_closed_loop(bench)
     return parser
 
@@ -356,3 +357,45 @@ def _bench_executor(args: argparse.Namespace) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _register_architectures(bench: argparse._SubParsersAction) -> None:
+    from segmin.models.architectures import ARCHITECTURES
+
+    parser = bench.add_parser(
+        "architectures",
+        help="onnxruntime frame time of the candidate networks (backbone cuts) as a ratio to the full network",
+        description=(
+            "Export every architecture (random weights) at every size, time them alternately in one "
+            "session with onnxruntime, and print median / p95 ms, the ratio to the full network at "
+            "224 px, parameters, file size and the optimised graph's op counts, with the load average."
+        ),
+    )
+    parser.add_argument(
+        "--architectures",
+        nargs="+",
+        default=list(ARCHITECTURES),
+        metavar="NAME",
+        help=f"networks to time (default: all: {', '.join(ARCHITECTURES)}); the full network is always timed",
+    )
+    parser.add_argument("--sizes", nargs="+", type=int, default=[224, 192], help="square input sizes (default 224 192)")
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads (default 2)")
+    parser.add_argument("--runs", type=int, default=200, help="timed frames per candidate (default 200)")
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    parser.set_defaults(func=_bench_architectures)
+
+
+def _bench_architectures(args: argparse.Namespace) -> int:
+    from benchmarks.architectures import ModelSpeedOptions
+    from benchmarks.architectures import run_model_speed as run
+
+    run(
+        ModelSpeedOptions(
+            architectures=tuple(args.architectures),
+            sizes=tuple(args.sizes),
+            threads=args.threads,
+            runs=args.runs,
+            json=args.json,
+        )
+    )
+    return 0

@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.architectures import interleaved
 from segmin.common.machine import load_average_1min
 from segmin.common.speed_targets import SpeedTarget, verdict_lines, verdicts
-from segmin.export.bench_models import interleaved
 
 TARGETS: tuple[SpeedTarget, ...] = (
     SpeedTarget("ort_fp32_ms", "ort fp32 median", 6.0, "ms"),

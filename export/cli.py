@@ -1,4 +1,4 @@
-"""`segmin export` and `segmin bench model-speed`.
+"""`segmin export`.
 
 The export latency bench (PyTorch eager against onnxruntime) is a developer's: `python -m benchmarks export`.
 """
@@ -39,7 +39,6 @@ def register(commands, bench) -> None:
     parser.add_argument("--calib-frames", type=int, default=32, help="frames for INT8 calibration (default 32)")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime threads for checks (default 2)")
     parser.set_defaults(func=run_export)
-    _register_model_speed(bench)
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -73,46 +72,4 @@ def run_export(args: argparse.Namespace) -> int:
         print(f"{report['fp16']['path']}: max |dp| vs fp32 {vs['max_abs_diff']:.2e}, mask IoU {vs['mask_iou']:.4f}")
     if "int8" in report:
         print(f"{report['int8']['path']}: {report['int8']['recommendation']}")
-    return 0
-
-
-def _register_model_speed(bench) -> None:
-    from segmin.models.architectures import ARCHITECTURES
-
-    parser = bench.add_parser(
-        "model-speed",
-        help="onnxruntime frame time of the candidate networks as a ratio to today's full network",
-        description=(
-            "Export every architecture (random weights) at every size, time them alternately in one "
-            "session with onnxruntime, and print median / p95 ms, the ratio to the full network at "
-            "224 px, parameters, file size and the optimised graph's op counts, with the load average."
-        ),
-    )
-    parser.add_argument(
-        "--architectures",
-        nargs="+",
-        default=list(ARCHITECTURES),
-        metavar="NAME",
-        help=f"networks to time (default: all: {', '.join(ARCHITECTURES)}); the full network is always timed",
-    )
-    parser.add_argument("--sizes", nargs="+", type=int, default=[224, 192], help="square input sizes (default 224 192)")
-    parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads (default 2)")
-    parser.add_argument("--runs", type=int, default=200, help="timed frames per candidate (default 200)")
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
-    parser.set_defaults(func=run_model_speed)
-
-
-def run_model_speed(args: argparse.Namespace) -> int:
-    from segmin.export.bench_models import ModelSpeedOptions
-    from segmin.export.bench_models import run_model_speed as run
-
-    run(
-        ModelSpeedOptions(
-            architectures=tuple(args.architectures),
-            sizes=tuple(args.sizes),
-            threads=args.threads,
-            runs=args.runs,
-            json=args.json,
-        )
-    )
     return 0

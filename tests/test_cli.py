@@ -62,6 +62,7 @@ def test_the_benchmark_runner_has_every_developer_bench_with_help(capsys: pytest
             "train",
             "iou-bound",
             "export",
+            "architectures",
             "nav-eval",
             "replay-bag",
             "live-view",

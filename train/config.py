@@ -70,7 +70,7 @@ class TrainConfig:
     backbone_weights: str = "imagenet"  # "imagenet", "none" or a state-dict path
     # The network (models.lraspp.ARCHITECTURES): torchvision's full LR-ASPP MobileNetV3-Large, or
     # the backbone cut after an earlier block (`..._cut13` is the paper's cut: 1.3 M parameters,
-    # about 0.6x the full network's time a frame on 2 CPU cores; `segmin bench model-speed`).
+    # about 0.6x the full network's time a frame on 2 CPU cores; `python -m benchmarks architectures`).
     architecture: str = "lraspp_mobilenet_v3_large"
     image_size: int = 224
     epochs: int = 50

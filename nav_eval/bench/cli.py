@@ -1,4 +1,4 @@
-"""`segmin bench navigator` and `segmin bench segmenter`: the navigators and the robot runtime per
+"""`segmin bench navigator` and `segmin bench model-speed`: the navigators and the robot runtime per
 frame, and the segmenter's configurations against the paper's model, on the robot's own computer.
 
 The developers' benches (closed-loop speed, bag replay, the Gymnasium env, the executors) are in the
@@ -22,12 +22,12 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     )
     nav.add_argument("--threads", type=int, default=2, help="onnxruntime threads for the full step (default 2)")
     nav.set_defaults(func=_bench_navigator)
-    _register_segmenter(bench)
+    _register_model_speed(bench)
 
 
-def _register_segmenter(bench: argparse._SubParsersAction) -> None:
+def _register_model_speed(bench: argparse._SubParsersAction) -> None:
     seg = bench.add_parser(
-        "segmenter",
+        "model-speed",
         help="a model's frame-to-mask time per runtime configuration, as a ratio to the paper's TFLite model",
         description=(
             "Time a model from the camera frame to the mask in each runtime configuration (threads, "
@@ -50,10 +50,10 @@ def _register_segmenter(bench: argparse._SubParsersAction) -> None:
         "--busy", type=int, default=0, help="background processes keeping half a core busy each (default 0)"
     )
     seg.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
-    seg.set_defaults(func=_bench_segmenter)
+    seg.set_defaults(func=_bench_model_speed)
 
 
-def _bench_segmenter(args: argparse.Namespace) -> int:
+def _bench_model_speed(args: argparse.Namespace) -> int:
     from segmin.common.machine import load_average
     from segmin.data.readers import read_image
     from segmin.nav_eval.bench.segmenter_speed import Setup, busy_processes, format_figures, run_rounds, write_json

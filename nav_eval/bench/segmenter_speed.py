@@ -1,4 +1,4 @@
-"""`segmin bench segmenter`: a model's camera-frame-to-mask time in each runtime configuration,
+"""`segmin bench model-speed`: a model's camera-frame-to-mask time in each runtime configuration,
 as a ratio to the paper's TFLite model timed side by side.
 
 Why this shape: absolute milliseconds move with the machine and its load, so every figure that

@@ -1,4 +1,4 @@
-"""`segmin bench model-speed`: the candidate networks' onnxruntime frame time against today's model.
+"""`python -m benchmarks architectures`: the candidate networks' onnxruntime frame time against the full network.
 
 Why: the released models must run at or below the paper's model's frame time (its MobileNetV3
 cut after `expanded_conv_12`: 3.0-3.3 ms with 2 threads at 224 px on the reference 2-core
@@ -45,7 +45,7 @@ COUNTED = ("Conv", "Conv+HardSwish", "Conv+HardSigmoid", "GlobalAveragePool", "M
 
 @dataclass(frozen=True)
 class ModelSpeedOptions:
-    """What `segmin bench model-speed` takes (export/cli.py has the command-line help)."""
+    """What `python -m benchmarks architectures` takes (benchmarks/cli.py has the command-line help)."""
 
     architectures: tuple[str, ...] = tuple(ARCHITECTURES)
     sizes: tuple[int, ...] = (224, 192)
@@ -185,7 +185,7 @@ def _print(
 
     load = "unknown" if None in loads else f"{loads[0]:.2f} before, {loads[1]:.2f} after"
     print(
-        f"segmin bench model-speed: onnxruntime {ort.__version__}, batch 1, {options.threads} threads, "
+        f"benchmarks architectures: onnxruntime {ort.__version__}, batch 1, {options.threads} threads, "
         f"random weights, all candidates alternated in one session; load average (1 min) {load} "
         f"on {os.cpu_count()} cores"
     )

@@ -1,4 +1,4 @@
-"""`segmin bench segmenter`: configurations timed in turn, each in its own process, with ratios to
+"""`segmin bench model-speed`: configurations timed in turn, each in its own process, with ratios to
 the paper's model. Nothing here judges a time: the rotation, the table and the refusals are logic."""
 
 from __future__ import annotations
@@ -56,6 +56,6 @@ def test_ratios_are_to_the_paper_model_at_the_same_thread_count_and_the_default_
 )
 def test_bad_parameters_are_one_line(argv, message, capsys):
     argv = [str(shipped_model("vineyards").onnx) if a == "VINEYARDS_FILE" else a for a in argv]
-    assert main(["bench", "segmenter", *argv]) == 2
+    assert main(["bench", "model-speed", *argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err

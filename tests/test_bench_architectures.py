@@ -1,4 +1,4 @@
-"""`segmin bench model-speed`: every candidate exported, inspected and timed against the full network."""
+"""`python -m benchmarks architectures`: every candidate exported, inspected and timed against the full network."""
 
 from __future__ import annotations
 
@@ -6,15 +6,15 @@ import json
 
 import pytest
 
-from segmin.app.cli import main as segmin_main
+from benchmarks.cli import main as benchmarks_main
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_model_speed_reports_each_cut_against_the_full_network(tmp_path, capsys) -> None:
     out = tmp_path / "speed.json"
-    args = ["bench", "model-speed", "--architectures", "lraspp_mobilenet_v3_large_cut10", "--sizes", "64", "32"]
-    assert segmin_main([*args, "--runs", "8", "--threads", "1", "--json", str(out)]) == 0
+    args = ["architectures", "--architectures", "lraspp_mobilenet_v3_large_cut10", "--sizes", "64", "32"]
+    assert benchmarks_main([*args, "--runs", "8", "--threads", "1", "--json", str(out)]) == 0
     summary = json.loads(out.read_text())
     rows = summary["rows"]
     assert set(rows) == {
@@ -41,6 +41,6 @@ def test_model_speed_reports_each_cut_against_the_full_network(tmp_path, capsys)
     ],
 )
 def test_model_speed_refuses_bad_options_in_one_line(extra, message, capsys) -> None:
-    assert segmin_main(["bench", "model-speed", *extra]) == 2
+    assert benchmarks_main(["architectures", *extra]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
