@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from segmin.common.timing import Latency, time_calls
+from segmin.common.timing import Latency, interleaved_calls
 from segmin.export.verify import Agreement, compare, make_session, run_session
 
 # fp16 is compared with the fp32 export, not with PyTorch: half precision cannot meet 1e-4.
@@ -95,10 +95,7 @@ def interleaved_latency(
 ) -> dict[str, Latency]:
     """Latency of several files measured in alternating rounds, so load from others hits all alike."""
     sessions = {name: make_session(path, threads=threads) for name, path in paths.items()}
-    samples: dict[str, list[float]] = {name: [] for name in paths}
-    per_round = max(1, runs // rounds)
-    for _ in range(rounds):
-        for name, session in sessions.items():
-            feed = {session.get_inputs()[0].name: frame}
-            samples[name].extend(time_calls(partial(session.run, None, feed), runs=per_round, warmup=3))
-    return {name: Latency.of_seconds(s) for name, s in samples.items()}
+    calls = {
+        name: partial(session.run, None, {session.get_inputs()[0].name: frame}) for name, session in sessions.items()
+    }
+    return interleaved_calls(calls, runs=runs, rounds=rounds)

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from .follower_config import CameraConfig, FollowerConfig, load_follower_config, make_navigator
     from .navigator import Navigator, NavigatorConfig, target_column
     from .protocols import MaskNavigator, NavigatorInputs, Segmenter
-    from .segmenter import OnnxSegmenter
+    from .segmenter import LiteRtSegmenter, OnnxSegmenter
     from .sensor_faults import SensorChecks
 
 # Name -> defining module; loaded on first use so that importing one piece does not load the rest
@@ -48,6 +48,7 @@ _EXPORTS: dict[str, str] = {
     "load_follower_config": "follower_config",
     "make_navigator": "follower_config",
     "OnnxSegmenter": "segmenter",
+    "LiteRtSegmenter": "segmenter",
     "SensorChecks": "sensor_faults",
 }
 __all__ = [
@@ -58,6 +59,7 @@ __all__ = [
     "CorridorNavigator",
     "FollowerConfig",
     "FollowerOutput",
+    "LiteRtSegmenter",
     "MaskNavigator",
     "Navigator",
     "NavigatorConfig",
