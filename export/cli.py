@@ -24,8 +24,8 @@ def register(commands, bench) -> None:
         "--checkpoint",
         required=True,
         type=Path,
-        help="checkpoint (best.pt / last.pt), or a shipped model name / segmin .onnx file to export to "
-        "another format (needs --calib-data)",
+        help="checkpoint (best.pt / last.pt), or a segmin fp32 .onnx file to export to another format (needs "
+        "--calib-data; for a shipped model: segmin models to-litert)",
     )
     parser.add_argument("--out", required=True, type=Path, help="output file (.onnx, or .tflite with --format tflite)")
     parser.add_argument(

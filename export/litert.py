@@ -16,6 +16,7 @@ zero point), exact to 1/256); `export.litert_file.Runner` gives float32 probabil
 
 from __future__ import annotations
 
+import os
 import warnings
 from functools import partial
 from pathlib import Path
@@ -30,9 +31,11 @@ from segmin.common.timing import Latency, interleaved_calls
 from segmin.export import litert_file
 from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper
+from segmin.export.quantize import int8_report
 from segmin.export.verify import Agreement, VerificationError, check_bounds, compare, torch_reference
 
 SIGNATURE = "serving_default"  # the converted model's one signature
+_PROGRESS_ENV = "LITERT_TORCH_SHOW_PROGRESS"
 
 
 def converter_name() -> str:
@@ -49,9 +52,19 @@ def convert_graph(model: nn.Module, path: str | Path, input_size: tuple[int, int
     height, width = (int(v) for v in input_size)
     wrapper = DeployWrapper(model).eval()
     example = torch.zeros(1, height, width, 3, dtype=torch.uint8)
-    with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        litert_torch.convert(wrapper, (example,)).export(str(path))
+    # litert-torch prints its progress to stdout (through an environment variable it reads): off
+    # here, so that stdout stays segmin's result lines, and the caller's setting put back after.
+    previous = os.environ.get(_PROGRESS_ENV)
+    os.environ[_PROGRESS_ENV] = "n"
+    try:
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            litert_torch.convert(wrapper, (example,)).export(str(path))
+    finally:
+        if previous is None:
+            del os.environ[_PROGRESS_ENV]
+        else:
+            os.environ[_PROGRESS_ENV] = previous
 
 
 def quantize_int8(src: str | Path, dst: str | Path, frames: np.ndarray) -> None:
@@ -90,6 +103,7 @@ def check_io(path: str | Path, input_size: tuple[int, int]) -> None:
 
 def export_litert(
     options: Any,
+    int8_path: Path,
     model: nn.Module,
     meta: dict[str, str],
     verify_set: np.ndarray,
@@ -98,9 +112,7 @@ def export_litert(
     input_size: tuple[int, int],
 ) -> dict[str, Any]:
     """fp32 file verified against PyTorch (and an INT8 one compared with it when `calib_set` is
-    given), each written atomically; returns their report entries ("fp32", "int8")."""
-    from segmin.export.pipeline import int8_report, summary, variant_path
-
+    given, written to `int8_path`), each written atomically; returns their report entries ("fp32", "int8")."""
     out = Path(options.out)
     report: dict[str, Any] = {}
     with atomic_path(out) as tmp:
@@ -114,11 +126,10 @@ def export_litert(
         except VerificationError as exc:
             kept = " (the existing file was left unchanged)" if out.exists() else ""
             raise VerificationError(f"{out}: export failed verification, no file written{kept}: {exc}") from exc
-        litert_file.stamp(tmp, {"verification": summary(agreement)})
+        litert_file.stamp(tmp, {"verification": agreement.summary()})
     report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
     if calib_set is not None:
-        path = variant_path(out, "int8")
-        with atomic_path(path) as tmp:
+        with atomic_path(int8_path) as tmp:
             quantize_int8(out, tmp, calib_set)
             int8_agreement: Agreement = compare(run_file(tmp, verify_set, options.threads), probs, threshold)
             litert_file.stamp(
@@ -128,11 +139,11 @@ def export_litert(
                     md.KEY_PRECISION: "int8",
                     md.KEY_OUTPUT: "vegetation probability, 1 x 1 x H x W, int8 (probability = scale x (q - zero "
                     "point), the output tensor's quantisation; sigmoid applied)",
-                    "verification": "vs fp32: " + summary(int8_agreement),
+                    "verification": "vs fp32: " + int8_agreement.summary(),
                 },
             )
             latency = interleaved_latency({"fp32": out, "int8": tmp}, verify_set[:1], threads=options.threads)
-        report["int8"] = {"path": str(path), **int8_report(int8_agreement, latency, len(calib_set))}
+        report["int8"] = {"path": str(int8_path), **int8_report(int8_agreement, latency, len(calib_set))}
     return report
 
 

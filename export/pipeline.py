@@ -19,7 +19,6 @@ import numpy as np
 
 from segmin.common.atomic import atomic_path, write_json
 from segmin.common.outputs import check_output_file
-from segmin.common.timing import Latency
 from segmin.export import metadata as md
 from segmin.export import quantize as quant
 from segmin.export.onnx import (
@@ -47,9 +46,6 @@ from segmin.export.verify import (
 
 log = logging.getLogger(__name__)
 
-# INT8 is recommended only when it is measurably faster AND its masks stay close to fp32.
-INT8_MIN_SPEEDUP = 1.05
-INT8_MIN_IOU = 0.95
 # `format` -> the output file's suffix (ONNX for onnxruntime / TensorRT, LiteRT for XNNPACK / Coral-class targets).
 FORMATS = {"onnx": ".onnx", "tflite": ".tflite"}
 
@@ -212,13 +208,14 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
         from segmin.export.litert import export_litert
 
         calib_set = spread(frames, options.calib_frames) if options.int8 else None
-        report.update(export_litert(options, model, meta, verify_set, calib_set, threshold, input_size))
+        int8_path = variant_path(out, "int8")
+        report.update(export_litert(options, int8_path, model, meta, verify_set, calib_set, threshold, input_size))
         _remove_stale_variants(options)
         write_json(report_path(out), report)
         return report
     agreement = _export_verified_fp32(options, model, meta, verify_set, threshold, input_size, int(meta[md.KEY_OPSET]))
     report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
-    log.info("wrote %s (verified: %s)", out, summary(agreement))
+    log.info("wrote %s (verified: %s)", out, agreement.summary())
     _remove_stale_variants(options)
     fp32_probs = run_session(make_session(out, threads=options.threads), verify_set)
     if options.fp16:
@@ -233,28 +230,28 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
 def _load_source(options: ExportOptions) -> tuple[Any, dict[str, Any], dict[str, str], Path]:
     """(network, model_info, metadata carried over, the source file) of `options.checkpoint`.
 
-    A segmin checkpoint is read as it is. A segmin ONNX file or a shipped model's name (shipped
-    models exist only as ONNX) is converted back to PyTorch first (`export.to_torch`), its
-    BatchNorm statistics measured on --calib-data, and its model card is carried over.
+    A segmin checkpoint is read as it is. A segmin fp32 ONNX file (a shipped model: those exist
+    only as ONNX; `segmin models to-litert` passes its file) is converted back to PyTorch first
+    (`export.to_torch`), its BatchNorm statistics measured on --calib-data, and its card carried over.
     """
     from segmin.models.checkpoint import load_model
-    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES, resolve_model
 
-    spec = Path(options.checkpoint)
-    if spec.suffix.lower() != ".onnx" and not (str(spec) in SHIPPED_NAMES and not spec.exists()):
-        model, info = load_model(spec)
-        return model, info, {}, spec
+    source = Path(options.checkpoint)
+    if source.suffix.lower() != ".onnx":
+        model, info = load_model(source)
+        return model, info, {}, source
     from segmin.export.to_torch import model_from_onnx
 
-    path = resolve_model(spec, what="--checkpoint")
     if options.calib_data is None:
         raise ValueError(
-            f"--checkpoint {spec}: an ONNX model; pass --calib-data DIR (frames of its crop) to measure its "
+            f"--checkpoint {source}: an ONNX model; pass --calib-data DIR (frames of its crop) to measure its "
             "BatchNorm statistics and verify the export on"
         )
-    model, info, props = model_from_onnx(path, Path(options.calib_data))
+    if not source.is_file():
+        raise FileNotFoundError(f"--checkpoint {source}: ONNX model not found")
+    model, info, props = model_from_onnx(source, Path(options.calib_data))
     carried = {key: props[key] for key in (md.KEY_MODEL_CARD, md.KEY_MODEL_CARD_JSON) if key in props}
-    return model, info, carried, path
+    return model, info, carried, source
 
 
 def _refuse_existing_outputs(options: ExportOptions) -> None:
@@ -302,7 +299,7 @@ def _export_verified_fp32(
         except VerificationError as exc:
             kept = " (the existing file was left unchanged)" if out.exists() else ""
             raise VerificationError(f"{out}: export failed verification, no file written{kept}: {exc}") from exc
-        _stamp(tmp, {"verification": summary(agreement)})
+        _stamp(tmp, {"verification": agreement.summary()})
     return agreement
 
 
@@ -332,20 +329,13 @@ def _check_calibration_frames(found: int, wanted: int, source: Path) -> None:
         )
 
 
-def summary(agreement) -> str:
-    return (
-        f"{agreement.frames} frames, max|dp| {agreement.max_abs_diff:.2e}, "
-        f"mask agreement {100 * agreement.mask_agreement:.3f} %, IoU {agreement.mask_iou:.4f}"
-    )
-
-
 def _export_fp16(out: Path, meta: dict[str, str], fp32_probs, frames, threshold: float) -> dict[str, Any]:
     path = variant_path(out, "fp16")
     with atomic_path(path) as tmp:
         quant.convert_fp16(out, tmp)
         agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
         check_bounds(agreement, str(path), max_abs_diff=quant.FP16_MAX_ABS_DIFF, min_agreement=quant.FP16_MIN_AGREEMENT)
-        _stamp(tmp, {**meta, md.KEY_PRECISION: "fp16", "verification": "vs fp32: " + summary(agreement)})
+        _stamp(tmp, {**meta, md.KEY_PRECISION: "fp16", "verification": "vs fp32: " + agreement.summary()})
     return {"path": str(path), "vs_fp32": agreement.as_dict()}
 
 
@@ -356,26 +346,6 @@ def _export_int8(
     with atomic_path(path) as tmp:
         quant.quantize_int8(out, tmp, calib)
         agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
-        _stamp(tmp, {**meta, md.KEY_PRECISION: "int8", "verification": "vs fp32: " + summary(agreement)})
+        _stamp(tmp, {**meta, md.KEY_PRECISION: "int8", "verification": "vs fp32: " + agreement.summary()})
         latency = quant.interleaved_latency({"fp32": out, "int8": tmp}, frames[:1], threads=threads, runs=30)
-    return {"path": str(path), **int8_report(agreement, latency, len(calib))}
-
-
-def int8_report(agreement: Agreement, latency: dict[str, Latency], calibration_frames: int) -> dict[str, Any]:
-    """An INT8 file's report entry: its agreement with fp32, both latencies and the recommendation."""
-    speedup = latency["fp32"].median_ms / latency["int8"].median_ms
-    recommended = speedup >= INT8_MIN_SPEEDUP and agreement.mask_iou >= INT8_MIN_IOU
-    reason = (
-        f"calibrated on {calibration_frames} frames, "
-        f"INT8 median {latency['int8'].median_ms:.2f} ms vs fp32 {latency['fp32'].median_ms:.2f} ms "
-        f"({speedup:.2f}x), mask IoU vs fp32 {agreement.mask_iou:.4f}: "
-        + ("recommended" if recommended else "not recommended, deploy the fp32 file")
-    )
-    return {
-        "vs_fp32": agreement.as_dict(),
-        "latency_ms": {name: lat.as_dict() for name, lat in latency.items()},
-        "calibration_frames": calibration_frames,
-        "speedup_vs_fp32": speedup,
-        "recommended": recommended,
-        "recommendation": reason,
-    }
+    return {"path": str(path), **quant.int8_report(agreement, latency, len(calib))}

@@ -46,6 +46,13 @@ class Agreement:
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
 
+    def summary(self) -> str:
+        """One line for a file's `verification` metadata and the log."""
+        return (
+            f"{self.frames} frames, max|dp| {self.max_abs_diff:.2e}, "
+            f"mask agreement {100 * self.mask_agreement:.3f} %, IoU {self.mask_iou:.4f}"
+        )
+
 
 # ----------------------------------------------------------------------------- frames
 

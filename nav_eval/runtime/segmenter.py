@@ -205,9 +205,11 @@ class LiteRtSegmenter(_ModelFileSegmenter):
         return self._runner(prepared.batch)[0, 0]
 
 
-def load_segmenter(model: str | os.PathLike, threads: int = 2) -> OnnxSegmenter | LiteRtSegmenter:
-    """The segmenter for a model argument: a .tflite file -> `LiteRtSegmenter`, anything else (an
-    .onnx file, a shipped name) -> `OnnxSegmenter`; what `--model` of `segmin replay` loads."""
+def load_segmenter(
+    model: str | os.PathLike, threads: int = 2, what: str = "--model"
+) -> OnnxSegmenter | LiteRtSegmenter:
+    """The segmenter for a model argument (`what` names it in errors): a .tflite file ->
+    `LiteRtSegmenter`, anything else (an .onnx file, a shipped name) -> `OnnxSegmenter`."""
     if os.fspath(model).lower().endswith(".tflite"):
-        return LiteRtSegmenter(model, threads=threads)
-    return OnnxSegmenter(model, threads=threads)
+        return LiteRtSegmenter(resolve_model(model, what=what, suffix=".tflite"), threads=threads)
+    return OnnxSegmenter(resolve_model(model, what=what), threads=threads)
