@@ -59,6 +59,7 @@ def register(commands, bench) -> None:
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime / LiteRT threads for checks (default 2)")
     parser.set_defaults(func=run_export)
     _register_model_speed(bench)
+    _register_litert_speed(bench)
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -135,4 +136,29 @@ def run_model_speed(args: argparse.Namespace) -> int:
             json=args.json,
         )
     )
+    return 0
+
+
+def _register_litert_speed(bench) -> None:
+    parser = bench.add_parser(
+        "litert-speed",
+        help="LiteRT (.tflite) files' frame time side by side, and the ops XNNPACK leaves out of each",
+        description=(
+            "Time LiteRT files alternately in one process (XNNPACK, per thread count) and print median / p95 "
+            "ms, the ratio to the first file and the load average; before that, each file's XNNPACK partitions "
+            "and the ops left to LiteRT's own kernels (why an INT8 file can be slower than fp32)."
+        ),
+    )
+    parser.add_argument("--models", nargs="+", required=True, type=Path, metavar="FILE", help=".tflite files")
+    parser.add_argument("--threads", nargs="+", type=int, default=[2, 1], help="thread counts (default 2 1)")
+    parser.add_argument("--rounds", type=int, default=6, help="alternating rounds (default 6)")
+    parser.add_argument("--runs", type=int, default=240, help="timed frames per file and thread count (default 240)")
+    parser.set_defaults(func=run_litert_speed)
+
+
+def run_litert_speed(args: argparse.Namespace) -> int:
+    from segmin.export.bench_litert import LiteRtSpeedOptions
+    from segmin.export.bench_litert import run_litert_speed as run
+
+    run(LiteRtSpeedOptions(tuple(args.models), tuple(args.threads), args.rounds, args.runs))
     return 0

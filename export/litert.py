@@ -10,8 +10,13 @@ ImageNet normalisation and the sigmoid inside, vegetation probability 1 x 1 x H 
 
 INT8: ai-edge-quantizer's full-integer static recipe (`static_wi8_ai8`: int8 weights per channel,
 int8 activations) applied to the verified fp32 file, calibrated on real frames, as the ONNX INT8
-variant is made from the verified ONNX file. Its output is int8 (probability = scale x (q -
-zero point), exact to 1/256); `export.litert_file.Runner` gives float32 probabilities either way.
+variant is made from the verified ONNX file, with one change: HARD_SWISH stays float. XNNPACK
+(ai-edge-litert 2.3) has no int8 hard-swish, so with it quantised each of MobileNetV3's 15
+hard-swish ops ran in LiteRT's own int8 kernel between 16 XNNPACK partitions, and the INT8 file
+was 1.5x slower than fp32; kept float (a DEQUANTIZE / QUANTIZE pair around each, both XNNPACK
+ops), the whole graph but the input CAST is one XNNPACK partition and INT8 is faster than fp32
+(docs/results/history/litert.md). Its output is int8 (probability = scale x (q - zero point),
+exact to 1/256); `export.litert_file.Runner` gives float32 probabilities either way.
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ from segmin.export.quantize import int8_report
 from segmin.export.verify import Agreement, VerificationError, check_bounds, compare, torch_reference
 
 SIGNATURE = "serving_default"  # the converted model's one signature
+# Ops the INT8 file keeps float: XNNPACK has no int8 kernel for them (see the module docstring).
+INT8_FLOAT_OPS = ("HARD_SWISH",)
 _PROGRESS_ENV = "LITERT_TORCH_SHOW_PROGRESS"
 
 
@@ -67,15 +74,27 @@ def convert_graph(model: nn.Module, path: str | Path, input_size: tuple[int, int
             os.environ[_PROGRESS_ENV] = previous
 
 
-def quantize_int8(src: str | Path, dst: str | Path, frames: np.ndarray) -> None:
-    """Full-integer INT8 copy of the fp32 file `src` at `dst`, calibrated on uint8 N x H x W x 3 frames."""
-    from ai_edge_quantizer import quantizer, recipe
+def int8_recipe(float_ops: tuple[str, ...] = INT8_FLOAT_OPS) -> list[dict[str, Any]]:
+    """ai-edge-quantizer's `static_wi8_ai8` recipe with `float_ops` left unquantised (a recipe is a
+    list of rules, the last matching one wins)."""
+    from ai_edge_quantizer import recipe
+
+    keep = [{"regex": ".*", "operation": op, "algorithm_key": "no_quantize", "op_config": {}} for op in float_ops]
+    return [*recipe.static_wi8_ai8(), *keep]
+
+
+def quantize_int8(
+    src: str | Path, dst: str | Path, frames: np.ndarray, float_ops: tuple[str, ...] = INT8_FLOAT_OPS
+) -> None:
+    """INT8 copy of the fp32 file `src` at `dst` (int8 weights and activations, `float_ops` float),
+    calibrated on uint8 N x H x W x 3 frames."""
+    from ai_edge_quantizer import quantizer
 
     if len(frames) == 0:
         raise ValueError("INT8 calibration needs at least one frame")
     interpreter = litert_file.make_interpreter(src, threads=1)
     (input_name,) = interpreter.get_signature_list()[SIGNATURE]["inputs"]
-    engine = quantizer.Quantizer(str(src), recipe.static_wi8_ai8())
+    engine = quantizer.Quantizer(str(src), int8_recipe(float_ops))
     calibration = engine.calibrate({SIGNATURE: [{input_name: frames[i : i + 1]} for i in range(len(frames))]})
     Path(dst).write_bytes(bytes(engine.quantize(calibration, enable_progress_report=False).quantized_model))
 

@@ -183,3 +183,38 @@ def test_pipeline_export_formats_are_checked_and_keep_the_onnx_hash() -> None:
         load_pipeline_config("micro", ["export.formats=[onnx, coreml]"])
     with pytest.raises(ValueError, match=r"export.formats \['tflite'\]: must include onnx"):
         load_pipeline_config("micro", ["export.formats=[tflite]"])
+
+
+def test_int8_keeps_hard_swish_float_so_xnnpack_runs_the_whole_graph(litert_export, capsys) -> None:
+    """XNNPACK has no int8 hard-swish: quantised, each one ran outside XNNPACK between 16
+    partitions and the INT8 file was slower than fp32. The bench names what XNNPACK leaves out."""
+    from segmin.export.bench_litert import op_census
+
+    out, _ = litert_export
+    int8 = variant_path(out, "int8")
+    census = op_census(int8)
+    assert census["HARD_SWISH float32"] == op_census(out)["HARD_SWISH float32"] > 0
+    assert census["HARD_SWISH int8"] == 0 and census["CONV_2D int8"] > 0 and census["DEPTHWISE_CONV_2D int8"] > 0
+    args = ["bench", "litert-speed", "--models", str(out), str(int8), "--threads", "1", "--rounds", "1", "--runs", "2"]
+    assert segmin_main(args) == 0
+    printed = capsys.readouterr().out
+    for path in (out, int8):  # only the uint8 -> float input cast is LiteRT's
+        assert (
+            f"{path}: " in printed
+            and f"{path.stat().st_size / 1e6:.1f} MB, XNNPACK partitions 1, ops left out: CAST x1\n" in printed
+        )
+    assert "1 thread(s), 1 alternating rounds; before: load " in printed and f"1.00x  {out}" in printed
+
+
+def test_the_bench_finds_ops_left_out_of_xnnpack(litert_export, frames_dir, tmp_path) -> None:
+    """The partition count and the ops left out, on a file quantised with hard-swish int8 too."""
+    from segmin.export.bench_litert import op_census, xnnpack_partitions
+    from segmin.export.litert import quantize_int8
+
+    out, _ = litert_export
+    all_int8 = tmp_path / "all_int8.tflite"
+    quantize_int8(out, all_int8, load_frames(frames_dir, (SIZE, SIZE), limit=2), float_ops=())
+    partitions, left = xnnpack_partitions(litert_file.make_interpreter(all_int8, threads=1))
+    hard_swish = op_census(all_int8)["HARD_SWISH int8"]
+    assert hard_swish == op_census(out)["HARD_SWISH float32"] > 0  # the full network has 20
+    assert left == {"HARD_SWISH": hard_swish, "CAST": 1} and partitions > hard_swish // 2
