@@ -218,3 +218,25 @@ def test_the_bench_finds_ops_left_out_of_xnnpack(litert_export, frames_dir, tmp_
     hard_swish = op_census(all_int8)["HARD_SWISH int8"]
     assert hard_swish == op_census(out)["HARD_SWISH float32"] > 0  # the full network has 20
     assert left == {"HARD_SWISH": hard_swish, "CAST": 1} and partitions > hard_swish // 2
+
+
+def test_the_pipelines_litert_stage_exports_from_the_checkpoints_training_frames(
+    checkpoint, frames_dir, tmp_path
+) -> None:
+    """`export.formats: [onnx, tflite]`: the stage writes a verified LiteRT file from the frames the
+    checkpoint was trained on, as the ONNX export does (INT8 off here: the export tests cover it)."""
+    from segmin.app.pipeline.stages import litert_stage
+    from segmin.models.checkpoint import read_checkpoint, save_checkpoint
+
+    payload = read_checkpoint(checkpoint)
+    payload["model_info"]["train_data"] = f"{write_frames(tmp_path / 'train_frames', count=4)} domains=all"
+    trained = tmp_path / "best.pt"
+    save_checkpoint(trained, {k: v for k, v in payload.items() if k != "format"})
+    config = load_pipeline_config("micro", ["export.formats=[onnx, tflite]"])
+    logged: list[str] = []
+    outputs = litert_stage(config, trained, tmp_path / "litert" / "vineyards.tflite", logged.append)
+    assert outputs["litert"] == str(tmp_path / "litert" / "vineyards.tflite")
+    assert "litert_int8" not in outputs
+    assert outputs["verification"]["frames"] == 4 and outputs["verification"]["max_abs_diff"] <= MAX_ABS_DIFF
+    assert LiteRtSegmenter(outputs["litert"]).metadata[md.KEY_TRAIN_DATA].startswith(str(tmp_path / "train_frames"))
+    assert logged == [f"export: {trained} -> {tmp_path / 'litert' / 'vineyards.tflite'}"]

@@ -238,7 +238,7 @@ class ExportPlan:
     int8: bool = False
     latency_frames: int = 50
     # Files written for each family: "onnx" (always: the later stages run it) and "tflite" (a
-    # LiteRT file beside it, `export/<family>/<family>.tflite`, with an INT8 one when `int8`).
+    # LiteRT file, `litert/<family>/<family>.tflite` in the run folder, with an INT8 one when `int8`).
     formats: list[Literal["onnx", "tflite"]] = field(default_factory=lambda: ["onnx"])
 
     def __post_init__(self) -> None:  # checked at load: the export stage runs after render and training
