@@ -21,6 +21,7 @@ exact to 1/256); `export.litert_file.Runner` gives float32 probabilities either 
 
 from __future__ import annotations
 
+import logging
 import os
 import warnings
 from functools import partial
@@ -38,6 +39,8 @@ from segmin.export import metadata as md
 from segmin.export.onnx import DeployWrapper
 from segmin.export.quantize import int8_report
 from segmin.export.verify import Agreement, VerificationError, check_bounds, compare, torch_reference
+
+log = logging.getLogger(__name__)
 
 SIGNATURE = "serving_default"  # the converted model's one signature
 # Ops the INT8 file keeps float: XNNPACK has no int8 kernel for them (see the module docstring).
@@ -147,6 +150,7 @@ def export_litert(
             raise VerificationError(f"{out}: export failed verification, no file written{kept}: {exc}") from exc
         litert_file.stamp(tmp, {"verification": agreement.summary()})
     report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
+    log.info("wrote %s (verified: %s)", out, agreement.summary())
     if calib_set is not None:
         with atomic_path(int8_path) as tmp:
             quantize_int8(out, tmp, calib_set)

@@ -24,7 +24,7 @@ from segmin.export.onnx import DeployWrapper
 from segmin.export.pipeline import ExportOptions, export_checkpoint, report_path, variant_path
 from segmin.export.verify import MAX_ABS_DIFF, MIN_MASK_AGREEMENT, compare, load_frames
 from segmin.models.checkpoint import load_model
-from segmin.nav_eval.runtime import LiteRtSegmenter, OnnxSegmenter
+from segmin.nav_eval.runtime import LiteRtSegmenter, OnnxSegmenter, Segmenter
 from segmin.nav_eval.runtime.segmenter import load_segmenter
 from segmin.nav_eval.runtime.shipped_models import ENV_MODELS_DIR
 
@@ -48,6 +48,7 @@ def test_fp32_round_trip_matches_pytorch(litert_export, checkpoint, tmp_path) ->
     # Frames the export never saw, at another size: the segmenter resizes them as the robot does.
     frames = load_frames(write_frames(tmp_path / "fresh", count=3, height=50, width=120, seed=7), (SIZE, SIZE))
     segmenter = LiteRtSegmenter(out, threads=1)
+    assert isinstance(segmenter, Segmenter)
     probs = np.stack([segmenter.probabilities(frame)[None] for frame in frames])
     torch_probs = _torch_probs(checkpoint, frames)
     agreement = compare(probs, torch_probs, threshold=0.5)

@@ -8,7 +8,7 @@ the EMA that every navigator shares are in `control`; what configures them all, 
 `FollowerConfig` and `make_navigator`, in `follower_config`.
 
 Only numpy, OpenCV and onnxruntime: never torch, pybullet or matplotlib (the architecture test
-checks it). The main names are importable from here; each is defined in its own module.
+checks it); `LiteRtSegmenter` loads ai-edge-litert (the `litert` extra) when one is made. The main names are importable from here; each is defined in its own module.
 """
 
 from __future__ import annotations
