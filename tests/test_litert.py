@@ -241,3 +241,19 @@ def test_the_pipelines_litert_stage_exports_from_the_checkpoints_training_frames
     assert outputs["verification"]["frames"] == 4 and outputs["verification"]["max_abs_diff"] <= MAX_ABS_DIFF
     assert LiteRtSegmenter(outputs["litert"]).metadata[md.KEY_TRAIN_DATA].startswith(str(tmp_path / "train_frames"))
     assert logged == [f"export: {trained} -> {tmp_path / 'litert' / 'vineyards.tflite'}"]
+
+
+def test_a_failed_verification_writes_no_file(litert_export, checkpoint, frames_dir, tmp_path, monkeypatch) -> None:
+    """The file is converted, stamped and verified in a temporary file; one that misses the bounds
+    (here: a bound of 0) is never renamed to --out. The conversion is the fixture's file, copied."""
+    from segmin.export import litert
+
+    out, _ = litert_export
+    monkeypatch.setattr(litert, "convert_graph", lambda model, path, size: shutil.copy(out, path))
+    target = tmp_path / "model.tflite"
+    options = ExportOptions(checkpoint=checkpoint, out=target, calib_data=frames_dir, format="tflite", max_abs_diff=0.0)
+    with pytest.raises(
+        ValueError, match=r"model.tflite: export failed verification, no file written: .*max \|p_tflite"
+    ):
+        export_checkpoint(options)
+    assert list(tmp_path.iterdir()) == []
