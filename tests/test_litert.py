@@ -257,3 +257,17 @@ def test_a_failed_verification_writes_no_file(litert_export, checkpoint, frames_
     ):
         export_checkpoint(options)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_eval_seg_scores_a_litert_file_as_its_checkpoint(litert_export, checkpoint, tmp_path) -> None:
+    from test_seg_eval import write_set
+
+    out, _ = litert_export
+    data = write_set(tmp_path / "toy", count=3, size=(72, 96), toy=True)
+    results = {}
+    for name, model in (("litert", out), ("checkpoint", checkpoint)):
+        args = ["eval-seg", "--model", str(model), "--data", str(data), "--out", str(tmp_path / name)]
+        assert segmin_main([*args, "--no-progress"]) == 0
+        results[name] = json.loads((tmp_path / name / "results.json").read_text())
+    assert results["litert"]["kind"] == "litert" and results["litert"]["input_size"] == [SIZE, SIZE]
+    assert abs(results["litert"]["summary"]["mean_iou"] - results["checkpoint"]["summary"]["mean_iou"]) < 0.01
