@@ -12,7 +12,7 @@ $(PY):
 	$(PY) -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml | $(PY)
-	$(PY) -m pip install --quiet -e ".[all,test]"
+	$(PY) -m pip install --quiet -e ".[all,litert-export,test]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -38,7 +38,7 @@ LINT_STAMP := $(VENV)/.lint-installed
 WHEEL_PACKAGES := segmin nav_eval data models train export
 
 $(LINT_STAMP): pyproject.toml | $(STAMP)
-	$(PY) -m pip install --quiet -e ".[all,test,lint]" vermin==1.9.2
+	$(PY) -m pip install --quiet -e ".[all,litert-export,test,lint]" vermin==1.9.2
 	touch $(LINT_STAMP)
 
 lint: $(LINT_STAMP)

@@ -28,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     _register_train(bench)
     _register_export(bench)
     _register_architectures(bench)
+    _register_litert(bench)
     _register_closed_loop(bench)
     return parser
 
@@ -398,4 +399,29 @@ def _bench_architectures(args: argparse.Namespace) -> int:
             json=args.json,
         )
     )
+    return 0
+
+
+def _register_litert(bench: argparse._SubParsersAction) -> None:
+    parser = bench.add_parser(
+        "litert",
+        help="LiteRT (.tflite) files' frame time side by side, and the ops XNNPACK leaves out of each",
+        description=(
+            "Time LiteRT files alternately in one process (XNNPACK, per thread count) and print median / p95 "
+            "ms, the ratio to the first file and the load average; before that, each file's XNNPACK partitions "
+            "and the ops left to LiteRT's own kernels (why an INT8 file can be slower than fp32)."
+        ),
+    )
+    parser.add_argument("--models", nargs="+", required=True, type=Path, metavar="FILE", help=".tflite files")
+    parser.add_argument("--threads", nargs="+", type=int, default=[2, 1], help="thread counts (default 2 1)")
+    parser.add_argument("--rounds", type=int, default=6, help="alternating rounds (default 6)")
+    parser.add_argument("--runs", type=int, default=240, help="timed frames per file and thread count (default 240)")
+    parser.set_defaults(func=_bench_litert)
+
+
+def _bench_litert(args: argparse.Namespace) -> int:
+    from benchmarks.litert import LiteRtSpeedOptions
+    from benchmarks.litert import run_litert_speed as run
+
+    run(LiteRtSpeedOptions(tuple(args.models), tuple(args.threads), args.rounds, args.runs))
     return 0

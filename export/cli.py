@@ -12,15 +12,28 @@ from pathlib import Path
 def register(commands, bench) -> None:
     parser = commands.add_parser(
         "export",
-        help="export a checkpoint to a verified ONNX file (uint8 RGB NHWC in, probability out)",
+        help="export a checkpoint to a verified ONNX or LiteRT file (uint8 RGB NHWC in, probability out)",
         description=(
-            "Export a segmin checkpoint to ONNX. The graph takes uint8 RGB frames N x H x W x 3 and "
-            "returns vegetation probability N x 1 x H x W; it is verified against PyTorch on real "
-            "frames (max |dp| <= 1e-4, mask agreement >= 99.9 %) and not written if it fails."
+            "Export a segmin checkpoint to ONNX (or LiteRT with --format tflite). The graph takes uint8 RGB "
+            "frames N x H x W x 3 (LiteRT: 1 x H x W x 3) and returns vegetation probability N x 1 x H x W; it "
+            "is verified against PyTorch on real frames (max |dp| <= 1e-4, mask agreement >= 99.9 %) and not "
+            "written if it fails."
         ),
     )
-    parser.add_argument("--checkpoint", required=True, type=Path, help="checkpoint (best.pt / last.pt)")
-    parser.add_argument("--out", required=True, type=Path, help="output .onnx file")
+    parser.add_argument(
+        "--checkpoint",
+        required=True,
+        type=Path,
+        help="checkpoint (best.pt / last.pt), or a segmin fp32 .onnx file to export to another format (needs "
+        "--calib-data; for a shipped model: segmin models to-litert)",
+    )
+    parser.add_argument("--out", required=True, type=Path, help="output file (.onnx, or .tflite with --format tflite)")
+    parser.add_argument(
+        "--format",
+        choices=("onnx", "tflite"),
+        default="onnx",
+        help="onnx (onnxruntime, TensorRT; default) or tflite (LiteRT with XNNPACK, converted by litert-torch)",
+    )
     parser.add_argument(
         "--calib-data",
         type=Path,
@@ -28,16 +41,22 @@ def register(commands, bench) -> None:
         help="folder of real frames (PNG/JPG images or an AgriSeg root) for verification and INT8 "
         "calibration; default: the checkpoint's training data folder",
     )
-    parser.add_argument("--fp16", action="store_true", help="also write <out>.fp16.onnx (GPU / Jetson targets)")
-    parser.add_argument("--int8", action="store_true", help="also write <out>.int8.onnx (static QDQ, calibrated)")
+    parser.add_argument(
+        "--fp16", action="store_true", help="also write <out>.fp16.onnx (GPU / Jetson targets; ONNX only)"
+    )
+    parser.add_argument(
+        "--int8",
+        action="store_true",
+        help="also write <out>.int8.onnx (static QDQ) or <out>.int8.tflite (full integer), calibrated",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite existing output files")
     parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default 18 dynamo, 17 legacy)")
     parser.add_argument(
-        "--exporter", choices=("dynamo", "legacy"), default="dynamo", help="torch.onnx exporter (default dynamo)"
+        "--exporter", choices=("dynamo", "legacy"), default=None, help="torch.onnx exporter (default dynamo; ONNX only)"
     )
     parser.add_argument("--verify-frames", type=int, default=32, help="frames compared with PyTorch (default 32)")
     parser.add_argument("--calib-frames", type=int, default=32, help="frames for INT8 calibration (default 32)")
-    parser.add_argument("--threads", type=int, default=2, help="onnxruntime threads for checks (default 2)")
+    parser.add_argument("--threads", type=int, default=2, help="onnxruntime / LiteRT threads for checks (default 2)")
     parser.set_defaults(func=run_export)
 
 
@@ -56,6 +75,7 @@ def run_export(args: argparse.Namespace) -> int:
         force=args.force,
         opset=args.opset,
         exporter=args.exporter,
+        format=args.format,
         verify_frames=args.verify_frames,
         calib_frames=args.calib_frames,
         threads=args.threads,
@@ -64,7 +84,7 @@ def run_export(args: argparse.Namespace) -> int:
     verification = report["fp32"]["verification_vs_torch"]
     print(
         f"{report['fp32']['path']}: verified on {verification['frames']} frames, "
-        f"max |p_onnx - p_torch| {verification['max_abs_diff']:.2e}, "
+        f"max |p_{args.format} - p_torch| {verification['max_abs_diff']:.2e}, "
         f"mask agreement {100 * verification['mask_agreement']:.3f} %"
     )
     if "fp16" in report:

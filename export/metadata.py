@@ -1,8 +1,9 @@
-"""The metadata contract of a segmin ONNX file, shared by the writer (export) and readers (nav_eval).
+"""The metadata contract of a segmin model file, shared by the writer (export) and readers (nav_eval).
 
 Torch-free on purpose: `nav_eval.segmenter` imports this module to read a model file on a robot
-computer that has only onnxruntime, numpy and OpenCV. Every value in ONNX `metadata_props` is a
-string; the helpers here format and parse the few structured ones.
+computer that has only onnxruntime (or ai-edge-litert), numpy and OpenCV. Every value is a string
+(ONNX `metadata_props`; a LiteRT file carries the same keys, see `export.litert_file`); the
+helpers here format and parse the few structured ones.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 FORMAT = "segmin-onnx-v1"
+FORMAT_LITERT = "segmin-litert-v1"
+FORMAT_NAMES = {FORMAT: "ONNX", FORMAT_LITERT: "LiteRT"}
 
 # Keys written into `metadata_props` (the names a consumer reads; keep them stable).
 KEY_FORMAT = "segmin_format"
@@ -28,7 +31,7 @@ KEY_VERSION = "segmin_version"
 KEY_GIT_COMMIT = "git_commit"
 KEY_PRECISION = "precision"  # fp32 | fp16 | int8
 KEY_EXPORTER = "exporter"
-KEY_OPSET = "opset"
+KEY_OPSET = "opset"  # ONNX files only
 KEY_CHECKPOINT = "source_checkpoint"
 # A released model's card (`segmin models release`): the Markdown people read, and its figures as JSON.
 KEY_MODEL_CARD = "model_card"
@@ -58,13 +61,15 @@ def parse_input_size(text: str) -> tuple[int, int]:
     return height, width
 
 
-def check_metadata(meta: Mapping[str, str], source: str) -> None:
-    """Raise ValueError naming `source` when `meta` is not a segmin model's metadata."""
+def check_metadata(meta: Mapping[str, str], source: str, expected_format: str = FORMAT) -> None:
+    """Raise ValueError naming `source` when `meta` is not the metadata of a segmin model file of
+    `expected_format` (FORMAT: ONNX, FORMAT_LITERT: LiteRT)."""
     missing = [key for key in REQUIRED_KEYS if key not in meta]
     if missing:
-        raise ValueError(f"{source}: not a segmin ONNX model (metadata lacks {', '.join(missing)})")
-    if meta[KEY_FORMAT] != FORMAT:
-        raise ValueError(f"{source}: unsupported model format {meta[KEY_FORMAT]!r} (expected {FORMAT!r})")
+        kind = FORMAT_NAMES[expected_format]
+        raise ValueError(f"{source}: not a segmin {kind} model (metadata lacks {', '.join(missing)})")
+    if meta[KEY_FORMAT] != expected_format:
+        raise ValueError(f"{source}: unsupported model format {meta[KEY_FORMAT]!r} (expected {expected_format!r})")
     if meta[KEY_INPUT_LAYOUT] != "NHWC" or meta[KEY_CHANNEL_ORDER] != "RGB":
         raise ValueError(
             f"{source}: input layout {meta[KEY_INPUT_LAYOUT]!r} / channel order {meta[KEY_CHANNEL_ORDER]!r} "

@@ -71,13 +71,15 @@ def build_metadata(
     *,
     input_size: tuple[int, int],
     exporter: str,
-    opset: int,
+    opset: int | None,
     precision: str = "fp32",
     checkpoint: str | Path | None = None,
+    file_format: str = md.FORMAT,
 ) -> dict[str, str]:
-    """The `metadata_props` of an exported file (all values strings, see export.metadata)."""
+    """The metadata of an exported file (all values strings, see export.metadata): ONNX
+    `metadata_props`, or a LiteRT file's segmin entry (`file_format=md.FORMAT_LITERT`, no opset)."""
     meta = {
-        md.KEY_FORMAT: md.FORMAT,
+        md.KEY_FORMAT: file_format,
         md.KEY_INPUT_SIZE: md.format_input_size(input_size),
         md.KEY_INPUT_LAYOUT: "NHWC",
         md.KEY_INPUT_DTYPE: "uint8",
@@ -94,8 +96,9 @@ def build_metadata(
         md.KEY_GIT_COMMIT: git_commit(),
         md.KEY_PRECISION: precision,
         md.KEY_EXPORTER: exporter,
-        md.KEY_OPSET: str(opset),
     }
+    if opset is not None:
+        meta[md.KEY_OPSET] = str(opset)
     if checkpoint is not None:
         meta[md.KEY_CHECKPOINT] = f"{Path(checkpoint).name} sha256:{file_sha256(checkpoint)}"
     return meta

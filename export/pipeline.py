@@ -1,4 +1,4 @@
-"""checkpoint -> verified ONNX file (+ optional fp16 and INT8 variants) and a JSON export report.
+"""checkpoint -> verified ONNX or LiteRT file (+ optional fp16 / INT8 variants) and a JSON export report.
 
 Every file is written through `segmin.common.atomic.atomic_path`: the graph is exported, stamped with
 metadata and verified inside the temporary file, and only a file that passed is renamed to its
@@ -46,9 +46,8 @@ from segmin.export.verify import (
 
 log = logging.getLogger(__name__)
 
-# INT8 is recommended only when it is measurably faster AND its masks stay close to fp32.
-INT8_MIN_SPEEDUP = 1.05
-INT8_MIN_IOU = 0.95
+# `format` -> the output file's suffix (ONNX for onnxruntime / TensorRT, LiteRT for XNNPACK / Coral-class targets).
+FORMATS = {"onnx": ".onnx", "tflite": ".tflite"}
 
 
 class OutputExistsError(ValueError):
@@ -66,7 +65,8 @@ class ExportOptions:
     int8: bool = False
     force: bool = False
     opset: int | None = None
-    exporter: str = "dynamo"
+    exporter: str | None = None  # ONNX only; None: "dynamo"
+    format: str = "onnx"
     verify_frames: int = 32
     calib_frames: int = 32
     threads: int = 2
@@ -74,17 +74,30 @@ class ExportOptions:
     min_agreement: float = MIN_MASK_AGREEMENT
 
     def __post_init__(self) -> None:
-        if self.exporter not in EXPORTERS:
-            raise ValueError(f"exporter={self.exporter!r}: expected one of {', '.join(EXPORTERS)}")
+        if self.format not in FORMATS:
+            raise ValueError(f"format={self.format!r}: expected one of {', '.join(FORMATS)}")
+        if self.format == "onnx":
+            object.__setattr__(self, "exporter", self.exporter or "dynamo")
+            if self.exporter not in EXPORTERS:
+                raise ValueError(f"exporter={self.exporter!r}: expected one of {', '.join(EXPORTERS)}")
+        else:
+            given = [
+                flag for flag, value in (("--exporter", self.exporter), ("--opset", self.opset)) if value is not None
+            ]
+            if self.fp16:
+                given.append("--fp16")
+            if given:
+                raise ValueError(f"{', '.join(given)}: ONNX options, not used with --format {self.format}")
         for name in ("verify_frames", "calib_frames", "threads"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
-        if Path(self.out).suffix.lower() != ".onnx":
-            raise ValueError(f"--out {self.out}: the output file name must end in .onnx")
+        suffix = FORMATS[self.format]
+        if Path(self.out).suffix.lower() != suffix:
+            raise ValueError(f"--out {self.out}: the output file name must end in {suffix} (--format {self.format})")
 
 
 def variant_path(out: str | Path, tag: str) -> Path:
-    """model.onnx -> model.fp16.onnx / model.int8.onnx."""
+    """model.onnx -> model.fp16.onnx / model.int8.onnx (model.tflite -> model.int8.tflite)."""
     out = Path(out)
     return out.with_name(f"{out.stem}.{tag}{out.suffix}")
 
@@ -149,10 +162,8 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     checkpoint -> real frames -> fp32 graph (verified against PyTorch) -> fp16 / INT8 variants
     (compared with the fp32 graph) -> report.
     """
-    from segmin.models.checkpoint import load_model
-
     _refuse_existing_outputs(options)
-    model, info = load_model(options.checkpoint)
+    model, info, carried, checkpoint_file = _load_source(options)
     input_size = tuple(int(v) for v in info["input_size"])
     threshold = float(info.get("threshold", 0.5))
     source, domains = _frame_source(options, info)
@@ -165,10 +176,23 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
     if options.int8:
         _check_calibration_frames(len(frames), options.calib_frames, source)
     verify_set = spread(frames, options.verify_frames)
-    opset = int(options.opset if options.opset is not None else DEFAULT_OPSET[options.exporter])
+    opset: int | None = None
+    if options.format == "tflite":
+        from segmin.export.litert import converter_name
+
+        exporter, file_format = converter_name(), md.FORMAT_LITERT
+    else:
+        exporter, file_format = str(options.exporter), md.FORMAT
+        opset = int(options.opset if options.opset is not None else DEFAULT_OPSET[exporter])
     meta = build_metadata(
-        info, input_size=input_size, exporter=options.exporter, opset=opset, checkpoint=options.checkpoint
+        info,
+        input_size=input_size,
+        exporter=exporter,
+        opset=opset,
+        checkpoint=checkpoint_file,
+        file_format=file_format,
     )
+    meta.update(carried)
     report: dict[str, Any] = {
         "checkpoint": str(options.checkpoint),
         "frames_from": str(source),
@@ -180,9 +204,18 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
         "bounds": {"max_abs_diff": options.max_abs_diff, "min_mask_agreement": options.min_agreement},
     }
     out = Path(options.out)
-    agreement = _export_verified_fp32(options, model, meta, verify_set, threshold, input_size, opset)
+    if options.format == "tflite":
+        from segmin.export.litert import export_litert
+
+        calib_set = spread(frames, options.calib_frames) if options.int8 else None
+        int8_path = variant_path(out, "int8")
+        report.update(export_litert(options, int8_path, model, meta, verify_set, calib_set, threshold, input_size))
+        _remove_stale_variants(options)
+        write_json(report_path(out), report)
+        return report
+    agreement = _export_verified_fp32(options, model, meta, verify_set, threshold, input_size, int(meta[md.KEY_OPSET]))
     report["fp32"] = {"path": str(out), "verification_vs_torch": agreement.as_dict()}
-    log.info("wrote %s (verified: %s)", out, _summary(agreement))
+    log.info("wrote %s (verified: %s)", out, agreement.summary())
     _remove_stale_variants(options)
     fp32_probs = run_session(make_session(out, threads=options.threads), verify_set)
     if options.fp16:
@@ -192,6 +225,33 @@ def export_checkpoint(options: ExportOptions) -> dict[str, Any]:
         report["int8"] = _export_int8(out, meta, fp32_probs, calib_set, verify_set, threshold, options.threads)
     write_json(report_path(out), report)
     return report
+
+
+def _load_source(options: ExportOptions) -> tuple[Any, dict[str, Any], dict[str, str], Path]:
+    """(network, model_info, metadata carried over, the source file) of `options.checkpoint`.
+
+    A segmin checkpoint is read as it is. A segmin fp32 ONNX file (a shipped model: those exist
+    only as ONNX; `segmin models to-litert` passes its file) is converted back to PyTorch first
+    (`export.to_torch`), its BatchNorm statistics measured on --calib-data, and its card carried over.
+    """
+    from segmin.models.checkpoint import load_model
+
+    source = Path(options.checkpoint)
+    if source.suffix.lower() != ".onnx":
+        model, info = load_model(source)
+        return model, info, {}, source
+    from segmin.export.to_torch import model_from_onnx
+
+    if options.calib_data is None:
+        raise ValueError(
+            f"--checkpoint {source}: an ONNX model; pass --calib-data DIR (frames of its crop) to measure its "
+            "BatchNorm statistics and verify the export on"
+        )
+    if not source.is_file():
+        raise FileNotFoundError(f"--checkpoint {source}: ONNX model not found")
+    model, info, props = model_from_onnx(source, Path(options.calib_data))
+    carried = {key: props[key] for key in (md.KEY_MODEL_CARD, md.KEY_MODEL_CARD_JSON) if key in props}
+    return model, info, carried, source
 
 
 def _refuse_existing_outputs(options: ExportOptions) -> None:
@@ -219,7 +279,7 @@ def _export_verified_fp32(
     out = Path(options.out)
     wrapper = DeployWrapper(model).eval()
     with atomic_path(out) as tmp:
-        export_graph(model, tmp, input_size=input_size, exporter=options.exporter, opset=opset)
+        export_graph(model, tmp, input_size=input_size, exporter=str(options.exporter), opset=opset)
         graph = onnx.load(str(tmp))
         check_graph_io(graph, input_size, str(out))
         drop_node_metadata(graph)
@@ -239,12 +299,12 @@ def _export_verified_fp32(
         except VerificationError as exc:
             kept = " (the existing file was left unchanged)" if out.exists() else ""
             raise VerificationError(f"{out}: export failed verification, no file written{kept}: {exc}") from exc
-        _stamp(tmp, {"verification": _summary(agreement)})
+        _stamp(tmp, {"verification": agreement.summary()})
     return agreement
 
 
 def _remove_stale_variants(options: ExportOptions) -> None:
-    """fp16 / INT8 files not asked for this time were built from the fp32 file just replaced."""
+    """fp16 / INT8 files not asked for this time were built from the fp32 file being replaced."""
     out = Path(options.out)
     for tag, wanted in (("fp16", options.fp16), ("int8", options.int8)):
         stale = variant_path(out, tag)
@@ -269,20 +329,13 @@ def _check_calibration_frames(found: int, wanted: int, source: Path) -> None:
         )
 
 
-def _summary(agreement) -> str:
-    return (
-        f"{agreement.frames} frames, max|dp| {agreement.max_abs_diff:.2e}, "
-        f"mask agreement {100 * agreement.mask_agreement:.3f} %, IoU {agreement.mask_iou:.4f}"
-    )
-
-
 def _export_fp16(out: Path, meta: dict[str, str], fp32_probs, frames, threshold: float) -> dict[str, Any]:
     path = variant_path(out, "fp16")
     with atomic_path(path) as tmp:
         quant.convert_fp16(out, tmp)
         agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
         check_bounds(agreement, str(path), max_abs_diff=quant.FP16_MAX_ABS_DIFF, min_agreement=quant.FP16_MIN_AGREEMENT)
-        _stamp(tmp, {**meta, md.KEY_PRECISION: "fp16", "verification": "vs fp32: " + _summary(agreement)})
+        _stamp(tmp, {**meta, md.KEY_PRECISION: "fp16", "verification": "vs fp32: " + agreement.summary()})
     return {"path": str(path), "vs_fp32": agreement.as_dict()}
 
 
@@ -293,22 +346,6 @@ def _export_int8(
     with atomic_path(path) as tmp:
         quant.quantize_int8(out, tmp, calib)
         agreement = quant.compare_with_fp32(tmp, fp32_probs, frames, threshold)
-        _stamp(tmp, {**meta, md.KEY_PRECISION: "int8", "verification": "vs fp32: " + _summary(agreement)})
+        _stamp(tmp, {**meta, md.KEY_PRECISION: "int8", "verification": "vs fp32: " + agreement.summary()})
         latency = quant.interleaved_latency({"fp32": out, "int8": tmp}, frames[:1], threads=threads, runs=30)
-    speedup = latency["fp32"].median_ms / latency["int8"].median_ms
-    recommended = speedup >= INT8_MIN_SPEEDUP and agreement.mask_iou >= INT8_MIN_IOU
-    reason = (
-        f"calibrated on {len(calib)} frames, "
-        f"INT8 median {latency['int8'].median_ms:.2f} ms vs fp32 {latency['fp32'].median_ms:.2f} ms "
-        f"({speedup:.2f}x), mask IoU vs fp32 {agreement.mask_iou:.4f}: "
-        + ("recommended" if recommended else "not recommended, deploy the fp32 file")
-    )
-    return {
-        "path": str(path),
-        "vs_fp32": agreement.as_dict(),
-        "latency_ms": {name: lat.as_dict() for name, lat in latency.items()},
-        "calibration_frames": len(calib),
-        "speedup_vs_fp32": speedup,
-        "recommended": recommended,
-        "recommendation": reason,
-    }
+    return {"path": str(path), **quant.int8_report(agreement, latency, len(calib))}

@@ -17,12 +17,16 @@ from __future__ import annotations
 import tempfile
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from segmin.common.timing import Latency, time_calls
+from segmin.common.timing import Latency, interleaved_calls
 from segmin.export.verify import Agreement, compare, make_session, run_session
 
+# INT8 is recommended only when it is measurably faster AND its masks stay close to fp32.
+INT8_MIN_SPEEDUP = 1.05
+INT8_MIN_IOU = 0.95
 # fp16 is compared with the fp32 export, not with PyTorch: half precision cannot meet 1e-4.
 FP16_MAX_ABS_DIFF = 1e-2
 FP16_MIN_AGREEMENT = 0.995
@@ -95,10 +99,28 @@ def interleaved_latency(
 ) -> dict[str, Latency]:
     """Latency of several files measured in alternating rounds, so load from others hits all alike."""
     sessions = {name: make_session(path, threads=threads) for name, path in paths.items()}
-    samples: dict[str, list[float]] = {name: [] for name in paths}
-    per_round = max(1, runs // rounds)
-    for _ in range(rounds):
-        for name, session in sessions.items():
-            feed = {session.get_inputs()[0].name: frame}
-            samples[name].extend(time_calls(partial(session.run, None, feed), runs=per_round, warmup=3))
-    return {name: Latency.of_seconds(s) for name, s in samples.items()}
+    calls = {
+        name: partial(session.run, None, {session.get_inputs()[0].name: frame}) for name, session in sessions.items()
+    }
+    return interleaved_calls(calls, runs=runs, rounds=rounds)
+
+
+def int8_report(agreement: Agreement, latency: dict[str, Latency], calibration_frames: int) -> dict[str, Any]:
+    """An INT8 file's report entry (ONNX or LiteRT): its agreement with fp32, both latencies and
+    the recommendation."""
+    speedup = latency["fp32"].median_ms / latency["int8"].median_ms
+    recommended = speedup >= INT8_MIN_SPEEDUP and agreement.mask_iou >= INT8_MIN_IOU
+    reason = (
+        f"calibrated on {calibration_frames} frames, "
+        f"INT8 median {latency['int8'].median_ms:.2f} ms vs fp32 {latency['fp32'].median_ms:.2f} ms "
+        f"({speedup:.2f}x), mask IoU vs fp32 {agreement.mask_iou:.4f}: "
+        + ("recommended" if recommended else "not recommended, deploy the fp32 file")
+    )
+    return {
+        "vs_fp32": agreement.as_dict(),
+        "latency_ms": {name: lat.as_dict() for name, lat in latency.items()},
+        "calibration_frames": calibration_frames,
+        "speedup_vs_fp32": speedup,
+        "recommended": recommended,
+        "recommendation": reason,
+    }

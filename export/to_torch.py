@@ -15,6 +15,7 @@ data puts them instead of at 0 and 1, which would scale every layer's output at 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,8 +23,9 @@ from onnx import numpy_helper
 from torch import nn
 
 from segmin.export import metadata as md
-from segmin.export.onnx import DeployWrapper, load_segmin_model
+from segmin.export.onnx import DeployWrapper, load_segmin_model, read_metadata
 from segmin.export.verify import load_frames, torch_reference, verify_against_torch
+from segmin.models.checkpoint import model_info
 from segmin.models.lraspp import SegmentationNet, build_model
 
 _WRAPPER_PREFIX = "model."  # the exporter's wrapper module holds the SegmentationNet as `model`
@@ -46,6 +48,26 @@ def network_from_onnx(
     _load_folded(model, tensors, path)
     _measure_batchnorm_inputs(model, frames, batch)
     return model.eval(), frames
+
+
+def model_from_onnx(
+    path: Path, frames_root: Path, count: int = 64
+) -> tuple[SegmentationNet, dict[str, Any], dict[str, str]]:
+    """(network, checkpoint-style model_info, the ONNX metadata) of a segmin fp32 ONNX file, its
+    conversion checked on `count` frames of `frames_root`: what `segmin export` exports a shipped
+    model (which exists only as ONNX) to another format from."""
+    network, frames = network_from_onnx(path, frames_root, count)
+    check_conversion(network, path, frames)
+    props = read_metadata(path)
+    info = model_info(
+        backbone_weights=props.get(md.KEY_BACKBONE, "unknown"),
+        input_size=md.parse_input_size(props[md.KEY_INPUT_SIZE]),
+        family=props.get(md.KEY_FAMILY, "unknown"),
+        train_data=props.get(md.KEY_TRAIN_DATA, "unknown"),
+        threshold=float(props[md.KEY_THRESHOLD]),
+        architecture=props.get(md.KEY_ARCHITECTURE, "lraspp_mobilenet_v3_large"),
+    )
+    return network, info, props
 
 
 def _read_segmin_onnx(path: Path) -> tuple[dict[str, str], dict[str, torch.Tensor]]:

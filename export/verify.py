@@ -46,6 +46,13 @@ class Agreement:
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
 
+    def summary(self) -> str:
+        """One line for a file's `verification` metadata and the log."""
+        return (
+            f"{self.frames} frames, max|dp| {self.max_abs_diff:.2e}, "
+            f"mask agreement {100 * self.mask_agreement:.3f} %, IoU {self.mask_iou:.4f}"
+        )
+
 
 # ----------------------------------------------------------------------------- frames
 
@@ -176,10 +183,13 @@ def verify_against_torch(
     return agreement
 
 
-def check_bounds(agreement: Agreement, source: str, *, max_abs_diff: float, min_agreement: float) -> None:
+def check_bounds(
+    agreement: Agreement, source: str, *, max_abs_diff: float, min_agreement: float, model: str = "onnx"
+) -> None:
+    """VerificationError naming `source` and each bound missed; `model` names the file's kind in it."""
     problems = []
     if not agreement.max_abs_diff <= max_abs_diff:
-        problems.append(f"max |p_onnx - p_torch| = {agreement.max_abs_diff:.3g} > {max_abs_diff:g}")
+        problems.append(f"max |p_{model} - p_torch| = {agreement.max_abs_diff:.3g} > {max_abs_diff:g}")
     if not agreement.mask_agreement >= min_agreement:
         problems.append(f"mask agreement {100 * agreement.mask_agreement:.3f} % < {100 * min_agreement:.2f} %")
     if problems:

@@ -105,11 +105,17 @@ def test_the_extras_table_follows_the_package_metadata() -> None:
     """Each module the error table names is a requirement of that extra in pyproject.toml."""
     by_extra: dict[str, set[str]] = {}
     for requirement in requires("segmin") or []:
-        match = re.search(r'extra == "(\w+)"', requirement)
+        match = re.search(r'extra == "([\w-]+)"', requirement)
         if match:
             name = re.split(r"[<>=!~ ;\[]", requirement, maxsplit=1)[0].lower()
             by_extra.setdefault(match.group(1), set()).add(name)
-    distribution = {"foxglove": "foxglove-sdk"}  # import names that are not their distribution's
+    # Import names that are not their distribution's.
+    distribution = {
+        "foxglove": "foxglove-sdk",
+        "ai_edge_litert": "ai-edge-litert",
+        "litert_torch": "litert-torch",
+        "ai_edge_quantizer": "ai-edge-quantizer",
+    }
     for module, extra in EXTRA_OF_MODULE.items():
         assert distribution.get(module, module) in by_extra[extra], f"{module} is not in the [{extra}] extra"
     base = {re.split(r"[<>=!~ ;\[]", r, maxsplit=1)[0].lower() for r in requires("segmin") or [] if "extra ==" not in r}

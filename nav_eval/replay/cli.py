@@ -47,7 +47,11 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "camera from the bag's CameraInfo or from the config's camera section, and its roll and pitch from the "
         "bag's IMU.",
     )
-    replay.add_argument("--model", required=True, help="exported .onnx file or a shipped model name (vineyards, trees)")
+    replay.add_argument(
+        "--model",
+        required=True,
+        help="exported .onnx (or LiteRT .tflite) file or a shipped model name (vineyards, trees)",
+    )
     source = replay.add_mutually_exclusive_group(required=True)
     source.add_argument(
         "--rgb", type=Path, help="folder of RGB frames (natural name order: f_2 before f_10) or a video file"

@@ -145,7 +145,9 @@ def replay(
     gives the attitude at each frame to a navigator that levels its points (SegCorridor); `live`
     (a `live.publisher.LiveView`) is given every step, for `--live`."""
     if str(model) == "oracle":
-        raise ValueError("--model oracle needs the simulator's exact masks; replay takes an exported .onnx file")
+        raise ValueError(
+            "--model oracle needs the simulator's exact masks; replay takes an exported .onnx or .tflite file"
+        )
     follower = follower or _paper_follower(method, depth_threshold, mask_closing, runtime)
     method, depth_threshold = follower.method, follower.navigator.depth_threshold
     has_depth = source.has_depth if source is not None else depth is not None
@@ -156,10 +158,9 @@ def replay(
     check_out_dir(out, force)
     sequence = _sequence(rgb, depth, fps, timestamps, source)
     if segmenter is None:
-        from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
-        from segmin.nav_eval.runtime.shipped_models import resolve_model
+        from segmin.nav_eval.runtime.segmenter import load_segmenter
 
-        segmenter = OnnxSegmenter(resolve_model(model), threads=threads)
+        segmenter = load_segmenter(model, threads=threads)
     runner = RowFollower(segmenter, navigator, follower.runtime)
     result = ReplayResult(commands=[], files=[], frames=sequence.count)
     if sequence.order is not None:

@@ -8,7 +8,7 @@ the EMA that every navigator shares are in `control`; what configures them all, 
 `FollowerConfig` and `make_navigator`, in `follower_config`.
 
 Only numpy, OpenCV and onnxruntime: never torch, pybullet or matplotlib (the architecture test
-checks it). The main names are importable from here; each is defined in its own module.
+checks it); `LiteRtSegmenter` loads ai-edge-litert (the `litert` extra) when one is made. The main names are importable from here; each is defined in its own module.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from .follower_config import CameraConfig, FollowerConfig, load_follower_config, make_navigator
     from .navigator import Navigator, NavigatorConfig, target_column
     from .protocols import MaskNavigator, NavigatorInputs, Segmenter
-    from .segmenter import OnnxSegmenter
+    from .segmenter import LiteRtSegmenter, OnnxSegmenter
     from .sensor_faults import SensorChecks
 
 # Name -> defining module; loaded on first use so that importing one piece does not load the rest
@@ -48,6 +48,7 @@ _EXPORTS: dict[str, str] = {
     "load_follower_config": "follower_config",
     "make_navigator": "follower_config",
     "OnnxSegmenter": "segmenter",
+    "LiteRtSegmenter": "segmenter",
     "SensorChecks": "sensor_faults",
 }
 __all__ = [
@@ -58,6 +59,7 @@ __all__ = [
     "CorridorNavigator",
     "FollowerConfig",
     "FollowerOutput",
+    "LiteRtSegmenter",
     "MaskNavigator",
     "Navigator",
     "NavigatorConfig",

@@ -1,7 +1,7 @@
 """The runtime's two interfaces: what `RowFollower` needs of a segmenter and of a navigator.
 
 They are `typing.Protocol`s, checked by mypy, not base classes: any object with these methods
-is one (the ONNX segmenter, a test's stand-in; the paper's `Navigator`, `CorridorNavigator`).
+is one (the ONNX and LiteRT segmenters, a test's stand-in; the paper's `Navigator`, `CorridorNavigator`).
 
 - `Segmenter`: an RGB frame in, a vegetation mask out. The robot's only kind. (The simulator's
   exact-mask oracle needs the rendered frame, not its image: it is a `FrameSegmenter` of

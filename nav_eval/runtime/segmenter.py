@@ -1,14 +1,16 @@
 """Segmenters the navigator loads: camera RGB in, vegetation mask out.
 
 `OnnxSegmenter` runs a file written by `segmin export` with onnxruntime only (no torch, no
-training code: this module is what runs on the robot computer). The file's metadata says the
+training code: this module is what runs on the robot computer); `LiteRtSegmenter` runs one
+written by `segmin export --format tflite` with the LiteRT interpreter (`ai-edge-litert`, the
+`litert` extra) and its XNNPACK CPU delegate. The file's metadata says the
 input size and threshold; the graph itself does the /255 and ImageNet normalisation, so the only
 preprocessing here is a resize to the model size (`data.model_input.resize_to_input`, shared with
 export verification: INTER_AREA when shrinking, INTER_LINEAR when enlarging). The mask is computed at the model size and resized back to the frame size with
 nearest neighbour, so it stays boolean and its edges do not move by more than one model pixel;
 `probabilities` is resized back bilinearly.
 
-`OnnxSegmenter` is a `nav_eval.runtime.protocols.Segmenter`. The simulator's exact-mask oracle
+Both are `nav_eval.runtime.protocols.Segmenter`s. The simulator's exact-mask oracle
 is not (it needs the whole rendered frame): it lives in `nav_eval.sim.oracle`.
 """
 
@@ -49,7 +51,67 @@ class PreparedFrame:
     frame_shape: tuple[int, int]  # (H, W) of the original frame, for the mask
 
 
-class OnnxSegmenter:
+class _ModelFileSegmenter:
+    """What both segmenters share: the metadata's input size and threshold, the resize to the
+    model input and the mask / probabilities back at the frame size. A subclass runs the model."""
+
+    path: os.PathLike
+    input_size: tuple[int, int]
+    threshold: float
+
+    def _read_metadata(self, metadata: dict[str, str], threshold: float | None, file_format: str) -> None:
+        self.metadata = metadata
+        md.check_metadata(self.metadata, str(self.path), file_format)
+        self.input_size = md.parse_input_size(self.metadata[md.KEY_INPUT_SIZE])
+        self.threshold = float(self.metadata[md.KEY_THRESHOLD]) if threshold is None else float(threshold)
+        if not 0.0 < self.threshold < 1.0:
+            raise ValueError(f"threshold must be in (0, 1), got {self.threshold!r}")
+
+    def prepare(self, rgb: np.ndarray) -> PreparedFrame:
+        """Check and resize a frame for the model (the part of `segment` before the runtime).
+
+        A caller that overlaps segmentation with other work runs this on its own thread and
+        `segment_prepared` on a helper: the helper then releases the GIL at its first step.
+        """
+        rgb = check_rgb(rgb)
+        frame_shape = (int(rgb.shape[0]), int(rgb.shape[1]))
+        return PreparedFrame(resize_to_input(rgb, self.input_size)[None], frame_shape)
+
+    def _model_probabilities(self, prepared: PreparedFrame) -> np.ndarray:
+        """Probabilities at the model input size (float32 h x w)."""
+        raise NotImplementedError
+
+    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
+        """float32 H x W vegetation probability at the frame size (bilinear resize back)."""
+        import cv2
+
+        prepared = self.prepare(rgb)
+        probs = self._model_probabilities(prepared)
+        height, width = prepared.frame_shape
+        if probs.shape != (height, width):
+            probs = cv2.resize(probs, (width, height), interpolation=cv2.INTER_LINEAR)
+        return np.clip(probs, 0.0, 1.0).astype(np.float32, copy=False)
+
+    def segment(self, rgb: np.ndarray) -> np.ndarray:
+        """bool H x W vegetation mask at the frame size (thresholded at the model size, nearest resize)."""
+        return self.segment_prepared(self.prepare(rgb))
+
+    def segment_prepared(self, prepared: PreparedFrame) -> np.ndarray:
+        """The mask of a frame from `prepare` (the model, threshold, resize back)."""
+        import cv2
+
+        mask: np.ndarray = (self._model_probabilities(prepared) >= self.threshold).astype(np.uint8)
+        height, width = prepared.frame_shape
+        if mask.shape != (height, width):
+            mask = cv2.resize(mask, (width, height), interpolation=cv2.INTER_NEAREST)
+        return mask.astype(bool)
+
+    def __repr__(self) -> str:
+        height, width = self.input_size
+        return f"{type(self).__name__}({str(self.path)!r}, input {height}x{width}, threshold {self.threshold:g})"
+
+
+class OnnxSegmenter(_ModelFileSegmenter):
     """A `segmin export` ONNX file run by onnxruntime on the CPU (or a given provider list).
 
     `path`: the file, or a shipped model's name ("vineyards", "trees"; see `shipped_models`).
@@ -80,12 +142,7 @@ class OnnxSegmenter:
         except Exception as exc:  # onnxruntime raises its own types for unparsable files
             raise ValueError(f"{self.path}: not a loadable ONNX model ({str(exc).splitlines()[0][:300]})") from exc
 
-        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
-        md.check_metadata(self.metadata, str(self.path))
-        self.input_size = md.parse_input_size(self.metadata[md.KEY_INPUT_SIZE])
-        self.threshold = float(self.metadata[md.KEY_THRESHOLD]) if threshold is None else float(threshold)
-        if not 0.0 < self.threshold < 1.0:
-            raise ValueError(f"threshold must be in (0, 1), got {self.threshold!r}")
+        self._read_metadata(dict(self.session.get_modelmeta().custom_metadata_map), threshold, md.FORMAT)
         self._check_graph()
         self._input_name = self.session.get_inputs()[0].name
 
@@ -109,45 +166,50 @@ class OnnxSegmenter:
         if outputs[0].type != "tensor(float)":
             raise ValueError(f"{self.path}: model output is {outputs[0].type}, expected float32 probabilities")
 
-    def prepare(self, rgb: np.ndarray) -> PreparedFrame:
-        """Check and resize a frame for the model (the part of `segment` before onnxruntime).
-
-        A caller that overlaps segmentation with other work runs this on its own thread and
-        `segment_prepared` on a helper: the helper then releases the GIL at its first step.
-        """
-        rgb = check_rgb(rgb)
-        frame_shape = (int(rgb.shape[0]), int(rgb.shape[1]))
-        return PreparedFrame(resize_to_input(rgb, self.input_size)[None], frame_shape)
-
     def _model_probabilities(self, prepared: PreparedFrame) -> np.ndarray:
         """Probabilities at the model input size (float32 h x w)."""
         return self.session.run(None, {self._input_name: prepared.batch})[0][0, 0]
 
-    def probabilities(self, rgb: np.ndarray) -> np.ndarray:
-        """float32 H x W vegetation probability at the frame size (bilinear resize back)."""
-        import cv2
 
-        prepared = self.prepare(rgb)
-        probs = self._model_probabilities(prepared)
-        height, width = prepared.frame_shape
-        if probs.shape != (height, width):
-            probs = cv2.resize(probs, (width, height), interpolation=cv2.INTER_LINEAR)
-        return np.clip(probs, 0.0, 1.0).astype(np.float32, copy=False)
+class LiteRtSegmenter(_ModelFileSegmenter):
+    """A `segmin export --format tflite` file run by the LiteRT interpreter with XNNPACK on the CPU.
 
-    def segment(self, rgb: np.ndarray) -> np.ndarray:
-        """bool H x W vegetation mask at the frame size (thresholded at the model size, nearest resize)."""
-        return self.segment_prepared(self.prepare(rgb))
+    `path`: the file, or a shipped model's name, resolved to `<name>.tflite` in the registry folder
+    (`shipped_models.models_dir()`): shipped models come as ONNX, so a LiteRT file of one is
+    exported once (`segmin export --format tflite --checkpoint vineyards ...`) and put there.
+    `threads`: XNNPACK threads (the paper's robot computer budget: 2). `threshold`: as for
+    `OnnxSegmenter`. Needs `ai-edge-litert` (`pip install segmin[litert]`).
+    """
 
-    def segment_prepared(self, prepared: PreparedFrame) -> np.ndarray:
-        """The mask of a frame from `prepare` (onnxruntime, threshold, resize back)."""
-        import cv2
+    name = "litert"
 
-        mask: np.ndarray = (self._model_probabilities(prepared) >= self.threshold).astype(np.uint8)
-        height, width = prepared.frame_shape
-        if mask.shape != (height, width):
-            mask = cv2.resize(mask, (width, height), interpolation=cv2.INTER_NEAREST)
-        return mask.astype(bool)
+    def __init__(self, path: str | os.PathLike, threads: int = 2, threshold: float | None = None) -> None:
+        from segmin.export import litert_file
 
-    def __repr__(self) -> str:
+        self.path = resolve_model(path, what="model", suffix=".tflite")
+        if int(threads) < 1:
+            raise ValueError(f"threads must be >= 1, got {threads!r}")
+        # The metadata first: a file that is not segmin's fails on it before the interpreter loads it.
+        self._read_metadata(litert_file.read_metadata(self.path), threshold, md.FORMAT_LITERT)
+        self._runner = litert_file.Runner(litert_file.make_interpreter(self.path, threads=int(threads)))
+        shape = [int(v) for v in self._runner.input["shape"]]
         height, width = self.input_size
-        return f"OnnxSegmenter({str(self.path)!r}, input {height}x{width}, threshold {self.threshold:g})"
+        if self._runner.input["dtype"] != np.uint8 or shape != [1, height, width, 3]:
+            raise ValueError(
+                f"{self.path}: model input is {np.dtype(self._runner.input['dtype']).name} {shape}, metadata says "
+                f"uint8 [1, {height}, {width}, 3]"
+            )
+
+    def _model_probabilities(self, prepared: PreparedFrame) -> np.ndarray:
+        """Probabilities at the model input size (float32 h x w)."""
+        return self._runner(prepared.batch)[0, 0]
+
+
+def load_segmenter(
+    model: str | os.PathLike, threads: int = 2, what: str = "--model"
+) -> OnnxSegmenter | LiteRtSegmenter:
+    """The segmenter for a model argument (`what` names it in errors): a .tflite file ->
+    `LiteRtSegmenter`, anything else (an .onnx file, a shipped name) -> `OnnxSegmenter`."""
+    if os.fspath(model).lower().endswith(".tflite"):
+        return LiteRtSegmenter(resolve_model(model, what=what, suffix=".tflite"), threads=threads)
+    return OnnxSegmenter(resolve_model(model, what=what), threads=threads)

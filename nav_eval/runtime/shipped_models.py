@@ -103,14 +103,18 @@ def shipped_model(name: str) -> ShippedModel:
     return ShippedModel(name, root / f"{name}.onnx", root / f"{name}.md", root / f"{name}{CARD_SUFFIX}")
 
 
+MODEL_SUFFIXES = (".onnx", ".tflite")
+
+
 def looks_like_name(spec: str | os.PathLike[str]) -> bool:
-    """A bare word (no folder, no .onnx suffix): meant as a shipped model name, not a path."""
+    """A bare word (no folder, no model file suffix): meant as a shipped model name, not a path."""
     text = os.fspath(spec)
-    return bool(text) and os.sep not in text and "/" not in text and not text.lower().endswith(".onnx")
+    return bool(text) and os.sep not in text and "/" not in text and not text.lower().endswith(MODEL_SUFFIXES)
 
 
-def resolve_model(spec: str | os.PathLike[str], what: str = "--model") -> Path:
-    """The ONNX file `spec` means: an existing file, or a shipped name's file.
+def resolve_model(spec: str | os.PathLike[str], what: str = "--model", suffix: str = ".onnx") -> Path:
+    """The model file `spec` means: an existing file, or a shipped name's file with `suffix`
+    (".onnx", the shipped files; ".tflite", a LiteRT export of a shipped model put beside them).
 
     Errors (one line each, naming `what`): a shipped name whose file this install does not have
     yet, a bare word that is neither a file nor a shipped name, a path that does not exist.
@@ -121,17 +125,26 @@ def resolve_model(spec: str | os.PathLike[str], what: str = "--model") -> Path:
     text = os.fspath(spec)
     if text in SHIPPED_NAMES:
         entry = shipped_model(text)
-        if not entry.present:
-            raise ValueError(
-                f"{what} {text}: a shipped model name, but this install has no {entry.onnx.name} yet "
-                f"(looked in {entry.onnx.parent}; release one with `segmin models release --run RUN_DIR`)"
+        wanted = entry.onnx.with_suffix(suffix)
+        if wanted.is_file():
+            return wanted
+        if suffix == ".onnx":
+            how = "release one with `segmin models release --run RUN_DIR`"
+        else:
+            how = (
+                f"shipped models come as ONNX: write one with `segmin models to-litert --model {text} "
+                f"--frames DIR --out {wanted.name}` and put it there, or pass its path"
             )
-        return entry.onnx
+        raise ValueError(
+            f"{what} {text}: a shipped model name, but this install has no {wanted.name} yet "
+            f"(looked in {wanted.parent}; {how})"
+        )
     if looks_like_name(text):
         raise ValueError(
             f"{what} {text!r}: no such file, and not a shipped model name (shipped: {', '.join(SHIPPED_NAMES)})"
         )
-    raise FileNotFoundError(f"{what} {text}: ONNX model not found")
+    kind = "ONNX" if suffix == ".onnx" else "LiteRT"
+    raise FileNotFoundError(f"{what} {text}: {kind} model not found")
 
 
 def headline(card: dict[str, Any]) -> str:

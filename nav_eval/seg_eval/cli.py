@@ -10,7 +10,7 @@ from pathlib import Path
 def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "eval-seg",
-        help="score a model (.onnx or checkpoint .pt) on labelled photos: IoU, precision, recall, steering, contact sheet",
+        help="score a model (.onnx, .tflite or checkpoint .pt) on labelled photos: IoU, precision, recall, steering, contact sheet",
         description=(
             "Segment every labelled image under --data (any layout the AgriSeg loader reads, e.g. a flat "
             "images/ + masks/ folder) and compare with the masks at their own resolution. Prints mean IoU over "
@@ -27,8 +27,8 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
         "--model",
         required=True,
         type=Path,
-        help="exported .onnx (size and threshold from its metadata), a shipped model name (vineyards, trees) "
-        "or a training checkpoint .pt",
+        help="exported .onnx or .tflite (size and threshold from its metadata), a shipped model name (vineyards, "
+        "trees) or a training checkpoint .pt",
     )
     parser.add_argument(
         "--data",
@@ -72,7 +72,7 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     data = args.data if args.data is not None else shipped_real_data()
     out = args.out if args.out is not None else Path("runs") / "eval-seg" / args.model.stem
     check_out_dir(out, args.force)  # before the model runs: refusing late would waste the work
-    if model.suffix.lower() != ".onnx":
+    if model.suffix.lower() not in (".onnx", ".tflite"):  # a checkpoint: PyTorch runs it
         import torch
 
         torch.set_num_threads(args.threads)

@@ -1,9 +1,9 @@
-"""The model `segmin eval-seg` scores: an exported ONNX file (what the robot runs) or a training checkpoint.
+"""The model `segmin eval-seg` scores: an exported ONNX or LiteRT file (what the robot runs) or a training checkpoint.
 
 Preprocessing is the deployed one for both kinds of model: the photo is resized to the model
 input with `data.model_input.resize_to_input` (INTER_AREA when shrinking, INTER_LINEAR when
 enlarging, as `nav_eval.runtime.segmenter.OnnxSegmenter` does), the uint8 RGB batch goes through
-the ONNX graph or through `export.onnx.DeployWrapper` (which does /255 and ImageNet normalisation
+the ONNX graph, the LiteRT file (`LiteRtSegmenter`) or through `export.onnx.DeployWrapper` (which does /255 and ImageNet normalisation
 exactly like the graph), and the probability is resized back bilinearly to the photo size and
 thresholded there (`>= threshold`, as the segmenter does), so metrics are computed at the
 ground-truth resolution.
@@ -21,6 +21,7 @@ from segmin.data.model_input import check_input_side, resize_to_input
 from segmin.export import metadata as md
 
 ONNX_SUFFIXES = (".onnx",)
+LITERT_SUFFIXES = (".tflite",)
 CHECKPOINT_SUFFIXES = (".pt", ".pth", ".ckpt")
 
 
@@ -67,11 +68,13 @@ def load_predictor(
     suffix = path.suffix.lower()
     if suffix in ONNX_SUFFIXES:
         predictor = _onnx_predictor(path, threads, size)
+    elif suffix in LITERT_SUFFIXES:
+        predictor = _litert_predictor(path, threads, size)
     elif suffix in CHECKPOINT_SUFFIXES:
         predictor = _checkpoint_predictor(path, size)
     else:
         raise ValueError(
-            f"{path}: unknown model type {suffix or '(no suffix)'!r}; expected an exported .onnx "
+            f"{path}: unknown model type {suffix or '(no suffix)'!r}; expected an exported .onnx or .tflite "
             f"or a training checkpoint ({', '.join(CHECKPOINT_SUFFIXES)})"
         )
     if threshold is not None:
@@ -106,6 +109,21 @@ def _onnx_predictor(path: Path, threads: int, size: int | None) -> Predictor:
         return run_session(session, batch, batch=1)[0, 0]
 
     return Predictor(path, "onnx", input_size, float(meta[md.KEY_THRESHOLD]), probabilities)
+
+
+def _litert_predictor(path: Path, threads: int, size: int | None) -> Predictor:
+    """A `segmin export --format tflite` file, run as the robot runs it (`LiteRtSegmenter`)."""
+    from segmin.nav_eval.runtime.segmenter import LiteRtSegmenter
+
+    segmenter = LiteRtSegmenter(path, threads=threads)
+    if size is not None and (int(size), int(size)) != segmenter.input_size:
+        height, width = segmenter.input_size
+        raise ValueError(f"--size {size}: {path} has a fixed {height}x{width} input (--size applies to checkpoints)")
+
+    def probabilities(batch: np.ndarray) -> np.ndarray:
+        return segmenter.probabilities(batch[0])  # already at the input size: no resize
+
+    return Predictor(path, "litert", segmenter.input_size, segmenter.threshold, probabilities)
 
 
 def _checkpoint_predictor(path: Path, size: int | None) -> Predictor:

@@ -3,7 +3,8 @@
 `pip install segmin` is the robot runtime (numpy, OpenCV, onnxruntime, PyYAML). Simulation and
 figures come with `[sim]`, training and export with `[train]`, ROS bags (replay and recording)
 with `[ros]`, the live view in Foxglove with `[live]`; `[all]` is these four. Ray, for
-`--executor ray`, comes with `[cluster]`. The table must follow pyproject.toml's extras (a test
+`--executor ray`, comes with `[cluster]`; the LiteRT runtime with `[litert]` and the LiteRT export
+(`segmin export --format tflite`) with `[litert-export]`. The table must follow pyproject.toml's extras (a test
 checks it).
 """
 
@@ -26,6 +27,9 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "rosbags": "ros",
     "ray": "cluster",
     "foxglove": "live",
+    "ai_edge_litert": "litert",
+    "litert_torch": "litert-export",
+    "ai_edge_quantizer": "litert-export",
 }
 ALL_EXTRAS = ("sim", "train", "ros", "live")
 """What `segmin[all]` installs (not [cluster]: Ray is for the machines that fan jobs out)."""

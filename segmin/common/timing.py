@@ -7,7 +7,7 @@ bookkeeping stay outside it, so a 0.2 ms navigator step and a 30 ms ONNX frame a
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -55,3 +55,13 @@ def time_calls(
             call(item)
         times[i] = time.perf_counter() - start
     return times
+
+
+def interleaved_calls(calls: Mapping[str, Callable[[], Any]], runs: int = 50, rounds: int = 3) -> dict[str, Latency]:
+    """Latency of several calls timed in alternating rounds, so load from others hits all alike."""
+    samples: dict[str, list[float]] = {name: [] for name in calls}
+    per_round = max(1, runs // rounds)
+    for _ in range(rounds):
+        for name, call in calls.items():
+            samples[name].extend(time_calls(call, runs=per_round, warmup=3))
+    return {name: Latency.of_seconds(s) for name, s in samples.items()}

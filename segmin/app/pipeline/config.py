@@ -18,10 +18,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from segmin.app.pipeline.gate import GateRule
-from segmin.common.config import load_config
+from segmin.common.config import load_config, to_dict
 from segmin.common.executor import Executor
 from segmin.common.shipped import resolve_config
 from segmin.nav_eval.runtime.methods import METHODS
@@ -237,11 +237,27 @@ class ExportPlan:
     fp16: bool = False
     int8: bool = False
     latency_frames: int = 50
+    # Files written for each family: "onnx" (always: the later stages run it) and "tflite" (a
+    # LiteRT file, `litert/<family>/<family>.tflite` in the run folder, with an INT8 one when `int8`).
+    formats: list[Literal["onnx", "tflite"]] = field(default_factory=lambda: ["onnx"])
 
     def __post_init__(self) -> None:  # checked at load: the export stage runs after render and training
         for name in ("verify_frames", "latency_frames"):
             if isinstance(getattr(self, name), bool) or getattr(self, name) < 1:
                 raise ValueError(f"export.{name} must be >= 1, got {getattr(self, name)!r}")
+        if "onnx" not in self.formats:
+            raise ValueError(
+                f"export.formats {self.formats}: must include onnx (the evaluation stages run the ONNX model)"
+            )
+        if len(set(self.formats)) != len(self.formats):
+            raise ValueError(f"export.formats {self.formats}: a format is listed twice")
+
+    def onnx_settings(self) -> dict[str, Any]:
+        """What the ONNX export depends on (the export stage's hash): every setting but `formats`,
+        which only decides whether the LiteRT stage runs, so adding tflite re-exports nothing."""
+        settings: dict[str, Any] = to_dict(self)
+        del settings["formats"]
+        return settings
 
 
 @dataclass

@@ -117,7 +117,7 @@ class PipelineRunner:
             kept, verdict = self._gate(family, chain, trained_all[family])
             final = chain[kept].key
             judged = (upstream[chain[-1].key], verdict.as_dict()) if verdict is not None else ()
-            export_hash = hash_inputs("export", upstream[final], to_dict(config.export), *judged)
+            export_hash = hash_inputs("export", upstream[final], config.export.onnx_settings(), *judged)
             exported = self._stage(
                 "export",
                 f"export/{family}",
@@ -133,6 +133,16 @@ class PipelineRunner:
             )
             models[family] = (exported["onnx"], export_hash)
             upstream[f"export/{family}"] = export_hash
+            if "tflite" in config.export.formats:
+                self._stage(
+                    "export",
+                    f"litert/{family}",
+                    hash_inputs("litert", export_hash),
+                    functools.partial(
+                        self._litert_stage, checkpoint=trained_all[family][kept]["checkpoint"], family=family
+                    ),
+                    reads=(final,),
+                )
         return models
 
     def _gate(
@@ -250,6 +260,9 @@ class PipelineRunner:
             "train_stages": keys,  # the chain that made the model, for its card
             "gate": gate,  # a candidate stage's verdict (None without one), for the report and the card
         }
+
+    def _litert_stage(self, folder: Path, fresh: bool, *, checkpoint: str, family: str) -> dict[str, Any]:
+        return stages.litert_stage(self.config, Path(checkpoint), folder / f"{family}.tflite", self.log)
 
     def _real_eval_stage(self, folder: Path, fresh: bool, *, model: str) -> dict[str, Any]:
         return stages.real_eval_stage(self.config, Path(model), folder, self.log)

@@ -385,6 +385,27 @@ def export_stage(config: PipelineConfig, checkpoint: Path, out: Path, val_root: 
     return {"onnx": str(out), "verification": verification, "latency_ms": latency, "input_size": report["input_size"]}
 
 
+def litert_stage(config: PipelineConfig, checkpoint: Path, out: Path, log) -> dict[str, Any]:
+    """Export and verify one family's LiteRT file (`export.formats` has tflite), INT8 too when `export.int8`."""
+    from segmin.export.pipeline import ExportOptions, export_checkpoint
+
+    log(f"export: {checkpoint} -> {out}")
+    report = export_checkpoint(
+        ExportOptions(
+            checkpoint=checkpoint,
+            out=out,
+            force=True,
+            format="tflite",
+            verify_frames=config.export.verify_frames,
+            int8=config.export.int8,
+        )
+    )
+    outputs = {"litert": str(out), "verification": report["fp32"]["verification_vs_torch"]}
+    if "int8" in report:
+        outputs["litert_int8"] = report["int8"]["path"]
+    return outputs
+
+
 def onnx_latency_ms(model: Path, frames_root: Path, count: int, threads: int = 2) -> dict[str, Any]:
     """Median and p95 of one `OnnxSegmenter.segment` call on rendered validation frames."""
     from segmin.common.timing import time_calls
