@@ -56,7 +56,7 @@ class OutputExistsError(ValueError):
 
 @dataclass(frozen=True)
 class ExportOptions:
-    """Everything `segmin export` takes (see export/cli.py for the user-facing help)."""
+    """Everything `segmin export` takes (see segmin/app/export_cli.py for the user-facing help)."""
 
     checkpoint: Path
     out: Path
@@ -231,7 +231,7 @@ def _load_source(options: ExportOptions) -> tuple[Any, dict[str, Any], dict[str,
     """(network, model_info, metadata carried over, the source file) of `options.checkpoint`.
 
     A segmin checkpoint is read as it is. A segmin fp32 ONNX file (a shipped model: those exist
-    only as ONNX; `segmin models to-litert` passes its file) is converted back to PyTorch first
+    only as ONNX; `segmin export --checkpoint NAME` passes its file) is converted back to PyTorch first
     (`export.to_torch`), its BatchNorm statistics measured on --calib-data, and its card carried over.
     """
     from segmin.models.checkpoint import load_model

@@ -63,6 +63,7 @@ def test_the_benchmark_runner_has_every_developer_bench_with_help(capsys: pytest
             "iou-bound",
             "export",
             "architectures",
+            "litert",
             "nav-eval",
             "replay-bag",
             "live-view",

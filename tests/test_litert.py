@@ -145,7 +145,7 @@ def test_shipped_name_resolves_to_a_tflite_in_the_models_folder(litert_export, t
     with pytest.raises(
         ValueError,
         match=r"model vineyards: a shipped model name, but this install has no "
-        r"vineyards.tflite yet .*segmin models to-litert --model vineyards",
+        r"vineyards.tflite yet .*segmin export --checkpoint vineyards --format tflite",
     ):
         LiteRtSegmenter("vineyards")
     shutil.copy(out, tmp_path / "vineyards.tflite")
@@ -154,18 +154,16 @@ def test_shipped_name_resolves_to_a_tflite_in_the_models_folder(litert_export, t
 
 
 def test_a_shipped_onnx_model_exports_to_litert(tmp_path, frames_dir, monkeypatch, capsys) -> None:
-    """The shipped models exist only as ONNX: `segmin models to-litert` converts the network back
+    """The shipped models exist only as ONNX: `segmin export --checkpoint NAME` converts the network back
     to PyTorch (BatchNorm measured on --frames) and exports that; the card travels along."""
     monkeypatch.delenv(ENV_MODELS_DIR, raising=False)
     source = OnnxSegmenter("vineyards")
     out = tmp_path / "vineyards.tflite"
     with pytest.raises(ValueError, match="--checkpoint .*vineyards.onnx: an ONNX model; pass --calib-data DIR"):
         export_checkpoint(ExportOptions(checkpoint=Path(source.path), out=out, format="tflite"))
-    assert (
-        segmin_main(["models", "to-litert", "--model", "vineyards", "--frames", str(frames_dir), "--out", str(out)])
-        == 0
-    )
-    assert capsys.readouterr().out.startswith(f"wrote {out}: {source.path} as LiteRT, verified on 6 frames")
+    args = ["export", "--checkpoint", "vineyards", "--format", "tflite", "--calib-data", str(frames_dir)]
+    assert segmin_main([*args, "--out", str(out)]) == 0
+    assert capsys.readouterr().out.startswith(f"{out}: verified on 6 frames")
     meta = litert_file.read_metadata(out)
     assert meta[md.KEY_INPUT_SIZE] == source.metadata[md.KEY_INPUT_SIZE]
     assert meta[md.KEY_MODEL_CARD] == source.metadata[md.KEY_MODEL_CARD]

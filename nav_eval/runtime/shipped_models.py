@@ -132,8 +132,8 @@ def resolve_model(spec: str | os.PathLike[str], what: str = "--model", suffix: s
             how = "release one with `segmin models release --run RUN_DIR`"
         else:
             how = (
-                f"shipped models come as ONNX: write one with `segmin models to-litert --model {text} "
-                f"--frames DIR --out {wanted.name}` and put it there, or pass its path"
+                f"shipped models come as ONNX: write one with `segmin export --checkpoint {text} "
+                f"--format tflite --calib-data DIR --out {wanted.name}` and put it there, or pass its path"
             )
         raise ValueError(
             f"{what} {text}: a shipped model name, but this install has no {wanted.name} yet "

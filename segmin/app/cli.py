@@ -29,7 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "segmin.data.cli",
     "segmin.data.synth.cli",
     "segmin.train.cli",
-    "segmin.export.cli",
+    "segmin.app.export_cli",
     "segmin.nav_eval.demo.cli",
     "segmin.nav_eval.replay.cli",
     "segmin.nav_eval.ros2.cli",

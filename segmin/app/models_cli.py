@@ -54,21 +54,6 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     to_torch.add_argument("--out", type=Path, required=True, help="the state dict to write (.pt)")
     to_torch.add_argument("--force", action="store_true", help="replace --out when it exists")
     to_torch.set_defaults(func=_to_torch)
-    to_litert = sub.add_parser(
-        "to-litert",
-        help="a shipped (or any segmin fp32 ONNX) model as a verified LiteRT .tflite file",
-        description="Converts the model's network back to PyTorch (as to-torch does, BatchNorm statistics measured "
-        "on --frames) and exports it with `segmin export --format tflite`: verified against that network on "
-        "--frames, the model card carried over. Run the file with LiteRtSegmenter, or put it beside the shipped "
-        "models ($SEGMIN_MODELS_DIR) as <name>.tflite to load it by name.",
-    )
-    to_litert.add_argument("--model", required=True, help="a shipped model name or an fp32 segmin .onnx file")
-    to_litert.add_argument("--frames", type=Path, required=True, help="folder of frames of the model's crop")
-    to_litert.add_argument("--out", type=Path, required=True, help="the .tflite file to write")
-    to_litert.add_argument("--int8", action="store_true", help="also write <out>.int8.tflite (full integer)")
-    to_litert.add_argument("--calib-frames", type=int, default=32, help="frames for INT8 calibration (default 32)")
-    to_litert.add_argument("--force", action="store_true", help="replace --out when it exists")
-    to_litert.set_defaults(func=_to_litert)
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -247,29 +232,4 @@ def _to_torch(args: argparse.Namespace) -> int:
         f"wrote {args.out}: the network of {source}, BatchNorm statistics from {len(frames)} frames of {args.frames} "
         f"(largest probability difference to the ONNX model {worst:.1e}); train from it with backbone_weights={args.out}"
     )
-    return 0
-
-
-def _to_litert(args: argparse.Namespace) -> int:
-    from segmin.export.pipeline import ExportOptions, export_checkpoint
-    from segmin.nav_eval.runtime.shipped_models import resolve_model
-
-    source = resolve_model(args.model)
-    options = ExportOptions(
-        checkpoint=source,
-        out=args.out,
-        calib_data=args.frames,
-        format="tflite",
-        int8=args.int8,
-        calib_frames=args.calib_frames,
-        force=args.force,
-    )
-    report = export_checkpoint(options)
-    verification = report["fp32"]["verification_vs_torch"]
-    print(
-        f"wrote {args.out}: {source} as LiteRT, verified on {verification['frames']} frames of {args.frames} "
-        f"(max |dp| {verification['max_abs_diff']:.1e})"
-    )
-    if "int8" in report:
-        print(f"{report['int8']['path']}: {report['int8']['recommendation']}")
     return 0

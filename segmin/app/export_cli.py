@@ -1,4 +1,5 @@
-"""`segmin export`.
+"""`segmin export` (in the app layer: it also takes a shipped model's name, which the registry in the
+robot runtime resolves).
 
 The export latency bench (PyTorch eager against onnxruntime) is a developer's: `python -m benchmarks export`.
 """
@@ -23,9 +24,8 @@ def register(commands, bench) -> None:
     parser.add_argument(
         "--checkpoint",
         required=True,
-        type=Path,
-        help="checkpoint (best.pt / last.pt), or a segmin fp32 .onnx file to export to another format (needs "
-        "--calib-data; for a shipped model: segmin models to-litert)",
+        help="checkpoint (best.pt / last.pt), or a segmin fp32 .onnx file or a shipped model's name (vineyards, "
+        "trees) to export to another format (converted back to PyTorch first; needs --calib-data)",
     )
     parser.add_argument("--out", required=True, type=Path, help="output file (.onnx, or .tflite with --format tflite)")
     parser.add_argument(
@@ -60,6 +60,14 @@ def register(commands, bench) -> None:
     parser.set_defaults(func=run_export)
 
 
+def _source(checkpoint: str) -> Path:
+    """The file `--checkpoint` names: an existing file wins; a shipped model's name is its ONNX file."""
+    from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES, resolve_model
+
+    path = Path(checkpoint)
+    return resolve_model(checkpoint, "--checkpoint") if checkpoint in SHIPPED_NAMES and not path.exists() else path
+
+
 def run_export(args: argparse.Namespace) -> int:
     from segmin.common.outputs import check_output_file
 
@@ -67,7 +75,7 @@ def run_export(args: argparse.Namespace) -> int:
     from segmin.export.pipeline import ExportOptions, export_checkpoint
 
     options = ExportOptions(
-        checkpoint=args.checkpoint,
+        checkpoint=_source(args.checkpoint),
         out=args.out,
         calib_data=args.calib_data,
         fp16=args.fp16,
