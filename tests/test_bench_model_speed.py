@@ -35,7 +35,8 @@ def test_ratios_are_to_the_paper_model_at_the_same_thread_count_and_the_default_
         SetupFigure(Setup("onnx", "m.onnx", 2, False), 3.0, (3.0,)),
         SetupFigure(Setup("onnx", "m.onnx", 1, False), 5.0, (5.0,)),  # no paper figure at 1 thread
     ]
-    lines = format_figures(figures, default_spin=False)
+    lines = format_figures(figures, Setup("onnx", "m.onnx", 0, False))
+    assert lines[0] == "the runtime's default: onnx, spinning off"
     assert "| onnx 2 thread(s), spinning on | 6.00 | 6.00 | 1.50 |" in lines
     assert "| onnx 2 thread(s), spinning off | 3.00 | 3.00 | 0.75 |" in lines
     assert "| onnx 1 thread(s), spinning off | 5.00 | 5.00 | n/a |" in lines

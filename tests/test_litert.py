@@ -25,7 +25,7 @@ from segmin.export.pipeline import ExportOptions, export_checkpoint, report_path
 from segmin.export.verify import MAX_ABS_DIFF, MIN_MASK_AGREEMENT, compare, load_frames
 from segmin.models.checkpoint import load_model
 from segmin.nav_eval.runtime import LiteRtSegmenter, OnnxSegmenter, Segmenter
-from segmin.nav_eval.runtime.segmenter import load_segmenter
+from segmin.nav_eval.runtime.segmenter import load_segmenter, runtime_model_file
 from segmin.nav_eval.runtime.shipped_models import ENV_MODELS_DIR
 
 
@@ -271,3 +271,32 @@ def test_eval_seg_scores_a_litert_file_as_its_checkpoint(litert_export, checkpoi
         results[name] = json.loads((tmp_path / name / "results.json").read_text())
     assert results["litert"]["kind"] == "litert" and results["litert"]["input_size"] == [SIZE, SIZE]
     assert abs(results["litert"]["summary"]["mean_iou"] - results["checkpoint"]["summary"]["mean_iou"]) < 0.01
+
+
+@pytest.mark.parametrize("name", ["vineyards", "trees"])
+def test_a_shipped_name_runs_its_int8_litert_file_where_litert_is_installed(name, monkeypatch, caplog) -> None:
+    """The fastest measured configuration is the runtime's default for a shipped name; without
+    LiteRT the ONNX file runs, and one log line says how to get the fast one."""
+    from segmin.nav_eval.runtime import segmenter as runtime
+
+    monkeypatch.delenv(ENV_MODELS_DIR, raising=False)
+    fast = runtime.runtime_model_file(name)
+    assert fast.name == f"{name}.int8.tflite" and isinstance(load_segmenter(name), LiteRtSegmenter)
+    monkeypatch.setattr(runtime, "litert_installed", lambda: False)
+    with caplog.at_level("INFO", logger=runtime.__name__):
+        slow = load_segmenter(name)
+    assert isinstance(slow, OnnxSegmenter) and slow.path.name == f"{name}.onnx"
+    assert "pip install segmin[litert] runs the faster INT8 LiteRT file" in caplog.text
+    assert load_segmenter(str(slow.path)).path == slow.path  # a file is run as given
+
+
+@pytest.mark.parametrize("name", ["vineyards", "trees"])
+def test_the_shipped_int8_file_carries_the_onnx_metadata_and_its_masks(name, frames_dir, monkeypatch) -> None:
+    monkeypatch.delenv(ENV_MODELS_DIR, raising=False)
+    onnx, int8 = OnnxSegmenter(name), LiteRtSegmenter(runtime_model_file(name))
+    for key in (md.KEY_INPUT_SIZE, md.KEY_THRESHOLD, md.KEY_MODEL_CARD):
+        assert int8.metadata[key] == onnx.metadata[key], key
+    frames = load_frames(frames_dir, (160, 120), limit=4)
+    a = np.stack([onnx.segment(f) for f in frames])
+    b = np.stack([int8.segment(f) for f in frames])
+    assert np.mean(a == b) >= 0.97  # INT8 against fp32 on frames it was not calibrated on

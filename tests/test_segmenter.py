@@ -146,11 +146,11 @@ def test_background_segmentation_gives_the_masks_of_segment(model_path) -> None:
     """The closed loop segments on a helper thread (prepare here, onnxruntime there): same masks."""
     from types import SimpleNamespace
 
-    from segmin.nav_eval.sim.segmentation import BackgroundSegmenter, OnnxFrameSegmenter
+    from segmin.nav_eval.sim.segmentation import BackgroundSegmenter, ModelFrameSegmenter
 
     segmenter = OnnxSegmenter(model_path, threads=1)
     frames = [_frame(SIZE + 8 * k, SIZE, seed=20 + k) for k in range(4)]
-    with BackgroundSegmenter(OnnxFrameSegmenter(segmenter)) as background:
+    with BackgroundSegmenter(ModelFrameSegmenter(segmenter)) as background:
         futures = [background.submit(SimpleNamespace(rgb=rgb)) for rgb in frames]
         masks = [future.result() for future in futures]
     for rgb, mask in zip(frames, masks):

@@ -42,6 +42,9 @@ def _register_model_speed(bench: argparse._SubParsersAction) -> None:
     seg.add_argument(
         "--frame", type=Path, default=None, help="RGB image to segment (default: the shipped model's real photo)"
     )
+    seg.add_argument(
+        "--litert", type=Path, nargs="+", default=[], help="segmin LiteRT files to time too (the model's fp32 / INT8)"
+    )
     seg.add_argument("--threads", type=int, nargs="+", default=[2, 1], help="thread counts (default 2 1)")
     seg.add_argument("--rounds", type=int, default=5, help="turns of every configuration (default 5)")
     seg.add_argument("--runs", type=int, default=300, help="timed frames per turn (default 300)")
@@ -56,8 +59,15 @@ def _register_model_speed(bench: argparse._SubParsersAction) -> None:
 def _bench_model_speed(args: argparse.Namespace) -> int:
     from segmin.common.machine import load_average
     from segmin.data.readers import read_image
-    from segmin.nav_eval.bench.segmenter_speed import Setup, busy_processes, format_figures, run_rounds, write_json
-    from segmin.nav_eval.runtime.segmenter import SPIN_DEFAULT
+    from segmin.nav_eval.bench.segmenter_speed import (
+        Setup,
+        busy_processes,
+        camera_frame,
+        format_figures,
+        run_rounds,
+        write_json,
+    )
+    from segmin.nav_eval.runtime.segmenter import SPIN_DEFAULT, runtime_model_file
     from segmin.nav_eval.runtime.shipped_models import SHIPPED_NAMES, resolve_model, shipped_model
 
     for name in ("rounds", "runs"):
@@ -65,24 +75,29 @@ def _bench_model_speed(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} {getattr(args, name)}: must be >= 1")
     if args.warmup < 0 or args.busy < 0 or any(t < 1 for t in args.threads):
         raise ValueError("--warmup and --busy must be >= 0, --threads each >= 1")
-    if args.paper is not None and not args.paper.is_file():
-        raise ValueError(f"--paper {args.paper}: no such file")
+    for path in [args.paper, *args.litert]:
+        if path is not None and not path.is_file():
+            raise ValueError(f"{'--paper' if path == args.paper else '--litert'} {path}: no such file")
     model = resolve_model(args.model)
+    default_file = runtime_model_file(args.model)  # what the runtime loads for --model
+    litert_files = list(dict.fromkeys([*args.litert, *([default_file] if default_file.suffix == ".tflite" else [])]))
     if args.frame is None and args.model not in SHIPPED_NAMES:
         raise ValueError(f"--model {args.model} is a file: --frame must name the image to segment")
     frame_path = args.frame or shipped_model(args.model).onnx.with_suffix(".real.jpg")
-    frame = read_image(frame_path)
+    frame = camera_frame(read_image(frame_path))
     setups = []
     for threads in args.threads:
         if args.paper is not None:
             setups.append(Setup("paper", str(args.paper), threads))
         setups += [Setup("onnx", str(model), threads, spin) for spin in (True, False)]
+        setups += [Setup("litert", str(path), threads) for path in litert_files]
     print(
-        f"{model} on {frame_path} ({frame.shape[1]} x {frame.shape[0]}), {args.busy} busy process(es), {load_average()}"
+        f"{model} on {frame_path} at {frame.shape[1]} x {frame.shape[0]}, {args.busy} busy process(es), {load_average()}"
     )
     with busy_processes(args.busy):
         figures = run_rounds(setups, frame, args.rounds, args.warmup, args.runs)
-    print("\n".join(format_figures(figures, SPIN_DEFAULT)))
+    default = Setup("litert", str(default_file), 0) if default_file.suffix == ".tflite" else None
+    print("\n".join(format_figures(figures, default or Setup("onnx", str(model), 0, SPIN_DEFAULT))))
     print(load_average())
     if args.json is not None:
         write_json(args.json, figures, {k: str(v) for k, v in vars(args).items() if k != "func"})

@@ -9,15 +9,17 @@ a configuration's figure is the median of its rounds' medians. `--busy N` adds N
 keep a core half busy, as a robot's camera and motor drivers do: onnxruntime's spinning threads
 fight them for the cores, which an idle machine never shows.
 
-Both sides are timed from the camera frame to the boolean mask: segmin's segmenter (resize, the
-graph, threshold, resize back) and the paper's model as its node feeds it (INTER_AREA to 224 x
-224, /255 and the ImageNet normalisation in numpy, float NHWC, the per-frame min-max and the 0.7
-threshold).
+Both sides are timed from a 224 x 224 camera frame (the image resized once, before timing, so
+that a large photo's resize does not hide the models) to the boolean mask: segmin's segmenter
+(its checks, the graph with the normalisation inside it, the threshold) and the paper's model as
+its node feeds it (/255 and the ImageNet normalisation in numpy, float NHWC, the per-frame
+min-max and the 0.7 threshold).
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -42,8 +44,8 @@ BUSY_DUTY_S = 0.005  # a busy process works this long, then sleeps as long: half
 
 @dataclass(frozen=True)
 class Setup:
-    """One configuration: `kind` "paper" (the paper's TFLite) or "onnx" (segmin's segmenter);
-    `spin` is onnxruntime's thread spinning (None where the runtime has no such switch)."""
+    """One configuration: `kind` "paper" (the paper's TFLite), "onnx" or "litert" (segmin's
+    segmenters); `spin` is onnxruntime's thread spinning (None where the runtime has no such switch)."""
 
     kind: str
     path: str
@@ -53,7 +55,8 @@ class Setup:
     @property
     def label(self) -> str:
         spin = "" if self.spin is None else f", spinning {'on' if self.spin else 'off'}"
-        return f"{'paper TFLite' if self.kind == 'paper' else self.kind} {self.threads} thread(s){spin}"
+        name = {"paper": "paper TFLite", "onnx": "onnx", "litert": f"litert {Path(self.path).name}"}[self.kind]
+        return f"{name} {self.threads} thread(s){spin}"
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,13 @@ class SetupFigure:
     setup: Setup
     median_ms: float
     round_medians_ms: tuple[float, ...]
+
+
+def camera_frame(rgb: np.ndarray) -> np.ndarray:
+    """The image as a camera at the models' input size would deliver it (INTER_AREA, as both resize)."""
+    import cv2
+
+    return cv2.resize(rgb, (PAPER_SIZE, PAPER_SIZE), interpolation=cv2.INTER_AREA)
 
 
 def paper_segmenter(path: str, threads: int) -> Callable[[np.ndarray], np.ndarray]:
@@ -91,6 +101,10 @@ def paper_segmenter(path: str, threads: int) -> Callable[[np.ndarray], np.ndarra
 def _segmenter(setup: Setup) -> Callable[[np.ndarray], np.ndarray]:
     if setup.kind == "paper":
         return paper_segmenter(setup.path, setup.threads)
+    if setup.kind == "litert":
+        from segmin.nav_eval.runtime.segmenter import LiteRtSegmenter
+
+        return LiteRtSegmenter(setup.path, threads=setup.threads).segment
     from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
 
     return OnnxSegmenter(setup.path, threads=setup.threads, spin=bool(setup.spin)).segment
@@ -101,10 +115,11 @@ def time_setup(setup: Setup, frame: np.ndarray, warmup: int, runs: int) -> np.nd
     return time_calls(_segmenter(setup), runs=runs, warmup=warmup, inputs=[frame])
 
 
-def _busy(stop: Any) -> None:
-    """Half a core of work until `stop` is set (a robot's drivers beside the segmenter)."""
+def _busy(stop: Any, parent: int) -> None:
+    """Half a core of work until `stop` is set or the bench that started it is gone (a robot's
+    drivers beside the segmenter; a bench killed before it could set `stop` leaves no load behind)."""
     a = np.random.default_rng(0).random((64, 64))
-    while not stop.is_set():
+    while not stop.is_set() and os.getppid() == parent:
         end = time.perf_counter() + BUSY_DUTY_S
         while time.perf_counter() < end:
             a = a @ a
@@ -117,7 +132,7 @@ def busy_processes(count: int) -> Iterator[None]:
     """`count` background processes keeping half a core busy each, for the block's duration."""
     context = multiprocessing.get_context("spawn")
     stop = context.Event()
-    workers = [context.Process(target=_busy, args=(stop,), daemon=True) for _ in range(count)]
+    workers = [context.Process(target=_busy, args=(stop, os.getpid()), daemon=True) for _ in range(count)]
     for worker in workers:
         worker.start()
     try:
@@ -145,18 +160,24 @@ def run_rounds(
     return [SetupFigure(setup, float(np.median(values)), tuple(values)) for setup, values in medians.items()]
 
 
-def format_figures(figures: Sequence[SetupFigure], default_spin: bool) -> list[str]:
+def format_figures(figures: Sequence[SetupFigure], default: Setup) -> list[str]:
     """A markdown table with each configuration's ratio to the paper's model at its thread count,
-    then the target's verdict for the runtime's default configuration (spinning `default_spin`)."""
+    then the target's verdict for the runtime's default configuration: `default` at every thread
+    count (its `threads` is not compared)."""
     paper = {f.setup.threads: f.median_ms for f in figures if f.setup.kind == "paper"}
-    lines = ["| configuration | median ms | rounds (ms) | x the paper's model |", "|---|---|---|---|"]
+    lines = [
+        f"the runtime's default: {default.label.replace(' 0 thread(s)', '')}",
+        "| configuration | median ms | rounds (ms) | x the paper's model |",
+        "|---|---|---|---|",
+    ]
     for f in figures:
         reference = paper.get(f.setup.threads)
         ratio = f"{f.median_ms / reference:.2f}" if reference else "n/a"
         rounds = " ".join(f"{value:.2f}" for value in f.round_medians_ms)
         lines.append(f"| {f.setup.label} | {f.median_ms:.2f} | {rounds} | {ratio} |")
     for f in figures:
-        if f.setup.kind != "paper" and f.setup.spin == default_spin and f.setup.threads in paper:
+        same = (f.setup.kind, f.setup.path, f.setup.spin) == (default.kind, default.path, default.spin)
+        if same and f.setup.threads in paper:
             default_ratio = f.median_ms / paper[f.setup.threads]
             figure = {TARGET.key: default_ratio}
             lines += [f"{f.setup.threads} thread(s): " + line for line in verdict_lines([TARGET], figure)]

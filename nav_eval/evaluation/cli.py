@@ -32,7 +32,7 @@ def register(commands: argparse._SubParsersAction, bench: argparse._SubParsersAc
     parser.add_argument(
         "--model",
         required=True,
-        help="exported .onnx file, a shipped model name (vineyards, trees), or 'oracle' (exact masks)",
+        help="exported .onnx or .tflite file, a shipped model name (vineyards, trees), or 'oracle' (exact masks)",
     )
     parser.add_argument(
         "--fields", default="all", help="'all' (the five test fields), comma-separated names, or world spec YAML paths"

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from segmin.common.atomic import write_json
-from segmin.nav_eval.runtime.shipped_models import resolve_model
+from segmin.nav_eval.runtime.segmenter import runtime_model_file
 
 RUNS_FOLDER = "runs"
 T = TypeVar("T")
@@ -29,17 +29,20 @@ def digest(obj: Any) -> str:
 
 
 def model_sha256(model: str) -> str | None:
-    """The sha256 of the model's file (a path or a shipped name, resolved); None for 'oracle', a name."""
+    """The sha256 of the file the runs use for `model` (a path, or the file the runtime picks for
+    a shipped name: `runtime_model_file`); None for 'oracle'."""
     if model == "oracle":
         return None
-    return hashlib.sha256(resolve_model(model).read_bytes()).hexdigest()
+    return hashlib.sha256(runtime_model_file(model).read_bytes()).hexdigest()
 
 
 def model_identity(model: str) -> str:
     """'oracle', or the exported file's content hash: a moved file keeps its runs, a new file
     written over the old one at the same path does not."""
     sha256 = model_sha256(model)
-    return model if sha256 is None else "onnx:" + sha256[:16]
+    if sha256 is None:
+        return model
+    return f"{'tflite' if runtime_model_file(model).suffix == '.tflite' else 'onnx'}:{sha256[:16]}"
 
 
 def store_run(folder: Path, key: str, result: Any, *, trajectory: bool = False) -> None:

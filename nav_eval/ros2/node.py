@@ -66,17 +66,19 @@ SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Re
 
 
 def load_segmenter(params: NodeParams) -> Any:
-    """The ONNX segmenter of `params` (ValueError naming the parameter when it cannot be loaded).
+    """The segmenter of `params` (ValueError naming the parameter when it cannot be loaded): the
+    runtime's `load_segmenter`, so a shipped name runs its INT8 LiteRT file where LiteRT is
+    installed, as everywhere else.
 
     onnxruntime's threads busy-wait only with `inference_spin`: on 2 idle cores spinning gives the
     lowest latency, but on a busy computer it takes the cores the camera driver and DDS need.
-    Warmed up here: onnxruntime's first runs allocate and are several times slower."""
-    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+    Warmed up here: the first runs allocate and are several times slower."""
+    from segmin.nav_eval.runtime.segmenter import load_segmenter as load
 
     if not params.node.model:
-        raise ValueError("parameter model: not set (give the exported .onnx file)")
+        raise ValueError("parameter model: not set (give a shipped model name or an exported .onnx / .tflite file)")
     try:
-        segmenter = OnnxSegmenter(params.node.model, threads=params.node.threads, spin=params.node.inference_spin)
+        segmenter = load(params.node.model, threads=params.node.threads, spin=params.node.inference_spin)
     except (OSError, ValueError) as exc:
         raise ValueError(f"parameter model: {exc}") from None
     blank = np.zeros((*segmenter.input_size, 3), dtype=np.uint8)

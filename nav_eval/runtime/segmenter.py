@@ -16,18 +16,27 @@ is not (it needs the whole rendered frame): it lives in `nav_eval.sim.oracle`.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from segmin.data.model_input import resize_to_input
 from segmin.export import metadata as md
 
-from .shipped_models import resolve_model
+from .shipped_models import SHIPPED_NAMES, resolve_model, shipped_model
 
-# Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter).
-SPIN_DEFAULT = True
+log = logging.getLogger(__name__)
+
+# Whether onnxruntime's idle worker threads busy-wait for the next run (see OnnxSegmenter). Off:
+# a robot's camera, IMU and motor drivers share its cores, and spinning threads take them (two
+# spinning sessions in one process slowed each other 1.2-2.2x; medians under load were 2-8x
+# slower than without): spin only with a core to spare.
+SPIN_DEFAULT = False
+# A shipped model's fastest file (runtime_model_file): full-integer INT8 LiteRT, hard-swish float.
+FAST_SUFFIX = ".int8.tflite"
 
 
 def check_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -205,11 +214,41 @@ class LiteRtSegmenter(_ModelFileSegmenter):
         return self._runner(prepared.batch)[0, 0]
 
 
+def litert_installed() -> bool:
+    """Whether the LiteRT interpreter (`pip install segmin[litert]`) can be imported."""
+    import importlib.util
+
+    return importlib.util.find_spec("ai_edge_litert") is not None
+
+
+def runtime_model_file(model: str | os.PathLike, what: str = "--model") -> Path:
+    """The file `load_segmenter` runs for a model argument: a file as given; a shipped name's
+    INT8 LiteRT file where LiteRT is installed, else its ONNX file.
+
+    The INT8 LiteRT file with XNNPACK is the fastest configuration measured on 2 cores, idle and
+    beside busy processes (`segmin bench model-speed`: 0.52-0.72x the paper's model's frame time,
+    the ONNX file 0.85-1.0x), with the masks and the steering of the fp32 model within the
+    tolerances in the models guide."""
+    text = os.fspath(model)
+    if text.lower().endswith(".tflite"):
+        return resolve_model(model, what=what, suffix=".tflite")
+    if text in SHIPPED_NAMES and not Path(text).exists():
+        fast = shipped_model(text).onnx.with_suffix(FAST_SUFFIX)
+        if fast.is_file() and litert_installed():
+            return fast
+        log.info(
+            "%s %s: running its ONNX file (pip install segmin[litert] runs the faster INT8 LiteRT file)", what, text
+        )
+    return resolve_model(model, what=what)
+
+
 def load_segmenter(
-    model: str | os.PathLike, threads: int = 2, what: str = "--model"
+    model: str | os.PathLike, threads: int = 2, what: str = "--model", spin: bool = SPIN_DEFAULT
 ) -> OnnxSegmenter | LiteRtSegmenter:
-    """The segmenter for a model argument (`what` names it in errors): a .tflite file ->
-    `LiteRtSegmenter`, anything else (an .onnx file, a shipped name) -> `OnnxSegmenter`."""
-    if os.fspath(model).lower().endswith(".tflite"):
-        return LiteRtSegmenter(resolve_model(model, what=what, suffix=".tflite"), threads=threads)
-    return OnnxSegmenter(resolve_model(model, what=what), threads=threads)
+    """The segmenter for a model argument (`what` names it in errors): the file `runtime_model_file`
+    picks, a .tflite file in `LiteRtSegmenter`, an .onnx file in `OnnxSegmenter` (`spin`: its
+    threads' busy-wait)."""
+    path = runtime_model_file(model, what)
+    if path.suffix.lower() == ".tflite":
+        return LiteRtSegmenter(path, threads=threads)
+    return OnnxSegmenter(path, threads=threads, spin=spin)

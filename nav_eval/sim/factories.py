@@ -82,17 +82,16 @@ def make_simulator(ctx: FieldContext, config: NavEvalConfig) -> RowEnv:
 
 
 def make_segmenter(model: str, threads: int = 1) -> FrameSegmenter:
-    """The simulator's segmenter: 'oracle' -> OracleSegmenter; otherwise an ONNX file or a shipped
-    model name, run by the robot's OnnxSegmenter on each frame's image."""
+    """The simulator's segmenter: 'oracle' -> OracleSegmenter; otherwise an ONNX or LiteRT file or a
+    shipped model name, run by the robot's segmenter for it (`load_segmenter`) on each frame's image."""
     if str(model) == "oracle":
         from segmin.nav_eval.sim.oracle import OracleSegmenter
 
         return OracleSegmenter()
-    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
-    from segmin.nav_eval.runtime.shipped_models import resolve_model
-    from segmin.nav_eval.sim.segmentation import OnnxFrameSegmenter
+    from segmin.nav_eval.runtime.segmenter import load_segmenter
+    from segmin.nav_eval.sim.segmentation import ModelFrameSegmenter
 
-    return OnnxFrameSegmenter(OnnxSegmenter(resolve_model(model), threads=threads))
+    return ModelFrameSegmenter(load_segmenter(model, threads=threads))
 
 
 def follower_config(method: str, depth_threshold: float, config: NavEvalConfig) -> FollowerConfig:

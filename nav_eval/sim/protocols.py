@@ -9,7 +9,7 @@ worlds (`segmin.data.synth.world.World`) and pybullet renderer (`...render.Rende
   vegetation mask;
 - `FrameSegmenter`: the simulator's perception, a mask for a rendered frame. The exact-mask
   oracle is one (it reads `frame.mask`), and so is the robot's ONNX model on the frame's image
-  (`nav_eval.sim.segmentation.OnnxFrameSegmenter`). The robot runtime's own `Segmenter` takes an
+  (`nav_eval.sim.segmentation.ModelFrameSegmenter`). The robot runtime's own `Segmenter` takes an
   image only, which is all a robot has.
 """
 

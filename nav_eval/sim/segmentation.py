@@ -1,7 +1,7 @@
-"""Segmentation in the simulator: the robot's ONNX model on rendered frames, and the helper thread
-that segments one frame while the next one renders.
+"""Segmentation in the simulator: the robot's exported model on rendered frames, and the helper
+thread that segments one frame while the next one renders.
 
-`OnnxFrameSegmenter` makes the robot's `OnnxSegmenter` a `FrameSegmenter` (it reads the frame's
+`ModelFrameSegmenter` makes the robot's `OnnxSegmenter` or `LiteRtSegmenter` a `FrameSegmenter` (it reads the frame's
 image, nothing else). `BackgroundSegmenter` runs any `FrameSegmenter` on one helper thread; the
 masks are those of `segment_frame`, only earlier.
 """
@@ -19,21 +19,21 @@ import numpy as np
 from segmin.nav_eval.sim.protocols import FrameSegmenter, SimFrame
 
 if TYPE_CHECKING:
-    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter, PreparedFrame
+    from segmin.nav_eval.runtime.segmenter import LiteRtSegmenter, OnnxSegmenter, PreparedFrame
 
 
-class OnnxFrameSegmenter(FrameSegmenter):
-    """An exported model (`OnnxSegmenter`) on the simulator's frames: it segments `frame.rgb`.
+class ModelFrameSegmenter(FrameSegmenter):
+    """An exported model (`OnnxSegmenter`, `LiteRtSegmenter`) on the simulator's frames: it
+    segments `frame.rgb`.
 
-    The work splits as `OnnxSegmenter` splits it: the checks and the resize (`prepare`, which
-    holds the GIL) on the caller's thread, onnxruntime (`segment_prepared`, which releases it)
+    The work splits as the segmenter splits it: the checks and the resize (`prepare`, which
+    holds the GIL) on the caller's thread, the runtime (`segment_prepared`, which releases it)
     in the call `prepare_frame` returns.
     """
 
-    name = "onnx"
-
-    def __init__(self, model: OnnxSegmenter) -> None:
+    def __init__(self, model: OnnxSegmenter | LiteRtSegmenter) -> None:
         self.model = model
+        self.name = model.name  # "onnx" or "litert"
 
     def segment_frame(self, frame: SimFrame) -> np.ndarray:
         return self.prepare_frame(frame)()
@@ -46,7 +46,7 @@ class OnnxFrameSegmenter(FrameSegmenter):
         return np.asarray(self.model.segment_prepared(prepared), dtype=bool)
 
     def __repr__(self) -> str:
-        return f"OnnxFrameSegmenter({self.model!r})"
+        return f"ModelFrameSegmenter({self.model!r})"
 
 
 class BackgroundSegmenter:
