@@ -155,7 +155,7 @@ def test_replaying_a_bag_live_streams_its_odometry_as_the_path_and_tf(recorded, 
     argv += [topics.DEPTH, "--method", "segmind", "--depth-threshold", "5", "--out", str(tmp_path / "out")]
     with pytest.MonkeyPatch.context() as patch:  # the stand-in world's segmenter instead of a model file
         patch.setattr("segmin.nav_eval.runtime.segmenter.OnnxSegmenter", lambda *a, **k: GreenSegmenter())
-        patch.setattr("segmin.nav_eval.runtime.shipped_models.resolve_model", lambda model: model)
+        patch.setattr("segmin.nav_eval.runtime.segmenter.resolve_model", lambda model, **_: Path(model))
         assert main([*argv, "--live", "--live-port", str(port), "--live-rate", "2"]) == 0
     got = client.stop()
     assert f"live view: ws://127.0.0.1:{port};" in capsys.readouterr().out
