@@ -7,7 +7,8 @@
 #      shipped name, `segmin models list`),
 #      `segmin navigate-demo --no-figure`, and the one-line error of a command that needs an extra;
 #   4. the robot install for ROS 2 Humble's Python: the wheel admits 3.10, and the dependencies of
-#      `pip install segmin` and `segmin[ros]` resolve for 3.10 from the registry (binary wheels only).
+#      `pip install segmin`, `segmin[ros]` and `segmin[litert]` (the fast INT8 runtime) resolve for
+#      3.10 from the registry (binary wheels only).
 # Prints the wheel size, the lean install's size and its import time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -101,9 +102,9 @@ print(f"Requires-Python: {requires}")
 PY
 # pip checks the dependencies' Requires-Python against --python-version (not the named wheel's: above).
 if ! $PYTHON -m pip install --dry-run --ignore-installed --quiet --python-version 3.10 --only-binary=:all: \
-    --target "$work/py310" --report "$work/py310.json" "$wheel" "$wheel[ros]" > "$work/py310.log" 2>&1; then
+    --target "$work/py310" --report "$work/py310.json" "$wheel" "$wheel[ros,litert]" > "$work/py310.log" 2>&1; then
     grep -v "^WARNING: Location" "$work/py310.log"
-    echo "the robot install (segmin, segmin[ros]) does not resolve for Python 3.10"
+    echo "the robot install (segmin, segmin[ros,litert]) does not resolve for Python 3.10"
     exit 1
 fi
 $PYTHON - "$work/py310.json" <<'PY'
