@@ -31,18 +31,20 @@ def digest(obj: Any) -> str:
 def model_sha256(model: str) -> str | None:
     """The sha256 of the file the runs use for `model` (a path, or the file the runtime picks for
     a shipped name: `runtime_model_file`); None for 'oracle'."""
-    if model == "oracle":
-        return None
-    return hashlib.sha256(runtime_model_file(model).read_bytes()).hexdigest()
+    return None if model == "oracle" else _sha256(runtime_model_file(model))
 
 
 def model_identity(model: str) -> str:
     """'oracle', or the exported file's content hash: a moved file keeps its runs, a new file
     written over the old one at the same path does not."""
-    sha256 = model_sha256(model)
-    if sha256 is None:
+    if model == "oracle":
         return model
-    return f"{'tflite' if runtime_model_file(model).suffix == '.tflite' else 'onnx'}:{sha256[:16]}"
+    path = runtime_model_file(model)  # resolved once: a shipped name's choice logs once
+    return f"{'tflite' if path.suffix == '.tflite' else 'onnx'}:{_sha256(path)[:16]}"
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def store_run(folder: Path, key: str, result: Any, *, trajectory: bool = False) -> None:
