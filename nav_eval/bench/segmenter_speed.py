@@ -101,13 +101,10 @@ def paper_segmenter(path: str, threads: int) -> Callable[[np.ndarray], np.ndarra
 def _segmenter(setup: Setup) -> Callable[[np.ndarray], np.ndarray]:
     if setup.kind == "paper":
         return paper_segmenter(setup.path, setup.threads)
-    if setup.kind == "litert":
-        from segmin.nav_eval.runtime.segmenter import LiteRtSegmenter
+    from segmin.nav_eval.runtime.segmenter import load_segmenter
 
-        return LiteRtSegmenter(setup.path, threads=setup.threads).segment
-    from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
-
-    return OnnxSegmenter(setup.path, threads=setup.threads, spin=bool(setup.spin)).segment
+    # a file path: the runtime's loader picks the segmenter by its suffix (.onnx / .tflite)
+    return load_segmenter(setup.path, threads=setup.threads, spin=bool(setup.spin)).segment
 
 
 def time_setup(setup: Setup, frame: np.ndarray, warmup: int, runs: int) -> np.ndarray:
