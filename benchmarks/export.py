@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.architectures import interleaved
-from segmin.common.machine import load_average_1min
+from segmin.common.machine import load_average_1min, usable_cores
 from segmin.common.speed_targets import SpeedTarget, verdict_lines, verdicts
 
 TARGETS: tuple[SpeedTarget, ...] = (
@@ -254,7 +254,7 @@ def _print_table(
     print(f"onnxruntime {ort.__version__}, torch {torch.__version__}")
     if load_before is not None:
         print(
-            f"load average (1 min) before timing: {load_before:.2f} on {_cpu_count()} cores; "
+            f"load average (1 min) before timing: {load_before:.2f} on {usable_cores()} cores; "
             "figures are noisy when it is high"
         )
     print(f"{'model':<56}{'median ms':>10}{'p95 ms':>10}{'min ms':>9}{'x eager':>9}")
@@ -312,9 +312,3 @@ def _stamp_minimal(path: Path, size: int) -> None:
     info = {"threshold": 0.5, "family": "bench", "train_data": "none", "backbone_weights": "none"}
     set_metadata(model, build_metadata(info, input_size=(size, size), exporter="dynamo", opset=18))
     onnx.save(model, str(path))
-
-
-def _cpu_count() -> int:
-    import os
-
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import os
 
+from segmin.common.machine import cores_for_this_process, usable_cores
 from segmin.common.processes import run_in_processes
 
 
@@ -39,3 +40,22 @@ def test_each_process_keeps_one_worker_and_a_crash_fails_only_its_job() -> None:
     assert values == {1: 101, 2: 104, 4: 116, 5: 125, 6: 136}
     pids = {pid for j, (_, pid) in ((j, r) for j, r in results.items() if j != 13)}
     assert os.getpid() not in pids and 1 <= len(pids) <= 2  # run in (at most two) worker processes
+
+
+class CoresWorker:
+    """Says which share of the cores its process was given."""
+
+    def run(self, job: int) -> int:
+        return cores_for_this_process()
+
+    def close(self) -> None:
+        pass
+
+
+def test_each_process_is_told_its_share_of_the_cores() -> None:
+    results: dict[int, int] = {}
+    run_in_processes([1, 2, 3], CoresWorker, 2, results.__setitem__, lambda job, why: -1)
+    assert set(results.values()) == {max(1, usable_cores() // 2)}
+    results.clear()
+    run_in_processes([1], CoresWorker, 2, results.__setitem__, lambda job, why: -1)  # one job: one process
+    assert results == {1: usable_cores()}

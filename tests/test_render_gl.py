@@ -17,6 +17,7 @@ from synth_helpers import tiny, write_spec
 
 from benchmarks.cli import main as benchmarks_main
 from benchmarks.render_agreement import field_agreement, shadow_mask
+from segmin.common import machine
 from segmin.common.config import ConfigError
 from segmin.data.synth import gl_raster, render
 from segmin.data.synth.camera import CameraModel
@@ -116,6 +117,35 @@ def test_a_frame_without_colour_has_the_colour_frames_depth_mask_and_ids(bullet_
         assert bare.rgb is None and full.rgb is not None and full.mask.any()
         assert np.array_equal(bare.depth, full.depth) and np.array_equal(bare.body_ids, full.body_ids)
         assert np.array_equal(bare.mask, full.mask)
+
+
+@pytest.mark.parametrize("multi_draw", [True, False])
+def test_the_colour_pass_draws_each_bodys_tint_and_texture_of_now(bullet_client, multi_draw):
+    """Tints and textures reach the one-draw colour pass when the renderer retints the world,
+    whether its rasteriser existed before (`set_looks` on retint) or is made after (at its first
+    frame); one draw per body (a GL 3.3 driver) gives the same image."""
+    world = build_world(spec_from_dict(tiny()), bullet_client)
+    pose = world.gap_pose(world.eval_gap, 1.0)
+    before = Renderer(world, SMALL, backend="gl")
+    first = before.render(*pose).rgb
+    before.randomize_appearance(np.random.default_rng(5))
+    after = Renderer(world, SMALL, backend="gl")
+    after.randomize_appearance(np.random.default_rng(5))
+    after.raster.multi_draw = multi_draw and after.raster.ctx.version_code >= 430
+    retinted = before.render(*pose).rgb
+    assert not np.array_equal(first, retinted)
+    assert np.array_equal(retinted, after.render(*pose).rgb)
+
+
+def test_render_threads_follow_this_processs_share_of_the_cores(monkeypatch):
+    """A pool's worker renders with its share of the cores (`serve` notes it), a process alone
+    with all it may use; what the user set in LP_NUM_THREADS stays."""
+    monkeypatch.delenv(machine.WORKER_CORES_VARIABLE, raising=False)
+    assert machine.cores_for_this_process() == machine.usable_cores()
+    monkeypatch.setenv(machine.WORKER_CORES_VARIABLE, "1")
+    assert machine.cores_for_this_process() == 1
+    monkeypatch.setenv(machine.WORKER_CORES_VARIABLE, "many")  # not a count: ignored
+    assert machine.cores_for_this_process() == machine.usable_cores()
 
 
 def test_tinyrenderer_frames_without_colour_leave_only_the_image_out(bullet_client):

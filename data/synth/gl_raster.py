@@ -25,9 +25,15 @@ the same depth expression, so depth and ids are those of the full pass, pixel fo
 vertex carries its body id there, so all bodies go in one multi-draw call (GL 4.3's indirect
 draw; one call per body on a 3.3 driver), in the same front-to-back order as the full pass.
 
-llvmpipe starts as many threads as the machine has cores unless `LP_NUM_THREADS` says otherwise;
-we default it to 1 (one per worker process: workers run side by side), set before the first
-context starts.
+llvmpipe rasterises in as many threads as `LP_NUM_THREADS` says (the machine's cores when unset).
+Unset, segmin sets it to this process's share of the cores (`cores_for_this_process`) before the
+first context starts: all of them for a process rendering alone (the env, one nav-eval worker:
+1.3x the steps of one thread on 2 cores), one each for two workers of a pool on 2 cores.
+The colour pass is one multi-draw call: every texture in one array texture and every body's tint
+and texture in a small float texture read by the vertex shader, so the driver is given one draw
+instead of one per body with its texture and uniforms (about 1 ms a frame less on the CPU).
+Waiting for the frame (`_finish`) lets go of the GIL, which moderngl's calls keep: a segmenter on
+another thread runs while llvmpipe's threads rasterise.
 """
 
 from __future__ import annotations
@@ -43,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from segmin.common.machine import cores_for_this_process
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.world import World
 
@@ -51,27 +58,35 @@ _VERTEX_SHADER = """
 uniform mat4 clip_from_world;
 uniform mat4 sun_clip_from_world;
 uniform vec4 depth_row;  // planar depth = dot(depth_row, (p, 1))
+uniform sampler2D looks;  // per body (column): (tint rgb, texture layer), (texture width, height, -, -)
 in vec3 in_pos;
 in vec3 in_nrm;
 in vec2 in_uv;
+in float in_body;
 out vec3 v_nrm;
 out vec2 v_uv;
 out float v_depth;
 out vec4 v_sun_clip;
+flat out vec3 v_tint;
+flat out ivec3 v_texture;  // width, height, layer
+flat out float v_body;
 void main() {
     gl_Position = clip_from_world * vec4(in_pos, 1.0);
     v_nrm = in_nrm;
     v_uv = in_uv;
     v_depth = dot(depth_row, vec4(in_pos, 1.0));
     v_sun_clip = sun_clip_from_world * vec4(in_pos, 1.0);
+    vec4 look = texelFetch(looks, ivec2(int(in_body), 0), 0);
+    vec4 size = texelFetch(looks, ivec2(int(in_body), 1), 0);
+    v_tint = look.rgb;
+    v_texture = ivec3(int(size.x), int(size.y), int(look.w));
+    v_body = in_body;
 }
 """
 
 _FRAGMENT_SHADER = """
 #version 330
-uniform sampler2D texels;
-uniform vec3 tint;
-uniform float body;
+uniform sampler2DArray texels;  // every texture, bottom row first, from each layer's corner
 uniform vec3 light_dir;
 uniform vec3 light_colour;
 uniform vec3 terms;  // ambient, diffuse, specular coefficients
@@ -84,6 +99,9 @@ in vec3 v_nrm;
 in vec2 v_uv;
 in float v_depth;
 in vec4 v_sun_clip;
+flat in vec3 v_tint;
+flat in ivec3 v_texture;
+flat in float v_body;
 layout(location = 0) out vec4 colour;
 layout(location = 1) out vec2 depth_and_body;
 float sunlight() {  // TinyRenderer's test: 0.8 where something lies nearer the sun, else 1
@@ -94,15 +112,21 @@ float sunlight() {  // TinyRenderer's test: 0.8 where something lies nearer the 
     float occluder = sun_clip_z.x * nearest.x - sun_clip_z.y;
     return -occluder < -0.5 * (v_sun_clip.z + v_sun_clip.w) + 0.05 ? 1.0 : 0.8;
 }
+vec3 texel() {  // nearest texel, repeating: GL's rule (floor of uv times size, wrapped)
+    ivec2 size = v_texture.xy;
+    ivec2 at = ivec2(floor(v_uv * vec2(size)));
+    at -= size * ivec2(floor(vec2(at) / vec2(size)));
+    return texelFetch(texels, ivec3(at, v_texture.z), 0).rgb;
+}
 void main() {
     vec3 n = normalize(v_nrm);
     float diffuse = max(0.0, dot(n, light_dir));
     float specular = pow(max(dot(normalize(2.0 * dot(n, light_dir) * n - light_dir), backward), 0.0), shininess);
-    vec3 base = floor(texture(texels, v_uv).rgb * 255.0 + 0.5) * tint;
+    vec3 base = floor(texel() * 255.0 + 0.5) * v_tint;
     float direct = shadows ? sunlight() : 1.0;
     vec3 lit = terms.x * base + direct * (terms.y * diffuse + terms.z * specular) * base * light_colour;
     colour = vec4(min(floor(lit), 255.0) / 255.0, 1.0);
-    depth_and_body = vec2(v_depth, body + 1.0);
+    depth_and_body = vec2(v_depth, v_body + 1.0);
 }
 """
 
@@ -193,7 +217,7 @@ def headless_gl_problem() -> str | None:
 
 def open_context():
     """A new headless EGL context; a missing EGL or driver becomes one line saying what to install."""
-    os.environ.setdefault("LP_NUM_THREADS", "1")
+    os.environ.setdefault("LP_NUM_THREADS", str(cores_for_this_process()))
     _load_tritons_llvm_first()
     import moderngl  # the [sim] extra; a missing one is named by the command line
 
@@ -214,6 +238,22 @@ def _load_tritons_llvm_first() -> None:
     if importlib.util.find_spec("triton") is not None:
         with contextlib.suppress(ImportError):
             importlib.import_module("triton._C.libtriton")
+
+
+@functools.cache
+def _gl_finish() -> Any:
+    """glFinish through ctypes, which lets go of the GIL while it waits (moderngl's calls keep it)."""
+    egl = ctypes.CDLL(os.environ.get("GLCONTEXT_LINUX_LIBEGL") or ctypes.util.find_library("EGL"))
+    egl.eglGetProcAddress.restype = ctypes.c_void_p
+    egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+    return ctypes.CFUNCTYPE(None)(egl.eglGetProcAddress(b"glFinish"))
+
+
+def _finish() -> None:
+    """Wait for the frame's rasterisation without the GIL: llvmpipe rasterises in threads of its
+    own, and a segmenter on another Python thread (nav-eval's helper) runs meanwhile instead of
+    waiting for a read-back that would hold the GIL throughout."""
+    _gl_finish()()
 
 
 def clip_matrix(camera: CameraModel, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -278,12 +318,16 @@ class GlRasteriser:
             self.centre[[b for b in chunk.bodies if b >= 0]] = chunk.centre
         vbo = ctx.buffer(vertices.tobytes())
         ibo = ctx.buffer(indices.tobytes())
+        body_vbo = ctx.buffer(body_of_vertex.tobytes())
         self.vao = ctx.vertex_array(
-            self.program, [(vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv")], index_buffer=ibo, index_element_size=4
+            self.program,
+            [(vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv"), (body_vbo, "1f", "in_body")],
+            index_buffer=ibo,
+            index_element_size=4,
         )
         self.ids_vao = ctx.vertex_array(
             self.ids_program,
-            [(vbo, "3f 20x", "in_pos"), (ctx.buffer(body_of_vertex.tobytes()), "1f", "in_body")],
+            [(vbo, "3f 20x", "in_pos"), (body_vbo, "1f", "in_body")],
             index_buffer=ibo,
             index_element_size=4,
         )
@@ -292,13 +336,11 @@ class GlRasteriser:
         self.commands[:, 1] = 1
         self.multi_draw = ctx.version_code >= 430
         self.command_buffer = ctx.buffer(reserve=self.commands.nbytes) if self.multi_draw else None
-        self.textures = {}
-        for tid, img in world.textures.images.items():
-            tex = ctx.texture((img.shape[1], img.shape[0]), 3, np.ascontiguousarray(img[::-1]).tobytes())
-            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            tex.repeat_x = tex.repeat_y = True
-            self.textures[tid] = tex
-        self.blank = ctx.texture((1, 1), 3, bytes([255, 255, 255]))
+        self.texels, self.layer_of = _texture_array(ctx, world.textures.images)
+        # Per body: (tint, layer) and (texture size) columns, filled by `set_looks`.
+        self.looks = np.zeros((2, max(self.ranges) + 1, 4), np.float32)
+        self.looks_texture = ctx.texture((self.looks.shape[1], 2), 4, dtype="f4")
+        self.looks_texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._targets: dict[tuple[int, int, bool], Any] = {}
         self._sun_targets: dict[tuple[int, int], tuple[Any, Any]] = {}
         self.all_bodies = sorted(self.ranges)
@@ -309,6 +351,16 @@ class GlRasteriser:
         ).reshape(-1, 4)
         self.program["texels"].value = 0
         self.program["sun_depth"].value = 1
+        self.program["looks"].value = 2
+
+    def set_looks(self, rgba: dict[int, list[float]], texture: dict[int, int]) -> None:
+        """Each body's tint and texture (a texture the world does not hold: plain white), read by the
+        colour pass from a small float texture: the whole frame is then one draw call."""
+        for body, tint in rgba.items():
+            layer, width, height = self.layer_of.get(texture[body], self.layer_of[None])
+            self.looks[0, body] = (*tint[:3], layer)
+            self.looks[1, body, :2] = (width, height)
+        self.looks_texture.write(self.looks.tobytes())
 
     def _target(self, width: int, height: int, colour: bool):
         """The framebuffer of a frame size: colour, (depth, body) and a depth buffer, or without colour."""
@@ -373,21 +425,22 @@ class GlRasteriser:
         shift[0, 3], shift[1, 3] = 1 / camera.width, 1 / camera.height
         self.ids_program["clip_from_world"].write((shift @ clip).T.astype("f4").tobytes())
         self.ids_program["depth_row"].value = tuple(depth_row)
-        self._draw_ids(self.all_bodies)
+        self._draw(self.ids_vao, self.all_bodies)
         texture.use(1)
         return clip
 
-    def _draw_ids(self, bodies: list[int]) -> None:
-        """The bodies through the depth + ids program: one indirect multi-draw, or one call per body."""
+    def _draw(self, vao, bodies: list[int]) -> None:
+        """The bodies, in order, through a program that reads each vertex's body: one indirect
+        multi-draw, or one call per body."""
         if self.multi_draw and self.command_buffer is not None and bodies:
             commands = self.commands[: len(bodies)]
             commands[:, [2, 0]] = [self.ranges[b] for b in bodies]
             self.command_buffer.write(commands.tobytes())
-            self.ids_vao.render_indirect(self.command_buffer, count=len(bodies))
+            vao.render_indirect(self.command_buffer, count=len(bodies))
         else:
             for b in bodies:
                 first, count = self.ranges[b]
-                self.ids_vao.render(first=first, vertices=count)
+                vao.render(first=first, vertices=count)
 
     def _front_to_back(self, pose: np.ndarray, bodies: list[int]) -> list[int]:
         """`bodies` nearest first: the depth test then skips most hidden fragments' shading."""
@@ -402,8 +455,6 @@ class GlRasteriser:
         pose: np.ndarray,
         light: dict,
         bodies: list[int],
-        rgba: dict[int, list[float]],
-        texture: dict[int, int],
         shadow: bool = False,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none);
@@ -423,13 +474,10 @@ class GlRasteriser:
         prog["terms"].value = (light["lightAmbientCoeff"], light["lightDiffuseCoeff"], light["lightSpecularCoeff"])
         prog["backward"].value = tuple(-pose[:3, 2])
         prog["shininess"].value = SHININESS
-        tint, body = prog["tint"], prog["body"]
-        for b in self._front_to_back(pose, bodies):
-            first, count = self.ranges[b]
-            self.textures.get(texture[b], self.blank).use(0)
-            tint.value = tuple(rgba[b][:3])
-            body.value = float(b)
-            self.vao.render(first=first, vertices=count)
+        self.texels.use(0)
+        self.looks_texture.use(2)
+        self._draw(self.vao, self._front_to_back(pose, bodies))
+        _finish()
         w, h = camera.width, camera.height
         rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3).copy()
         return (rgb, *_depth_and_ids(fbo, 1, w, h))
@@ -439,7 +487,8 @@ class GlRasteriser:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Planar depth and body ids as `shoot` gives them, without colour (module docstring)."""
         fbo = self._begin(self.ids_program, camera, pose, colour=False)
-        self._draw_ids(self._front_to_back(pose, bodies))
+        self._draw(self.ids_vao, self._front_to_back(pose, bodies))
+        _finish()
         return _depth_and_ids(fbo, 0, camera.width, camera.height)
 
 
@@ -448,6 +497,26 @@ def _depth_and_ids(fbo, attachment: int, width: int, height: int) -> tuple[np.nd
     zid = np.frombuffer(fbo.read(components=2, attachment=attachment, dtype="f4"), np.float32)
     zid = zid.reshape(height, width, 2)
     return zid[..., 0].copy(), zid[..., 1].astype(np.int32) - 1
+
+
+def _texture_array(ctx, images: dict[int, np.ndarray]) -> tuple[Any, dict[int | None, tuple[int, int, int]]]:
+    """Every texture in one array texture (each image bottom row first, from its layer's corner;
+    the last layer plain white for bodies without one) and, per texture id (None: the white one),
+    its (layer, width, height)."""
+    import moderngl
+
+    width = max((img.shape[1] for img in images.values()), default=1)
+    height = max((img.shape[0] for img in images.values()), default=1)
+    layers = np.zeros((len(images) + 1, height, width, 3), np.uint8)
+    layer_of: dict[int | None, tuple[int, int, int]] = {}
+    for layer, (tid, img) in enumerate(images.items()):
+        layers[layer, : img.shape[0], : img.shape[1]] = img[::-1, :, :3]
+        layer_of[tid] = (layer, img.shape[1], img.shape[0])
+    layers[-1, 0, 0] = 255
+    layer_of[None] = (len(images), 1, 1)
+    texels = ctx.texture_array((width, height, len(layers)), 3, layers.tobytes())
+    texels.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    return texels, layer_of
 
 
 def _bounding_sphere(vertices: np.ndarray) -> tuple[float, float, float, float]:

@@ -259,6 +259,7 @@ class Renderer:
 
             try:
                 self._raster = GlRasteriser(self.world)
+                self._raster.set_looks(self.rgba, self.texture)
             except NoHeadlessGl as err:
                 if self.requested_backend != "auto":
                     raise
@@ -269,8 +270,8 @@ class Renderer:
         return self._raster
 
     def _set_visual(self, body: int, texture: int | None = None) -> None:
-        """Show TinyRenderer a body's tint, texture and shown flag (alpha); the gl backend reads them
-        from `rgba`, `texture` and `state` at draw time instead."""
+        """Show TinyRenderer a body's tint, texture and shown flag (alpha); the gl backend is given
+        `rgba` and `texture` when they change (`GlRasteriser.set_looks`) and reads `state` at draw time."""
         if self.backend == "gl":
             return
         rgba = self.rgba[body] + [1.0 if self.shown[body] else 0.0]
@@ -315,6 +316,8 @@ class Renderer:
                 self.rgba[b] = [min(max(float(v), 0.0), 1.0) for v in tint]
                 self.texture[b] = texture
                 self._set_visual(b, texture=texture)
+        if self._raster is not None:
+            self._raster.set_looks(self.rgba, self.texture)
 
     # ----------------------------------------------------------------- culling
     def _cull(self, pose: np.ndarray) -> dict:
@@ -534,9 +537,7 @@ class Renderer:
         bodies = self.bodies[self.state].tolist()
         if not colour:
             return None, *raster.shoot_depth_ids(self.camera, pose, bodies)
-        return raster.shoot(
-            self.camera, pose, look["light"], bodies, self.rgba, self.texture, shadow=bool(look["shadow"])
-        )
+        return raster.shoot(self.camera, pose, look["light"], bodies, shadow=bool(look["shadow"]))
 
     def _shoot(self, pose: np.ndarray, look: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """TinyRenderer's image from `pose` in `look`'s light: RGB, planar depth (0 where nothing was

@@ -28,6 +28,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
+from segmin.common.machine import WORKER_CORES_VARIABLE
 from segmin.common.processes import JobWorker, StartMethod, run_in_processes
 
 J = TypeVar("J")
@@ -78,6 +79,7 @@ class RayHost:
     """What one Ray actor holds: one worker, made on the node, kept for every job it is given."""
 
     def __init__(self, make_worker: Callable[[], JobWorker[Any, Any]]) -> None:
+        os.environ[WORKER_CORES_VARIABLE] = "1"  # the one CPU Ray gives each actor (`_RayPool`)
         self.worker = make_worker()
 
     def ready(self) -> None:

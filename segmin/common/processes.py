@@ -15,12 +15,15 @@ running, and once none is left the jobs not yet given out fail too, each as `fai
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from collections.abc import Callable, Sequence
 from multiprocessing import get_context
 from multiprocessing.connection import Connection, wait
 from multiprocessing.context import ForkContext, SpawnContext
 from typing import Generic, Literal, Protocol, TypeVar
+
+from segmin.common.machine import WORKER_CORES_VARIABLE, usable_cores
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -41,8 +44,10 @@ class JobWorker(Protocol[J_contra, R_co]):
         ...
 
 
-def serve(make_worker: Callable[[], JobWorker[J, R]], connection: Connection) -> None:
-    """A worker process's life: make its worker, then run each job received until None comes."""
+def serve(make_worker: Callable[[], JobWorker[J, R]], connection: Connection, cores: int) -> None:
+    """A worker process's life: note its share of the cores (`machine.cores_for_this_process`:
+    the gl renderer's threads follow it), make its worker, then run each job received until None comes."""
+    os.environ[WORKER_CORES_VARIABLE] = str(cores)
     worker = make_worker()
     try:
         while (job := connection.recv()) is not None:
@@ -55,9 +60,9 @@ def serve(make_worker: Callable[[], JobWorker[J, R]], connection: Connection) ->
 class _Process(Generic[J]):
     """One worker process as the parent sees it: its end of the pipe and the job it is running."""
 
-    def __init__(self, context: SpawnContext | ForkContext, make_worker: Callable[[], JobWorker]) -> None:
+    def __init__(self, context: SpawnContext | ForkContext, make_worker: Callable[[], JobWorker], cores: int) -> None:
         self.connection, child = context.Pipe()
-        self.process = context.Process(target=serve, args=(make_worker, child), daemon=True)
+        self.process = context.Process(target=serve, args=(make_worker, child, cores), daemon=True)
         self.process.start()
         child.close()  # the child's end lives in the child: EOF here when it dies
         self.job: J | None = None
@@ -102,9 +107,11 @@ def run_in_processes(
         else:  # it died before taking the job: another process runs it
             pending.appendleft(job)
 
+    count = min(processes, len(pending))
+    cores = max(1, usable_cores() // max(1, count))  # each process's share, for its own thread pools
     try:
-        for _ in range(min(processes, len(pending))):
-            started.append(_Process(context, make_worker))
+        for _ in range(count):
+            started.append(_Process(context, make_worker, cores))
             next_job(started[-1])
         while busy:
             ready = wait(list(busy))
