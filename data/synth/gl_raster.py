@@ -29,9 +29,9 @@ llvmpipe rasterises in as many threads as `LP_NUM_THREADS` says (the machine's c
 Unset, segmin sets it to this process's share of the cores (`cores_for_this_process`) before the
 first context starts: all of them for a process rendering alone (the env, one nav-eval worker:
 1.3x the steps of one thread on 2 cores), one each for two workers of a pool on 2 cores.
-The colour pass is one multi-draw call: every texture in one array texture and every body's tint
-and texture in a small float texture read by the vertex shader, so the driver is given one draw
-instead of one per body with its texture and uniforms (about 1 ms a frame less on the CPU).
+The colour pass is one multi-draw call: every texture in one array texture and each body's tint
+and texture layer in attributes of its vertices, so the driver is given one draw instead of one
+per body with its texture and uniforms (about 1 ms a frame less on the CPU).
 Waiting for the frame (`_finish`) lets go of the GIL, which moderngl's calls keep: a segmenter on
 another thread runs while llvmpipe's threads rasterise.
 """
@@ -58,11 +58,12 @@ _VERTEX_SHADER = """
 uniform mat4 clip_from_world;
 uniform mat4 sun_clip_from_world;
 uniform vec4 depth_row;  // planar depth = dot(depth_row, (p, 1))
-uniform sampler2D looks;  // per body (column): (tint rgb, texture layer), (texture width, height, -, -)
 in vec3 in_pos;
 in vec3 in_nrm;
 in vec2 in_uv;
 in float in_body;
+in vec4 in_look;  // the body's tint (rgb) and texture layer
+in vec2 in_texture_size;
 out vec3 v_nrm;
 out vec2 v_uv;
 out float v_depth;
@@ -76,10 +77,8 @@ void main() {
     v_uv = in_uv;
     v_depth = dot(depth_row, vec4(in_pos, 1.0));
     v_sun_clip = sun_clip_from_world * vec4(in_pos, 1.0);
-    vec4 look = texelFetch(looks, ivec2(int(in_body), 0), 0);
-    vec4 size = texelFetch(looks, ivec2(int(in_body), 1), 0);
-    v_tint = look.rgb;
-    v_texture = ivec3(int(size.x), int(size.y), int(look.w));
+    v_tint = in_look.rgb;
+    v_texture = ivec3(int(in_texture_size.x), int(in_texture_size.y), int(in_look.w));
     v_body = in_body;
 }
 """
@@ -307,7 +306,6 @@ class GlRasteriser:
     """One world's meshes and textures in GL buffers; draws the bodies it is given from a pose."""
 
     def __init__(self, world: World) -> None:
-        import moderngl
 
         self.ctx = ctx = _context()
         self.program = ctx.program(vertex_shader=_VERTEX_SHADER, fragment_shader=_FRAGMENT_SHADER)
@@ -319,9 +317,17 @@ class GlRasteriser:
         vbo = ctx.buffer(vertices.tobytes())
         ibo = ctx.buffer(indices.tobytes())
         body_vbo = ctx.buffer(body_of_vertex.tobytes())
+        # Per vertex, its body's (tint, layer, texture width, height): written by `set_looks`.
+        self.body_of_vertex = body_of_vertex.astype(np.int64)
+        self.looks = np.zeros((max(self.ranges) + 1, 6), np.float32)
+        self.looks_vbo = ctx.buffer(reserve=len(body_of_vertex) * self.looks.shape[1] * 4)
         self.vao = ctx.vertex_array(
             self.program,
-            [(vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv"), (body_vbo, "1f", "in_body")],
+            [
+                (vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv"),
+                (body_vbo, "1f", "in_body"),
+                (self.looks_vbo, "4f 2f", "in_look", "in_texture_size"),
+            ],
             index_buffer=ibo,
             index_element_size=4,
         )
@@ -337,10 +343,6 @@ class GlRasteriser:
         self.multi_draw = ctx.version_code >= 430
         self.command_buffer = ctx.buffer(reserve=self.commands.nbytes) if self.multi_draw else None
         self.texels, self.layer_of = _texture_array(ctx, world.textures.images)
-        # Per body: (tint, layer) and (texture size) columns, filled by `set_looks`.
-        self.looks = np.zeros((2, max(self.ranges) + 1, 4), np.float32)
-        self.looks_texture = ctx.texture((self.looks.shape[1], 2), 4, dtype="f4")
-        self.looks_texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._targets: dict[tuple[int, int, bool], Any] = {}
         self._sun_targets: dict[tuple[int, int], tuple[Any, Any]] = {}
         self.all_bodies = sorted(self.ranges)
@@ -351,16 +353,15 @@ class GlRasteriser:
         ).reshape(-1, 4)
         self.program["texels"].value = 0
         self.program["sun_depth"].value = 1
-        self.program["looks"].value = 2
 
     def set_looks(self, rgba: dict[int, list[float]], texture: dict[int, int]) -> None:
-        """Each body's tint and texture (a texture the world does not hold: plain white), read by the
-        colour pass from a small float texture: the whole frame is then one draw call."""
+        """Each body's tint and texture (a texture the world does not hold: plain white), given to
+        the colour pass as attributes of every vertex: the whole frame is then one draw call, and no
+        vertex looks its body up (a per-body table read in the vertex shader cost 0.2-0.4 ms a frame)."""
         for body, tint in rgba.items():
             layer, width, height = self.layer_of.get(texture[body], self.layer_of[None])
-            self.looks[0, body] = (*tint[:3], layer)
-            self.looks[1, body, :2] = (width, height)
-        self.looks_texture.write(self.looks.tobytes())
+            self.looks[body] = (*tint[:3], layer, width, height)
+        self.looks_vbo.write(self.looks[self.body_of_vertex].tobytes())
 
     def _target(self, width: int, height: int, colour: bool):
         """The framebuffer of a frame size: colour, (depth, body) and a depth buffer, or without colour."""
@@ -475,7 +476,6 @@ class GlRasteriser:
         prog["backward"].value = tuple(-pose[:3, 2])
         prog["shininess"].value = SHININESS
         self.texels.use(0)
-        self.looks_texture.use(2)
         self._draw(self.vao, self._front_to_back(pose, bodies))
         _finish()
         w, h = camera.width, camera.height
