@@ -510,8 +510,8 @@ class Renderer:
         """The rasterised image finished: sky where nothing was hit, haze, exposure, then glare (what
         saturates stays saturated whatever the exposure)."""
         hit = ids >= 0
-        if not hit.all():
-            np.copyto(rgb, self._sky(pose, rng, look), where=~hit[..., None])
+        if not hit.all():  # OpenCV's masked copy: numpy's copyto with a broadcast mask took 40x as long
+            rgb = cv2.copyTo(self._sky(pose, rng, look), (~hit).view(np.uint8), rgb)
         if look["haze"] > 0:  # aerial perspective: far things fade towards the horizon colour
             fade = (look["haze"] / (1 - math.exp(-1))) * (1 - np.exp(-depth / np.float32(50.0)))
             fade[~hit] = 0.0
