@@ -53,8 +53,9 @@ from segmin.common.machine import cores_for_this_process
 from segmin.data.synth.camera import CameraModel
 from segmin.data.synth.world import World
 
+# The colour pass's two shaders start with "#define SHADOWS 0|1" (`_colour_program`): a frame without
+# shadows neither projects its vertices into the sun's view nor carries that projection to the fragments.
 _VERTEX_SHADER = """
-#version 330
 uniform mat4 clip_from_world;
 uniform mat4 sun_clip_from_world;
 uniform vec4 depth_row;  // planar depth = dot(depth_row, (p, 1))
@@ -67,7 +68,9 @@ in vec2 in_texture_size;
 out vec3 v_nrm;
 out vec2 v_uv;
 out float v_depth;
+#if SHADOWS
 out vec4 v_sun_clip;
+#endif
 flat out vec3 v_tint;
 flat out ivec3 v_texture;  // width, height, layer
 flat out float v_body;
@@ -76,7 +79,9 @@ void main() {
     v_nrm = in_nrm;
     v_uv = in_uv;
     v_depth = dot(depth_row, vec4(in_pos, 1.0));
+#if SHADOWS
     v_sun_clip = sun_clip_from_world * vec4(in_pos, 1.0);
+#endif
     v_tint = in_look.rgb;
     v_texture = ivec3(int(in_texture_size.x), int(in_texture_size.y), int(in_look.w));
     v_body = in_body;
@@ -84,24 +89,23 @@ void main() {
 """
 
 _FRAGMENT_SHADER = """
-#version 330
 uniform sampler2DArray texels;  // every texture, bottom row first, from each layer's corner
 uniform vec3 light_dir;
 uniform vec3 light_colour;
 uniform vec3 terms;  // ambient, diffuse, specular coefficients
 uniform vec3 backward;  // world direction from the scene towards the camera (eye-space +z)
-uniform bool shadows;
-uniform sampler2D sun_depth;  // (planar depth from the sun, body + 1; 0 = nothing) per texel
-uniform vec2 sun_clip_z;  // the sun projection's clip z = x * planar depth - y
 in vec3 v_nrm;
 in vec2 v_uv;
 in float v_depth;
-in vec4 v_sun_clip;
 flat in vec3 v_tint;
 flat in ivec3 v_texture;
 flat in float v_body;
 layout(location = 0) out vec4 colour;
 layout(location = 1) out vec2 depth_and_body;
+#if SHADOWS
+uniform sampler2D sun_depth;  // (planar depth from the sun, body + 1; 0 = nothing) per texel
+uniform vec2 sun_clip_z;  // the sun projection's clip z = x * planar depth - y
+in vec4 v_sun_clip;
 float sunlight() {  // TinyRenderer's test: 0.8 where something lies nearer the sun, else 1
     ivec2 size = textureSize(sun_depth, 0);
     vec2 window = vec2(size) * 0.5 * (v_sun_clip.xy / v_sun_clip.w + 1.0);
@@ -110,6 +114,9 @@ float sunlight() {  // TinyRenderer's test: 0.8 where something lies nearer the 
     float occluder = sun_clip_z.x * nearest.x - sun_clip_z.y;
     return -occluder < -0.5 * (v_sun_clip.z + v_sun_clip.w) + 0.05 ? 1.0 : 0.8;
 }
+#else
+float sunlight() { return 1.0; }
+#endif
 vec3 texel() {  // nearest texel, repeating: GL's rule (floor of uv times size, wrapped)
     ivec2 size = v_texture.xy;
     ivec2 at = ivec2(floor(v_uv * vec2(size)));
@@ -126,7 +133,7 @@ void main() {
     float squared = reflected * reflected;
     float specular = squared * squared;
     vec3 base = floor(texel() * 255.0 + 0.5) * v_tint;
-    float direct = shadows ? sunlight() : 1.0;
+    float direct = sunlight();
     vec3 lit = terms.x * base + direct * (terms.y * diffuse + terms.z * specular) * base * light_colour;
     colour = vec4(min(floor(lit), 255.0) / 255.0, 1.0);
     depth_and_body = vec2(v_depth, v_body + 1.0);
@@ -157,6 +164,12 @@ void main() {
     depth_and_body = vec2(v_depth, v_body + 1.0);
 }
 """
+
+
+def _colour_program(ctx, shadows: bool):
+    """The colour pass's program, with or without the sun's shadow test compiled in."""
+    header = f"#version 330\n#define SHADOWS {int(shadows)}\n"
+    return ctx.program(vertex_shader=header + _VERTEX_SHADER, fragment_shader=header + _FRAGMENT_SHADER)
 
 
 def _context():
@@ -306,9 +319,8 @@ class GlRasteriser:
     """One world's meshes and textures in GL buffers; draws the bodies it is given from a pose."""
 
     def __init__(self, world: World) -> None:
-
         self.ctx = ctx = _context()
-        self.program = ctx.program(vertex_shader=_VERTEX_SHADER, fragment_shader=_FRAGMENT_SHADER)
+        self.programs = {shadows: _colour_program(ctx, shadows) for shadows in (False, True)}
         self.ids_program = ctx.program(vertex_shader=_IDS_VERTEX_SHADER, fragment_shader=_IDS_FRAGMENT_SHADER)
         vertices, body_of_vertex, indices, self.ranges = _pack(world)
         self.centre = np.zeros((max(self.ranges) + 1, 3))
@@ -321,16 +333,19 @@ class GlRasteriser:
         self.body_of_vertex = body_of_vertex.astype(np.int64)
         self.looks = np.zeros((max(self.ranges) + 1, 6), np.float32)
         self.looks_vbo = ctx.buffer(reserve=len(body_of_vertex) * self.looks.shape[1] * 4)
-        self.vao = ctx.vertex_array(
-            self.program,
-            [
-                (vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv"),
-                (body_vbo, "1f", "in_body"),
-                (self.looks_vbo, "4f 2f", "in_look", "in_texture_size"),
-            ],
-            index_buffer=ibo,
-            index_element_size=4,
-        )
+        self.vaos = {
+            shadows: ctx.vertex_array(
+                program,
+                [
+                    (vbo, "3f 3f 2f", "in_pos", "in_nrm", "in_uv"),
+                    (body_vbo, "1f", "in_body"),
+                    (self.looks_vbo, "4f 2f", "in_look", "in_texture_size"),
+                ],
+                index_buffer=ibo,
+                index_element_size=4,
+            )
+            for shadows, program in self.programs.items()
+        }
         self.ids_vao = ctx.vertex_array(
             self.ids_program,
             [(vbo, "3f 20x", "in_pos"), (body_vbo, "1f", "in_body")],
@@ -351,8 +366,10 @@ class GlRasteriser:
         self.bounds = np.array(
             [_bounding_sphere(m.vertices) for chunk in world.chunks for m in chunk.meshes if len(m.vertices)]
         ).reshape(-1, 4)
-        self.program["texels"].value = 0
-        self.program["sun_depth"].value = 1
+        for shadows, program in self.programs.items():
+            program["texels"].value = 0
+            if shadows:
+                program["sun_depth"].value = 1
 
     def set_looks(self, rgba: dict[int, list[float]], texture: dict[int, int]) -> None:
         """Each body's tint and texture (a texture the world does not hold: plain white), given to
@@ -460,9 +477,8 @@ class GlRasteriser:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RGB (uint8), planar depth (metres, 0 where nothing was hit) and body ids (-1 = none);
         `shadow` draws TinyRenderer's shadows (module docstring)."""
-        prog = self.program
         shadow = shadow and self._sun_sees_something(camera, light)
-        prog["shadows"].value = shadow
+        prog = self.programs[shadow]
         if shadow:
             sun_clip = self._sun_pass(camera, light)
             prog["sun_clip_from_world"].write(sun_clip.T.astype("f4").tobytes())
@@ -475,7 +491,7 @@ class GlRasteriser:
         prog["terms"].value = (light["lightAmbientCoeff"], light["lightDiffuseCoeff"], light["lightSpecularCoeff"])
         prog["backward"].value = tuple(-pose[:3, 2])
         self.texels.use(0)
-        self._draw(self.vao, self._front_to_back(pose, bodies))
+        self._draw(self.vaos[shadow], self._front_to_back(pose, bodies))
         _finish()
         w, h = camera.width, camera.height
         rgb = np.frombuffer(fbo.read(components=3, attachment=0), np.uint8).reshape(h, w, 3).copy()
