@@ -4,8 +4,8 @@
 # The community wheels of ROS 2 Kilted (`ros-rclpy[fastrtps]` and message packages) come with
 # `ros-wheels-bootstrapper`, whose .pth file restarts every Python process of the environment
 # with LD_LIBRARY_PATH set: it must not touch the training environment. segmin goes in without
-# its dependencies (the robot runtime's numpy, OpenCV, onnxruntime and PyYAML are installed
-# explicitly, with rosbags for the test's bag player, foxglove-sdk for the live view (live_port) and
+# its dependencies (the robot runtime's numpy, OpenCV, onnxruntime, ai-edge-litert (the [litert]
+# extra: a shipped model name runs its INT8 LiteRT file) and PyYAML are installed explicitly, with rosbags for the test's bag player, foxglove-sdk for the live view (live_port) and
 # websockets for the test's live-view client):
 # no torch, pybullet or matplotlib.
 # The package ros/segmin_ros is built here as a robot team builds it: colcon (colcon-common-extensions,
@@ -36,7 +36,7 @@ else
         'ros-rclpy[fastrtps]==9.1.2' 'ros-sensor-msgs==5.5.1' 'ros-geometry-msgs==5.5.1' 'ros-std-msgs==5.5.1' \
         'ros-std-srvs==5.5.1' 'ros-diagnostic-msgs==5.5.1' \
         'colcon-common-extensions==0.3.0' 'ros-ament-package==0.17.2' 'ros-ament-index-python==1.11.0' \
-        'numpy>=1.24' 'opencv-python-headless>=4.8' 'onnxruntime>=1.17' 'pyyaml>=6.0' 'rosbags>=0.11,<0.12' \
+        'numpy>=1.24' 'opencv-python-headless>=4.8' 'onnxruntime>=1.17' 'ai-edge-litert>=2.3,<2.4' 'pyyaml>=6.0' 'rosbags>=0.11,<0.12' \
         'foxglove-sdk>=0.30,<0.31' 'websockets>=13' 2>&1 | quiet
     echo "$want" > "$stamp"
 fi

@@ -34,7 +34,7 @@ from test_sim_bags import _episode
 from segmin.nav_eval.live.server import LIVE_TYPES
 from segmin.nav_eval.ros2 import topics
 from segmin.nav_eval.ros2.params import NODE_NAME, defaults_yaml
-from segmin.nav_eval.runtime.segmenter import OnnxSegmenter
+from segmin.nav_eval.runtime.segmenter import LiteRtSegmenter, OnnxSegmenter, runtime_model_file
 
 pytestmark = pytest.mark.ros2
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,6 +152,27 @@ def test_the_node_gives_the_commands_of_the_simulator_from_its_bag(drive) -> Non
     expected = [(t, (v, omega)) for t, v, omega in drive["bag_commands"] if (v, omega) != (0.0, 0.0)]
     assert len(expected) > 10
     assert moving_commands(drive) == expected
+
+
+@pytest.fixture(scope="module")
+def drive_litert(tmp_path_factory) -> dict:
+    """The node run over a bag the simulator recorded with the shipped vineyards model's INT8
+    LiteRT file, the node given the shipped name (the ROS environment has the [litert] extra)."""
+    model = runtime_model_file("vineyards")
+    assert model.suffix == ".tflite", model  # this environment runs the LiteRT file too
+    bag = tmp_path_factory.mktemp("ros2_litert_episode") / "run"
+    _episode(LiteRtSegmenter(model, threads=1), bag=bag)
+    return run_driver("ros2_driver.py", bag, tmp_path_factory.mktemp("ros2_litert"), Path("vineyards"), threads=1)
+
+
+def test_a_shipped_name_runs_its_int8_litert_file_with_the_simulators_commands(drive_litert) -> None:
+    """`pip install segmin[ros,litert]`: the node given a shipped name runs its INT8 LiteRT file
+    (the log says so) and gives the commands the simulator gave with that file, frame by frame."""
+    log = [line for line in drive_litert["node_log"].splitlines() if "segmenter: " in line]
+    assert len(log) == 1 and "LiteRtSegmenter(" in log[0] and "vineyards.int8.tflite" in log[0], log
+    expected = [(t, (v, omega)) for t, v, omega in drive_litert["bag_commands"] if (v, omega) != (0.0, 0.0)]
+    assert len(expected) > 10
+    assert moving_commands(drive_litert) == expected
 
 
 def test_a_stalled_camera_stops_the_robot(drive) -> None:

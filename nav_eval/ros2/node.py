@@ -145,6 +145,9 @@ class RowFollowerNode(Node):
             + (f" + {settings.depth_topic}" if settings.depth_topic else " (no depth)")
             + f" -> {settings.cmd_vel_topic}; driving {'enabled' if settings.enabled else 'disabled (call ~/enable)'}"
         )
+        # Which file a shipped name runs depends on what is installed (its INT8 LiteRT file with
+        # segmin[litert], else its ONNX file): the log says which.
+        self.get_logger().info(f"segmenter: {segmenter!r}, {settings.threads} threads")
 
     def _subscribe_corridor_inputs(self, settings: Any) -> None:
         """SegCorridor's CameraInfo and Imu, subscribed at start-up when it is the method (an IMU at

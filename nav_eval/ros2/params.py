@@ -191,7 +191,7 @@ FIELD_DESCRIPTIONS: dict[str, str] = {
 DESCRIPTIONS: dict[str, str] = {
     "model": "exported .onnx file (a relative path is read from the parameter file's folder) or a shipped "
     "model name (vineyards, trees)",
-    "threads": "onnxruntime threads",
+    "threads": "the segmenter's threads (onnxruntime or LiteRT)",
     "inference_spin": "let onnxruntime's threads busy-wait between operations and frames: lower latency on a "
     "computer with a core to spare (image to command 7 instead of 10 ms median on 2 idle cores), but it takes CPU "
     "from the camera driver, DDS and the rest of the robot on a busy one",
